@@ -1,0 +1,62 @@
+//! Error types: scene errors name the file, the line where known, the field path and the reason;
+//! solver errors carry where and how the solve failed.
+
+use std::fmt;
+
+/// A scene that cannot be read or is not a valid structure.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneError {
+    /// File the scene came from (or a label such as `<generated prism>`).
+    pub file: String,
+    /// 1-based line of the offending entry, where known.
+    pub line: Option<usize>,
+    /// Path of the offending field, e.g. `cables[2].ea` (empty for whole-file errors).
+    pub field: String,
+    /// What is wrong, with the offending value.
+    pub reason: String,
+}
+
+impl fmt::Display for SceneError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.file)?;
+        if let Some(line) = self.line {
+            write!(f, ":{line}")?;
+        }
+        if !self.field.is_empty() {
+            write!(f, ": {}", self.field)?;
+        }
+        write!(f, ": {}", self.reason)
+    }
+}
+
+impl std::error::Error for SceneError {}
+
+/// A solve that did not reach its goal.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SolveError {
+    /// Newton did not converge and the load step could not be cut further.
+    #[error(
+        "equilibrium not found at t = {time} s (load step {load_step}): residual {residual:.3e} N \
+         after {iterations} Newton iterations and {cuts} step cuts"
+    )]
+    NoEquilibrium {
+        /// Schedule time of the failing step, s.
+        time: f64,
+        /// Index of the output load step being solved.
+        load_step: usize,
+        /// Max-norm of the force residual at the best iterate, N.
+        residual: f64,
+        /// Newton iterations spent on the last attempt.
+        iterations: usize,
+        /// Number of times the load step was halved.
+        cuts: usize,
+    },
+    /// A non-finite number appeared; the state was left unchanged.
+    #[error("non-finite value in {what} at t = {time} s; state left unchanged")]
+    NonFinite {
+        /// What became non-finite.
+        what: String,
+        /// Time, s.
+        time: f64,
+    },
+}

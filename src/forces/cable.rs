@@ -1,0 +1,258 @@
+//! The classical and sliding cable element (DESIGN.md 1.2): takes a route's point kinematics and a
+//! rest length, gives the tension, the generalized force `Q = -T g`, the tangent stiffness
+//! `K = -dQ/dq` and the damping matrix `C = -dQ/dv`.
+//!
+//! A cable runs through points `P_0 .. P_m` (`m = 1`: classical cable; interior points are
+//! frictionless pulleys). With segment `k` from `P_(k-1)` to `P_k`:
+//! - `d_k = r_k - r_(k-1)`, `l_k = |d_k|`, `e_k = d_k / l_k`, `L = sum_k l_k`;
+//! - `dL/dr_i = n_i = e_i - e_(i+1)` (with `e_0 = e_(m+1) = 0`), so `g = dL/dq = sum_i J_i^T n_i`
+//!   and a pulley receives the force `T (e_(i+1) - e_i)`, zero when the cable runs straight;
+//! - `Ldot = g^T v = sum_i n_i . rdot_i`;
+//! - tension (Kelvin-Voigt, tension only): `T = max(0, (EA/L0)(L - L0) + c Ldot)` if `L > L0`,
+//!   else `T = 0`; elastic energy `V = EA/(2 L0) (L - L0)^2` while taut;
+//! - `K = (EA/L0) g g^T + T [sum_k G_k^T P_k G_k + sum_i d(J_i^T n_i)/dq] + c g h^T`, with
+//!   `G_k = J_k - J_(k-1)`, `P_k = (I - e_k e_k^T)/l_k`, and
+//!   `h = dLdot/dq = sum_k G_k^T P_k (rdot_k - rdot_(k-1)) + sum_i (d rdot_i/dq)^T n_i`;
+//! - `C = c g g^T`.
+//!
+//! While `T = 0` (slack, or the damper would push) the cable gives no force and no matrices.
+//! A segment shorter than `SEGMENT_LENGTH_FLOOR` has no direction: it contributes its length but
+//! no force direction and no geometric stiffness, so coincident points never produce NaN.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
+
+use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointKinematics};
+use crate::model::{BodyId, Model, PointId, Pose};
+
+/// Segments shorter than this (m) are treated as a point: no direction, no geometric stiffness.
+pub const SEGMENT_LENGTH_FLOOR: f64 = 1e-9;
+
+/// Tension law of DESIGN.md 1.2. `ea` (N), `rest_length` (m, > 0), `damping` (N s/m),
+/// `length` (m), `length_rate` (m/s). Returns the tension (N, >= 0).
+pub fn tension(ea: f64, damping: f64, rest_length: f64, length: f64, length_rate: f64) -> f64 {
+    if length <= rest_length {
+        return 0.0;
+    }
+    ((ea / rest_length) * (length - rest_length) + damping * length_rate).max(0.0)
+}
+
+/// Elastic energy `EA/(2 L0) (L - L0)^2` while taut, else 0 (J).
+pub fn elastic_energy(ea: f64, rest_length: f64, length: f64) -> f64 {
+    if length <= rest_length {
+        0.0
+    } else {
+        0.5 * ea / rest_length * (length - rest_length).powi(2)
+    }
+}
+
+/// What one cable is doing at one instant.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CableResponse {
+    /// Total length `L`, m.
+    pub length: f64,
+    /// Length rate `Ldot`, m/s.
+    pub length_rate: f64,
+    /// Rest length used, m.
+    pub rest_length: f64,
+    /// Tension, N (>= 0).
+    pub tension: f64,
+    /// True when `L <= L0`.
+    pub slack: bool,
+    /// Elastic energy, J.
+    pub energy: f64,
+}
+
+/// Per-route scratch, sized once for the longest route so evaluation never allocates.
+#[derive(Debug, Clone, Default)]
+pub struct CableScratch {
+    /// Segment lengths `l_k` (index k-1 for segment k).
+    pub segment_lengths: Vec<f64>,
+    seg_dir: Vec<Vector3<f64>>,
+    net_dir: Vec<Vector3<f64>>,
+    grad: Vec<Vector6<f64>>,
+    rate_grad: Vec<Vector6<f64>>,
+}
+
+impl CableScratch {
+    /// Scratch for routes of up to `max_route_len` points.
+    pub fn new(max_route_len: usize) -> Self {
+        Self {
+            segment_lengths: vec![0.0; max_route_len],
+            seg_dir: vec![Vector3::zeros(); max_route_len],
+            net_dir: vec![Vector3::zeros(); max_route_len],
+            grad: vec![Vector6::zeros(); max_route_len],
+            rate_grad: vec![Vector6::zeros(); max_route_len],
+        }
+    }
+}
+
+/// Fills the scratch with segment lengths and directions and each point's `n_i` and
+/// `J_i^T n_i`; returns `(L, Ldot)`.
+pub fn route_geometry(
+    route: &[PointId],
+    kin: &[PointKinematics],
+    scratch: &mut CableScratch,
+) -> (f64, f64) {
+    let m = route.len() - 1;
+    let mut length = 0.0;
+    for k in 1..=m {
+        let d = kin[route[k].0].position - kin[route[k - 1].0].position;
+        let l = d.norm();
+        scratch.segment_lengths[k - 1] = l;
+        scratch.seg_dir[k - 1] = if l > SEGMENT_LENGTH_FLOOR { d / l } else { Vector3::zeros() };
+        length += l;
+    }
+    let mut rate = 0.0;
+    for i in 0..=m {
+        let incoming = if i > 0 { scratch.seg_dir[i - 1] } else { Vector3::zeros() };
+        let outgoing = if i < m { scratch.seg_dir[i] } else { Vector3::zeros() };
+        let n = incoming - outgoing;
+        let p = &kin[route[i].0];
+        scratch.net_dir[i] = n;
+        scratch.grad[i] = p.jacobian.transpose() * n;
+        rate += n.dot(&p.velocity);
+    }
+    (length, rate)
+}
+
+/// Adds `scale * g` (g = dL/dq) into `out` (length `model.dof_count`), using the geometry last
+/// computed by `route_geometry` for this route.
+pub fn add_length_gradient(
+    model: &Model,
+    route: &[PointId],
+    kin: &[PointKinematics],
+    scratch: &CableScratch,
+    scale: f64,
+    out: &mut DVector<f64>,
+) {
+    for (i, pid) in route.iter().enumerate() {
+        add_vector(model, kin[pid.0].body, &scratch.grad[i], scale, out);
+    }
+}
+
+/// Adds the first `dof_count` entries of `v * scale` into the body's rows of `out`.
+pub fn add_vector(model: &Model, body: BodyId, v: &Vector6<f64>, scale: f64, out: &mut DVector<f64>) {
+    let b = &model.bodies[body.0];
+    for r in 0..b.dof_count {
+        out[b.dof_offset + r] += scale * v[r];
+    }
+}
+
+/// Adds `scale * blk` (the bodies' `k_a x k_b` corner of a 6 x 6) at the bodies' rows/columns.
+pub fn add_block(
+    model: &Model,
+    a: BodyId,
+    b: BodyId,
+    blk: &Matrix6<f64>,
+    scale: f64,
+    out: &mut DMatrix<f64>,
+) {
+    let (ba, bb) = (&model.bodies[a.0], &model.bodies[b.0]);
+    for r in 0..ba.dof_count {
+        for c in 0..bb.dof_count {
+            out[(ba.dof_offset + r, bb.dof_offset + c)] += scale * blk[(r, c)];
+        }
+    }
+}
+
+/// Evaluates one cable and adds its generalized force into `force`, and when given, its tangent
+/// stiffness into `stiffness` and damping matrix into `damping` (all in local coordinates).
+///
+/// `kin` holds every point's kinematics at `poses`/`v`; `ea` (N), `damping_coeff` (N s/m) and
+/// `rest_length` (m, > 0) describe the cable.
+pub fn add_cable_terms(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    route: &[PointId],
+    ea: f64,
+    damping_coeff: f64,
+    rest_length: f64,
+    kin: &[PointKinematics],
+    scratch: &mut CableScratch,
+    force: &mut DVector<f64>,
+    stiffness: Option<&mut DMatrix<f64>>,
+    damping: Option<&mut DMatrix<f64>>,
+) -> CableResponse {
+    let (length, length_rate) = route_geometry(route, kin, scratch);
+    let t = tension(ea, damping_coeff, rest_length, length, length_rate);
+    let response = CableResponse {
+        length,
+        length_rate,
+        rest_length,
+        tension: t,
+        slack: length <= rest_length,
+        energy: elastic_energy(ea, rest_length, length),
+    };
+    if t <= 0.0 {
+        return response;
+    }
+    add_length_gradient(model, route, kin, scratch, -t, force);
+    let m = route.len() - 1;
+    let body_of = |i: usize| kin[route[i].0].body;
+
+    if let Some(k_mat) = stiffness {
+        let axial = ea / rest_length;
+        // (EA/L0) g g^T
+        for i in 0..=m {
+            for j in 0..=m {
+                let blk = scratch.grad[i] * scratch.grad[j].transpose();
+                add_block(model, body_of(i), body_of(j), &blk, axial, k_mat);
+            }
+        }
+        // T sum_k G_k^T P_k G_k
+        for k in 1..=m {
+            let l = scratch.segment_lengths[k - 1];
+            if l <= SEGMENT_LENGTH_FLOOR {
+                continue;
+            }
+            let e = scratch.seg_dir[k - 1];
+            let p = (Matrix3::identity() - e * e.transpose()) / l;
+            let (ji, jj) = (&kin[route[k - 1].0].jacobian, &kin[route[k].0].jacobian);
+            add_block(model, body_of(k), body_of(k), &(jj.transpose() * p * jj), t, k_mat);
+            add_block(model, body_of(k - 1), body_of(k - 1), &(ji.transpose() * p * ji), t, k_mat);
+            add_block(model, body_of(k), body_of(k - 1), &(jj.transpose() * p * ji), -t, k_mat);
+            add_block(model, body_of(k - 1), body_of(k), &(ji.transpose() * p * jj), -t, k_mat);
+        }
+        // T sum_i d(J_i^T n_i)/dq
+        for i in 0..=m {
+            let d2 = force_jacobian_derivative(model, poses, route[i], &scratch.net_dir[i]);
+            add_block(model, body_of(i), body_of(i), &d2, t, k_mat);
+        }
+        // c g h^T: how the damper's share of T changes with the configuration
+        if damping_coeff > 0.0 {
+            for i in 0..=m {
+                let dv = velocity_derivative(model, poses, v, route[i]);
+                scratch.rate_grad[i] = dv.transpose() * scratch.net_dir[i];
+            }
+            for k in 1..=m {
+                let l = scratch.segment_lengths[k - 1];
+                if l <= SEGMENT_LENGTH_FLOOR {
+                    continue;
+                }
+                let e = scratch.seg_dir[k - 1];
+                let (pi, pj) = (&kin[route[k - 1].0], &kin[route[k].0]);
+                let w = (pj.velocity - pi.velocity - e * e.dot(&(pj.velocity - pi.velocity))) / l;
+                scratch.rate_grad[k] += pj.jacobian.transpose() * w;
+                scratch.rate_grad[k - 1] -= pi.jacobian.transpose() * w;
+            }
+            for i in 0..=m {
+                for j in 0..=m {
+                    let blk = scratch.grad[i] * scratch.rate_grad[j].transpose();
+                    add_block(model, body_of(i), body_of(j), &blk, damping_coeff, k_mat);
+                }
+            }
+        }
+    }
+    if let Some(c_mat) = damping {
+        if damping_coeff > 0.0 {
+            for i in 0..=m {
+                for j in 0..=m {
+                    let blk = scratch.grad[i] * scratch.grad[j].transpose();
+                    add_block(model, body_of(i), body_of(j), &blk, damping_coeff, c_mat);
+                }
+            }
+        }
+    }
+    response
+}

@@ -1,0 +1,340 @@
+//! The constant description of a structure (`Model`): bodies, their attachment points, cables and
+//! their routes, joints, actuators and the deployment schedule. Built once from a scene
+//! (`crate::scene`), never changed by a step; everything that changes lives in `crate::state::State`.
+//!
+//! # Coordinates (why minimal, on a Lie group)
+//! Each body's configuration is a pose `(x, R)`: `x` the world position of its centre of mass (m),
+//! `R` the rotation from body to world frame. The configuration space is the direct product
+//! `R^3 x SO(3)` per body, and generalized coordinates are *local increments* at the current pose:
+//! `x <- x + dx` (world frame) and `R <- R exp([dtheta]x)` (body frame). A body exposes only the
+//! increments its kind needs through a constant 6 x k basis `B` (columns map local coordinates to
+//! `(dx, dtheta)`):
+//!
+//! | kind | k | basis |
+//! | --- | --- | --- |
+//! | `node` | 3 (2 planar) | translations |
+//! | `bar` | 5 (3 planar) | translations + rotations about the two body axes normal to the bar (body z = bar axis) |
+//! | `rigid` | 6 (3 planar) | translations + body rotations |
+//! | `fixed` | 0 | none |
+//!
+//! We chose this over natural coordinates because it needs no constraints for the bodies themselves
+//! (a bar costs 5 unknowns, not 6 plus a length constraint), the statics tangent is the Hessian of the
+//! energy on the free space (so positive definiteness *is* stability), and the body-frame mass matrix
+//! `B^T diag(m I, J) B` is constant. The price is a nonlinear point map, whose second derivative is
+//! supplied analytically by `crate::kinematics` and checked by finite differences in the tests.
+//! Rotations never pass through a singular chart: increments are always taken at the current pose.
+
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
+
+/// Index of a body in `Model::bodies`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct BodyId(pub usize);
+/// Index of an attachment point in `Model::points`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct PointId(pub usize);
+/// Index of a cable in `Model::cables`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct CableId(pub usize);
+/// Index of an actuator in `Model::actuators`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct ActuatorId(pub usize);
+
+/// How a body is modelled (DESIGN.md 1.1): the cheapest model that captures what the scene needs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BodyKind {
+    /// Point mass, translations only.
+    Node,
+    /// Slender rigid strut: mass on its axis (body z), no inertia about the axis, 5 DOF.
+    Bar,
+    /// Full rigid body with a full inertia tensor, 6 DOF.
+    Rigid,
+    /// A frame on the ground: no coordinates.
+    Fixed,
+}
+
+impl BodyKind {
+    /// Lower-case name as used in scene files.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            BodyKind::Node => "node",
+            BodyKind::Bar => "bar",
+            BodyKind::Rigid => "rigid",
+            BodyKind::Fixed => "fixed",
+        }
+    }
+}
+
+/// A body's pose: world position of its origin (the centre of mass, m) and body-to-world rotation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// World position of the body origin (centre of mass), m.
+    pub position: Vector3<f64>,
+    /// Rotation from body frame to world frame.
+    pub rotation: UnitQuaternion<f64>,
+}
+
+impl Pose {
+    /// World position of a point given in body coordinates: `x + R p`.
+    pub fn transform_point(&self, p_body: &Vector3<f64>) -> Vector3<f64> {
+        self.position + self.rotation * p_body
+    }
+}
+
+/// One body: its kind, inertia and which local increments are coordinates.
+#[derive(Debug, Clone)]
+pub struct BodyModel {
+    /// Unique name from the scene.
+    pub name: String,
+    /// Model kind.
+    pub kind: BodyKind,
+    /// Mass, kg (0 for fixed bodies).
+    pub mass: f64,
+    /// Inertia tensor about the centre of mass in body axes, kg m^2.
+    pub inertia: Matrix3<f64>,
+    /// Columns `0..dof_count` map this body's local coordinates to `(dx_world, dtheta_body)`.
+    pub basis: Matrix6<f64>,
+    /// Number of generalized coordinates of this body (0..=6).
+    pub dof_count: usize,
+    /// Index of this body's first coordinate in the global coordinate vector.
+    pub dof_offset: usize,
+    /// Pose at the start of the simulation.
+    pub initial_pose: Pose,
+}
+
+impl BodyModel {
+    /// The body's constant mass matrix in its local coordinates, `B^T diag(m I, J) B` (k x k,
+    /// top-left block of the returned 6 x 6).
+    pub fn mass_matrix(&self) -> Matrix6<f64> {
+        let mut m6 = Matrix6::zeros();
+        for i in 0..3 {
+            m6[(i, i)] = self.mass;
+        }
+        m6.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.inertia);
+        self.basis.transpose() * m6 * self.basis
+    }
+}
+
+/// A named attachment point fixed on a body.
+#[derive(Debug, Clone)]
+pub struct PointModel {
+    /// Qualified name `body.point` (or `body` for the body origin).
+    pub name: String,
+    /// Body the point is fixed on.
+    pub body: BodyId,
+    /// Position in body coordinates (origin at the centre of mass), m.
+    pub local: Vector3<f64>,
+}
+
+/// Cable damping law (Kelvin-Voigt): tension gains `c * Ldot` while taut.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CableModel {
+    /// Index of the first point of the route in `Model::route_points`.
+    pub route_start: usize,
+    /// Number of points on the route (anchors included), >= 2.
+    pub route_len: usize,
+    /// Axial stiffness EA, N (> 0).
+    pub axial_stiffness: f64,
+    /// Viscous damping coefficient c, N s/m (>= 0).
+    pub damping: f64,
+}
+
+impl CableModel {
+    /// Number of segments `m = route_len - 1`; `m = 1` is the classical two-point cable.
+    pub fn segment_count(&self) -> usize {
+        self.route_len - 1
+    }
+    /// Number of pulleys (interior route points), `m - 1`.
+    pub fn pulley_count(&self) -> usize {
+        self.route_len - 2
+    }
+}
+
+/// The other side of a ball joint.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum JointTarget {
+    /// Coincide with a point on another body (class-k ball joint).
+    Point(PointId),
+    /// Coincide with a fixed world position, m (pin to the ground).
+    World(Vector3<f64>),
+}
+
+/// A ball joint: `r_a(q) - r_b(q) = 0`, 3 equations (2 in planar scenes: x and y).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointModel {
+    /// Point on the first body.
+    pub point: PointId,
+    /// What the point is held to.
+    pub target: JointTarget,
+    /// Index of this joint's first row in the constraint vector.
+    pub row_offset: usize,
+}
+
+/// An actuator owns one cable and sets its rest length within limits (DESIGN.md 1.3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ActuatorModel {
+    /// The cable whose rest length this actuator sets.
+    pub cable: CableId,
+    /// Smallest allowed rest length, m (> 0).
+    pub min_rest_length: f64,
+    /// Largest allowed rest length, m.
+    pub max_rest_length: f64,
+    /// Largest allowed rate of change of the rest length, m/s (> 0).
+    pub max_rate: f64,
+}
+
+/// One linear rest-length ramp of a deployment schedule.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ramp {
+    /// Actuator being driven.
+    pub actuator: ActuatorId,
+    /// Start time of the ramp, s.
+    pub start: f64,
+    /// Duration, s (> 0).
+    pub duration: f64,
+    /// Rest length reached at `start + duration`, m.
+    pub target: f64,
+}
+
+/// A deployment schedule: ramps per actuator, each starting from the value the previous one left.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Schedule {
+    /// Ramps, sorted by actuator then start time; ramps of one actuator never overlap.
+    pub ramps: Vec<Ramp>,
+    /// Number of quasi-static load steps over the schedule's duration.
+    pub steps: usize,
+}
+
+impl Schedule {
+    /// Time at which the last ramp ends, s (0 for an empty schedule).
+    pub fn end_time(&self) -> f64 {
+        self.ramps.iter().map(|r| r.start + r.duration).fold(0.0, f64::max)
+    }
+
+    /// Rest length of `actuator` at time `t` (s), starting from `initial` (m): piecewise linear,
+    /// holding the last target between and after ramps.
+    pub fn rest_length(&self, actuator: ActuatorId, initial: f64, t: f64) -> f64 {
+        let mut value = initial;
+        for ramp in self.ramps.iter().filter(|r| r.actuator == actuator) {
+            if t <= ramp.start {
+                break;
+            }
+            let s = ((t - ramp.start) / ramp.duration).min(1.0);
+            value += s * (ramp.target - value);
+            if s < 1.0 {
+                break;
+            }
+        }
+        value
+    }
+}
+
+/// Numerical settings of the quasi-static solver.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolverSettings {
+    /// Newton converges when the residual's max norm is below `tolerance * force_scale`.
+    pub tolerance: f64,
+    /// Newton iterations per load step before the step is cut.
+    pub max_iterations: usize,
+    /// Largest number of times a failing load step is halved.
+    pub max_step_cuts: usize,
+}
+
+impl Default for SolverSettings {
+    fn default() -> Self {
+        Self { tolerance: 1e-11, max_iterations: 60, max_step_cuts: 12 }
+    }
+}
+
+/// The constant description of a structure. See the module docs for the coordinates.
+#[derive(Debug, Clone)]
+pub struct Model {
+    /// Scene name.
+    pub name: String,
+    /// Bodies in scene order.
+    pub bodies: Vec<BodyModel>,
+    /// Attachment points; every point of every body, in scene order.
+    pub points: Vec<PointModel>,
+    /// Cables in scene order.
+    pub cables: Vec<CableModel>,
+    /// Cable names, parallel to `cables`.
+    pub cable_names: Vec<String>,
+    /// Concatenated cable routes (see `CableModel::route_start`).
+    pub route_points: Vec<PointId>,
+    /// Ball joints and pins.
+    pub joints: Vec<JointModel>,
+    /// Actuators in scene order.
+    pub actuators: Vec<ActuatorModel>,
+    /// Actuator names, parallel to `actuators`.
+    pub actuator_names: Vec<String>,
+    /// Deployment schedule.
+    pub schedule: Schedule,
+    /// Gravity acceleration in world frame, m/s^2.
+    pub gravity: Vector3<f64>,
+    /// True for 2-D scenes: motion in the world xy plane only.
+    pub planar: bool,
+    /// Total number of generalized coordinates.
+    pub dof_count: usize,
+    /// Total number of constraint equations (joint rows).
+    pub constraint_count: usize,
+    /// Rest lengths at t = 0, m, parallel to `cables` (from the scene or from form finding).
+    pub initial_rest_lengths: Vec<f64>,
+    /// Quasi-static solver settings.
+    pub solver: SolverSettings,
+}
+
+impl Model {
+    /// Route of cable `c`: its points from the first anchor to the last.
+    pub fn route(&self, c: CableId) -> &[PointId] {
+        let cable = &self.cables[c.0];
+        &self.route_points[cable.route_start..cable.route_start + cable.route_len]
+    }
+
+    /// Number of constraint rows a ball joint has in this model (3, or 2 when planar).
+    pub fn joint_rows(&self) -> usize {
+        if self.planar {
+            2
+        } else {
+            3
+        }
+    }
+
+    /// Index of the body called `name`.
+    pub fn body_id(&self, name: &str) -> Option<BodyId> {
+        self.bodies.iter().position(|b| b.name == name).map(BodyId)
+    }
+
+    /// Index of the cable called `name`.
+    pub fn cable_id(&self, name: &str) -> Option<CableId> {
+        self.cable_names.iter().position(|n| n == name).map(CableId)
+    }
+
+    /// Index of the point with qualified name `name` (`body.point`, or `body` for its origin).
+    pub fn point_id(&self, name: &str) -> Option<PointId> {
+        self.points.iter().position(|p| p.name == name).map(PointId)
+    }
+
+    /// Index of the actuator called `name`.
+    pub fn actuator_id(&self, name: &str) -> Option<ActuatorId> {
+        self.actuator_names.iter().position(|n| n == name).map(ActuatorId)
+    }
+
+    /// Number of pulleys over all cables.
+    pub fn pulley_count(&self) -> usize {
+        self.cables.iter().map(|c| c.pulley_count()).sum()
+    }
+
+    /// Rest lengths of all cables at schedule time `t` (s): actuated cables follow the schedule,
+    /// the others keep their initial rest length.
+    pub fn scheduled_rest_lengths(&self, t: f64, out: &mut [f64]) {
+        out.copy_from_slice(&self.initial_rest_lengths);
+        for (i, act) in self.actuators.iter().enumerate() {
+            let c = act.cable.0;
+            out[c] = self.schedule.rest_length(ActuatorId(i), self.initial_rest_lengths[c], t);
+        }
+    }
+}
+
+/// Skew-symmetric cross-product matrix `[a]x` with `[a]x b = a x b`.
+pub fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
+    a.cross_matrix()
+}

@@ -1,0 +1,106 @@
+//! Per-cable and per-body outputs of an evaluated state: takes `Model`, `State` and the evaluated
+//! `Workspace`, gives `CableReport` (tension, length, rest length, strain, slack flag, segment
+//! lengths, pulley slip) and body poses, plus the JSON/CSV writers the CLI uses.
+
+use serde::Serialize;
+
+use crate::forces::Workspace;
+use crate::model::{CableId, Model};
+use crate::state::State;
+
+/// What one cable is doing, for output.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CableReport {
+    /// Cable name.
+    pub name: String,
+    /// Tension, N.
+    pub tension: f64,
+    /// Total length, m.
+    pub length: f64,
+    /// Rest length, m.
+    pub rest_length: f64,
+    /// Strain `(L - L0) / L0`.
+    pub strain: f64,
+    /// True when `L <= L0`.
+    pub slack: bool,
+    /// Segment lengths, m, from the first anchor.
+    pub segment_lengths: Vec<f64>,
+    /// Cable passed through each pulley since `reference` (m, positive towards the last anchor):
+    /// under uniform strain the rest length between the first anchor and pulley `i` is
+    /// `s_i = L0 sum_(k<=i) l_k / L`; slip is the change of `s_i` (the cable is taken as reeled at
+    /// its last anchor).
+    pub pulley_slip: Vec<f64>,
+}
+
+/// Rest-length material coordinate `s_i` of each pulley of cable `c` (see `CableReport`).
+pub fn pulley_coordinates(model: &Model, ws: &Workspace, rest_length: f64, c: usize) -> Vec<f64> {
+    let seg = ws.cable_segments(model, c);
+    let total: f64 = seg.iter().sum();
+    let mut acc = 0.0;
+    let mut out = Vec::with_capacity(seg.len().saturating_sub(1));
+    for l in &seg[..seg.len() - 1] {
+        acc += l;
+        out.push(if total > 0.0 { rest_length * acc / total } else { 0.0 });
+    }
+    out
+}
+
+/// Reports of every cable. `reference` holds each cable's pulley coordinates at the start
+/// (from `pulley_coordinates`), for the slip.
+pub fn cable_reports(model: &Model, state: &State, ws: &Workspace, reference: &[Vec<f64>]) -> Vec<CableReport> {
+    (0..model.cables.len())
+        .map(|c| {
+            let r = &ws.cables[c];
+            let now = pulley_coordinates(model, ws, state.rest_lengths[c], c);
+            CableReport {
+                name: model.cable_names[c].clone(),
+                tension: r.tension,
+                length: r.length,
+                rest_length: r.rest_length,
+                strain: (r.length - r.rest_length) / r.rest_length,
+                slack: r.slack,
+                segment_lengths: ws.cable_segments(model, c).to_vec(),
+                pulley_slip: now.iter().zip(&reference[c]).map(|(a, b)| a - b).collect(),
+            }
+        })
+        .collect()
+}
+
+/// Pulley coordinates of every cable (the slip reference).
+pub fn all_pulley_coordinates(model: &Model, state: &State, ws: &Workspace) -> Vec<Vec<f64>> {
+    (0..model.cables.len()).map(|c| pulley_coordinates(model, ws, state.rest_lengths[c], c)).collect()
+}
+
+/// A body's pose, for output.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BodyReport {
+    /// Body name.
+    pub name: String,
+    /// Centre of mass, m.
+    pub position: [f64; 3],
+    /// Orientation quaternion `[w, x, y, z]`.
+    pub orientation: [f64; 4],
+}
+
+/// Poses of every body.
+pub fn body_reports(model: &Model, state: &State) -> Vec<BodyReport> {
+    model
+        .bodies
+        .iter()
+        .zip(&state.poses)
+        .map(|(b, p)| {
+            let q = p.rotation.quaternion();
+            BodyReport { name: b.name.clone(), position: p.position.into(), orientation: [q.w, q.i, q.j, q.k] }
+        })
+        .collect()
+}
+
+/// Named point positions (every point of every body), m.
+pub fn point_positions(model: &Model, ws: &Workspace) -> Vec<(String, [f64; 3])> {
+    model.points.iter().zip(&ws.points).map(|(p, k)| (p.name.clone(), k.position.into())).collect()
+}
+
+/// The cable of `name`, if any.
+pub fn cable_index(model: &Model, name: &str) -> Option<CableId> {
+    model.cable_id(name)
+}

@@ -1,0 +1,324 @@
+//! Scene files: takes TOML text (or a generated `SceneSpec`), gives a validated `Model` with its
+//! rest lengths (given, or found by form finding), or a `SceneError` naming file, line, field and
+//! reason. Unknown fields are rejected.
+//!
+//! Units are SI (m, kg, s, N). Positions are world coordinates (z up); rotations are rotation
+//! vectors (axis times angle, rad) from body to world frame. A point is referred to as
+//! `body.point`, or `body` for the body's origin (its centre of mass); bars have the points `a`
+//! and `b` at their ends.
+
+mod build;
+pub mod generate;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::SceneError;
+use crate::model::Model;
+
+pub use build::build_model;
+
+/// A whole scene file.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSpec {
+    /// Scene name.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub name: String,
+    /// Free text.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
+    /// Gravity acceleration, m/s^2, world frame (default none).
+    #[serde(default, skip_serializing_if = "is_zero3")]
+    pub gravity: [f64; 3],
+    /// 2-D scene: everything moves in the world xy plane.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub planar: bool,
+    /// Quasi-static solver settings.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solver: Option<SolverSpec>,
+    /// Bodies.
+    #[serde(default)]
+    pub bodies: Vec<BodySpec>,
+    /// Ball joints and pins.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub joints: Vec<JointSpec>,
+    /// Cables, classical (2 points) and sliding (more).
+    #[serde(default)]
+    pub cables: Vec<CableSpec>,
+    /// Actuators.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub actuators: Vec<ActuatorSpec>,
+    /// Deployment schedule.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub deployment: Option<DeploymentSpec>,
+}
+
+fn is_zero3(v: &[f64; 3]) -> bool {
+    v.iter().all(|x| *x == 0.0)
+}
+fn is_false(b: &bool) -> bool {
+    !*b
+}
+
+/// Body kinds as written in scene files.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BodyKindSpec {
+    /// Point mass.
+    Node,
+    /// Slender strut.
+    Bar,
+    /// Full rigid body.
+    Rigid,
+    /// Ground frame.
+    Fixed,
+}
+
+/// A point on a body: body coordinates (m), or for bars a fraction along the bar from `a` to `b`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum PointSpec {
+    /// Fraction `s` along a bar: at `a + s (b - a)`.
+    Along(f64),
+    /// Body coordinates, m, origin at the centre of mass.
+    Local([f64; 3]),
+}
+
+/// One body.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    /// Unique name (no dots).
+    pub name: String,
+    /// Model kind.
+    pub kind: BodyKindSpec,
+    /// Mass, kg (node, bar, rigid).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<f64>,
+    /// Centre of mass (node, rigid) or frame origin (fixed), m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f64; 3]>,
+    /// Rotation vector body -> world, rad (rigid, fixed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation: Option<[f64; 3]>,
+    /// End positions `a` and `b` of a bar, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ends: Option<[[f64; 3]; 2]>,
+    /// Inertia about the centre of mass in body axes, kg m^2: rigid `[Ixx, Iyy, Izz]` or
+    /// `[Ixx, Iyy, Izz, Ixy, Ixz, Iyz]`; bar `[I_transverse]` (default `m l^2 / 12`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inertia: Option<Vec<f64>>,
+    /// Named attachment points.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub points: BTreeMap<String, PointSpec>,
+}
+
+/// Joint kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JointKindSpec {
+    /// Point `a` held on point `b` of another body.
+    Ball,
+    /// Point `a` held at a fixed world position (`at`, default its initial position).
+    Pin,
+}
+
+/// A ball joint or a pin to the ground.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointSpec {
+    /// Joint kind.
+    pub kind: JointKindSpec,
+    /// Point on the first body.
+    pub a: String,
+    /// Point on the second body (ball joints).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub b: Option<String>,
+    /// World position of a pin, m (default: where `a` starts).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub at: Option<[f64; 3]>,
+}
+
+/// A cable through an ordered route of points: anchors at both ends, pulleys between.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CableSpec {
+    /// Unique name.
+    pub name: String,
+    /// Points from the first anchor to the last (at least 2).
+    pub route: Vec<String>,
+    /// Axial stiffness EA, N (> 0).
+    pub ea: f64,
+    /// Damping coefficient c, N s/m (>= 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping: Option<f64>,
+    /// Damping ratio: `c = 2 zeta sqrt((EA/L0) m_eff)`, `1/m_eff = sum 1/m_b` over the free
+    /// bodies the cable touches.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping_ratio: Option<f64>,
+    /// Rest length, m (> 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rest_length: Option<f64>,
+    /// Target tension at the initial geometry, N (>= 0); form finding sets the rest length.
+    /// With neither `rest_length` nor `prestress`, form finding determines the tension.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prestress: Option<f64>,
+}
+
+/// An actuator: sets one cable's rest length within limits.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ActuatorSpec {
+    /// Unique name.
+    pub name: String,
+    /// Cable driven.
+    pub cable: String,
+    /// Smallest rest length, m (> 0).
+    pub min_rest_length: f64,
+    /// Largest rest length, m.
+    pub max_rest_length: f64,
+    /// Largest rate, m/s (> 0).
+    pub max_rate: f64,
+}
+
+/// Deployment schedule.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeploymentSpec {
+    /// Quasi-static load steps over the whole schedule (default 50).
+    #[serde(default = "default_steps")]
+    pub steps: usize,
+    /// Linear rest-length ramps.
+    #[serde(default)]
+    pub ramps: Vec<RampSpec>,
+}
+
+fn default_steps() -> usize {
+    50
+}
+
+/// A linear ramp of one actuator's rest length.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RampSpec {
+    /// Actuator name.
+    pub actuator: String,
+    /// Start time, s (>= 0).
+    #[serde(default)]
+    pub start: f64,
+    /// Duration, s (> 0).
+    pub duration: f64,
+    /// Rest length at the end of the ramp, m.
+    pub rest_length: f64,
+}
+
+/// Quasi-static solver settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    /// Relative residual tolerance (default 1e-11).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<f64>,
+    /// Newton iterations per load step (default 60).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_iterations: Option<usize>,
+}
+
+/// Reads and validates a scene file.
+pub fn load(path: &Path) -> Result<Model, SceneError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+        file: file.clone(),
+        line: None,
+        field: String::new(),
+        reason: format!("cannot read: {e}"),
+    })?;
+    from_toml(&text, &file)
+}
+
+/// Parses and validates scene text; `file` names it in errors.
+pub fn from_toml(text: &str, file: &str) -> Result<Model, SceneError> {
+    let spec = parse(text, file)?;
+    build_model(&spec, file, Some(text))
+}
+
+/// Parses scene text into a `SceneSpec` without validating the structure.
+pub fn parse(text: &str, file: &str) -> Result<SceneSpec, SceneError> {
+    toml::from_str::<SceneSpec>(text).map_err(|e| {
+        let line = e.span().map(|s| line_of_offset(text, s.start));
+        SceneError {
+            file: file.to_string(),
+            line,
+            field: line.map(|l| field_at_line(text, l)).unwrap_or_default(),
+            reason: e.message().trim().to_string(),
+        }
+    })
+}
+
+/// Serializes a spec as TOML (used by the generators and `tensegrity generate`).
+pub fn to_toml(spec: &SceneSpec) -> String {
+    toml::to_string(spec).expect("scene specs always serialize")
+}
+
+fn line_of_offset(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].bytes().filter(|b| *b == b'\n').count() + 1
+}
+
+/// Field path (`cables[2].ea`) of the key on 1-based `line`, from the array-of-tables headers above.
+fn field_at_line(text: &str, line: usize) -> String {
+    let mut counts: BTreeMap<String, usize> = BTreeMap::new();
+    let mut table = String::new();
+    for l in text.lines().take(line - 1) {
+        let t = l.trim();
+        if let Some(name) = t.strip_prefix("[[").and_then(|s| s.strip_suffix("]]")) {
+            let idx = counts.entry(name.trim().to_string()).or_insert(0);
+            table = format!("{}[{}]", name.trim(), *idx);
+            *idx += 1;
+        } else if let Some(name) = t.strip_prefix('[').and_then(|s| s.strip_suffix(']')) {
+            table = name.trim().to_string();
+        }
+    }
+    let key = text
+        .lines()
+        .nth(line - 1)
+        .and_then(|l| l.split_once('='))
+        .map(|(k, _)| k.trim().to_string())
+        .unwrap_or_default();
+    match (table.is_empty(), key.is_empty()) {
+        (true, _) => key,
+        (false, true) => table,
+        (false, false) => format!("{table}.{key}"),
+    }
+}
+
+/// 1-based line of `field` inside the `index`-th `[[array]]` table of `text`, or of the table
+/// header when the field is not written there.
+pub(crate) fn locate(text: &str, array: &str, index: usize, field: &str) -> Option<usize> {
+    let header = format!("[[{array}]]");
+    let mut seen = 0;
+    let mut start = None;
+    for (i, l) in text.lines().enumerate() {
+        let t = l.trim();
+        if start.is_some() && t.starts_with('[') {
+            break;
+        }
+        if t == header {
+            if seen == index {
+                start = Some(i);
+            }
+            seen += 1;
+            continue;
+        }
+        if start.is_some() && !field.is_empty() {
+            if let Some((k, _)) = t.split_once('=') {
+                if k.trim() == field {
+                    return Some(i + 1);
+                }
+            }
+        }
+    }
+    start.map(|s| s + 1)
+}

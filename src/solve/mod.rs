@@ -1,0 +1,5 @@
+//! Solvers: form finding (rest lengths from a prestressed geometry) and quasi-static equilibrium
+//! and deployment.
+
+pub mod formfind;
+pub mod statics;

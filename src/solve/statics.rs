@@ -1,0 +1,334 @@
+//! Quasi-static equilibrium: takes a model and a state (rest lengths set), gives the equilibrium
+//! configuration and joint reactions by Newton's method with a backtracking line search, its
+//! residual and iteration count, and whether it is stable; and the quasi-static deployment path
+//! along the model's schedule by load stepping with step cutting.
+//!
+//! Equations (inertia dropped): `F(q, lambda) = [Q(q) - Phi_q^T lambda; Phi(q)] = 0`.
+//! Newton step from the KKT system
+//! `[[K + H_lambda, Phi_q^T], [Phi_q, 0]] [dq; dlambda] = [Q - Phi_q^T lambda; -Phi]`,
+//! with `K = -dQ/dq` and `H_lambda = d(Phi_q^T lambda)/dq`; the pose update is the group retraction
+//! `crate::state::retract`. Converged when `|Q - Phi_q^T lambda|_inf <= tol * F_scale` (N, N m) and
+//! `|Phi|_inf <= tol * L_scale` (m), with `F_scale` the largest of the cable tensions and body
+//! weights and `L_scale` the largest cable length.
+//!
+//! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
+//! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
+//! Neutral directions (free rigid motions, unstressed mechanisms) count as not stable.
+
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+use crate::constraints::add_multiplier_hessian;
+use crate::error::SolveError;
+use crate::forces::{evaluate, Tangents, Workspace};
+use crate::model::{Model, Pose, SolverSettings};
+use crate::state::{retract, State};
+
+/// Outcome of one equilibrium solve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EquilibriumReport {
+    /// Newton iterations used.
+    pub iterations: usize,
+    /// `|Q - Phi_q^T lambda|_inf` at the solution, N.
+    pub residual: f64,
+    /// Force scale the tolerance is relative to (largest tension or weight), N.
+    pub force_scale: f64,
+    /// `|Phi|_inf` at the solution, m.
+    pub constraint_residual: f64,
+    /// Smallest eigenvalue of the reduced tangent stiffness (N/m or N m/rad).
+    pub min_stiffness_eigenvalue: f64,
+    /// True when the reduced tangent stiffness is positive definite.
+    pub stable: bool,
+}
+
+/// Buffers for the Newton iteration, sized once per model.
+#[derive(Debug, Clone)]
+pub struct StaticSolver {
+    kkt: DMatrix<f64>,
+    rhs: DVector<f64>,
+    dq: DVector<f64>,
+    trial_poses: Vec<Pose>,
+    best_poses: Vec<Pose>,
+}
+
+struct Residual {
+    force: f64,
+    constraint: f64,
+    force_scale: f64,
+    length_scale: f64,
+}
+
+impl Residual {
+    fn merit(&self, f_scale: f64, l_scale: f64) -> f64 {
+        (self.force / f_scale).powi(2) + (self.constraint / l_scale).powi(2)
+    }
+}
+
+fn residual_of(model: &Model, state: &State, ws: &mut Workspace, rhs: &mut DVector<f64>) -> Residual {
+    let n = model.dof_count;
+    let mut r = ws.force.clone_owned();
+    if model.constraint_count > 0 {
+        r -= ws.constraint_jacobian.transpose() * &state.multipliers;
+    }
+    rhs.rows_mut(0, n).copy_from(&r);
+    if model.constraint_count > 0 {
+        rhs.rows_mut(n, model.constraint_count).copy_from(&(-&ws.constraint));
+    }
+    let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
+    let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+    let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max);
+    Residual {
+        force: r.amax(),
+        constraint: ws.constraint.amax(),
+        force_scale: weight.max(tension).max(1e-12),
+        length_scale: length.max(1e-3),
+    }
+}
+
+impl StaticSolver {
+    /// Buffers for `model`.
+    pub fn new(model: &Model) -> Self {
+        let size = model.dof_count + model.constraint_count;
+        let poses: Vec<Pose> = model.bodies.iter().map(|b| b.initial_pose).collect();
+        Self {
+            kkt: DMatrix::zeros(size, size),
+            rhs: DVector::zeros(size),
+            dq: DVector::zeros(model.dof_count),
+            trial_poses: poses.clone(),
+            best_poses: poses,
+        }
+    }
+
+    /// Solves for equilibrium from `state` (its rest lengths fixed), updating its poses and
+    /// multipliers; velocities are set to zero. On failure the state is restored.
+    pub fn equilibrate(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        state.velocities.fill(0.0);
+        let start_poses = state.poses.clone();
+        let start_multipliers = state.multipliers.clone();
+        let mut best = f64::INFINITY;
+        let mut iterations = 0;
+        loop {
+            evaluate(model, state, ws, Tangents::Stiffness);
+            let res = residual_of(model, state, ws, &mut self.rhs);
+            if !res.force.is_finite() || !res.constraint.is_finite() {
+                break;
+            }
+            best = best.min(res.force);
+            if res.force <= settings.tolerance * res.force_scale
+                && res.constraint <= settings.tolerance * res.length_scale
+            {
+                let (min_eig, stable) = self.stability(model, state, ws);
+                return Ok(EquilibriumReport {
+                    iterations,
+                    residual: res.force,
+                    force_scale: res.force_scale,
+                    constraint_residual: res.constraint,
+                    min_stiffness_eigenvalue: min_eig,
+                    stable,
+                });
+            }
+            if iterations >= settings.max_iterations {
+                break;
+            }
+            iterations += 1;
+
+            // KKT matrix
+            self.kkt.fill(0.0);
+            self.kkt.view_mut((0, 0), (n, n)).copy_from(&ws.stiffness);
+            if nc > 0 {
+                let mut h = DMatrix::zeros(n, n);
+                add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut h);
+                let mut top = self.kkt.view_mut((0, 0), (n, n));
+                top += &h;
+                self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
+                self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+            }
+            let Some(step) = solve_regularized(&self.kkt, &self.rhs, n) else { break };
+            self.dq.copy_from(&step.rows(0, n));
+            // limit rotations to 0.5 rad and translations to half the length scale per iteration
+            let mut limit: f64 = 1.0;
+            for b in &model.bodies {
+                for c in 0..b.dof_count {
+                    let col = b.basis.column(c);
+                    let x = self.dq[b.dof_offset + c].abs();
+                    let cap = if col.fixed_rows::<3>(3).norm() > 0.0 { 0.5 } else { 0.5 * res.length_scale };
+                    if x > cap {
+                        limit = limit.min(cap / x);
+                    }
+                }
+            }
+            let dlambda = step.rows(n, nc).into_owned();
+
+            // backtracking line search on the scaled residual norm
+            let merit0 = res.merit(res.force_scale, res.length_scale);
+            let base_multipliers = state.multipliers.clone();
+            self.best_poses.copy_from_slice(&state.poses);
+            let mut alpha = limit;
+            let mut best_trial = (f64::INFINITY, alpha);
+            for _ in 0..12 {
+                self.trial_poses.copy_from_slice(&self.best_poses);
+                retract(model, &mut self.trial_poses, &self.dq, alpha);
+                std::mem::swap(&mut state.poses, &mut self.trial_poses);
+                state.multipliers = &base_multipliers + &dlambda * alpha;
+                evaluate(model, state, ws, Tangents::None);
+                let trial = residual_of(model, state, ws, &mut self.rhs).merit(res.force_scale, res.length_scale);
+                std::mem::swap(&mut state.poses, &mut self.trial_poses);
+                if trial.is_finite() && trial < best_trial.0 {
+                    best_trial = (trial, alpha);
+                }
+                if trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * merit0 {
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !best_trial.0.is_finite() {
+                break;
+            }
+            let alpha = best_trial.1;
+            retract(model, &mut state.poses, &self.dq, alpha);
+            state.multipliers = &base_multipliers + &dlambda * alpha;
+        }
+        state.poses.copy_from_slice(&start_poses);
+        state.multipliers.copy_from(&start_multipliers);
+        Err((iterations, best))
+    }
+
+    /// Smallest eigenvalue of the symmetric reduced tangent stiffness, and whether it is positive
+    /// (relative to the largest). Uses the tangents last evaluated into `ws`.
+    fn stability(&self, model: &Model, state: &State, ws: &Workspace) -> (f64, bool) {
+        let n = model.dof_count;
+        if n == 0 {
+            return (0.0, true);
+        }
+        let mut k = ws.stiffness.clone();
+        if model.constraint_count > 0 {
+            add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut k);
+        }
+        let k_sym = (&k + k.transpose()) * 0.5;
+        let reduced = if model.constraint_count > 0 {
+            let jtj = ws.constraint_jacobian.transpose() * &ws.constraint_jacobian;
+            let eig = SymmetricEigen::new(jtj);
+            let tol = 1e-10 * eig.eigenvalues.amax().max(1e-300);
+            let cols: Vec<DVector<f64>> = (0..n)
+                .filter(|&i| eig.eigenvalues[i] <= tol)
+                .map(|i| eig.eigenvectors.column(i).into_owned())
+                .collect();
+            if cols.is_empty() {
+                return (f64::INFINITY, true);
+            }
+            let z = DMatrix::from_columns(&cols);
+            z.transpose() * k_sym * z
+        } else {
+            k_sym
+        };
+        let eig = SymmetricEigen::new(reduced).eigenvalues;
+        let min = eig.min();
+        (min, min > 1e-9 * eig.amax().max(1e-300))
+    }
+}
+
+/// Solves the KKT system; if the LU fails or gives non-finite values, retries with Levenberg
+/// regularization `mu I` on the coordinate block (growing mu), which turns a singular direction
+/// (mechanism, free motion) into a short step instead of an infinite one.
+fn solve_regularized(kkt: &DMatrix<f64>, rhs: &DVector<f64>, n: usize) -> Option<DVector<f64>> {
+    let diag = (0..n).map(|i| kkt[(i, i)].abs()).fold(0.0, f64::max).max(1e-12);
+    let mut mu = 0.0;
+    for _ in 0..8 {
+        let mut a = kkt.clone();
+        for i in 0..n {
+            a[(i, i)] += mu;
+        }
+        if let Some(x) = a.clone().lu().solve(rhs) {
+            if x.iter().all(|v| v.is_finite()) && (&a * &x - rhs).amax() <= 1e-6 * rhs.amax().max(1e-300) {
+                return Some(x);
+            }
+        }
+        mu = if mu == 0.0 { 1e-10 * diag } else { mu * 100.0 };
+    }
+    None
+}
+
+/// One row of a quasi-static deployment path.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PathStep {
+    /// Index of the output step (0 = initial equilibrium).
+    pub index: usize,
+    /// Schedule time, s (the actuation parameter).
+    pub time: f64,
+    /// The equilibrium solve that ended at this step.
+    pub report: EquilibriumReport,
+    /// Number of times a load step was halved on the way to this row.
+    pub cuts: usize,
+}
+
+/// Follows the deployment schedule by load stepping: `model.schedule.steps` output steps over its
+/// duration, each reached from the previous equilibrium; a step that fails is halved (up to
+/// `settings.max_step_cuts` times). Calls `on_step` at the initial equilibrium and after every
+/// output step with the state and the evaluated workspace.
+pub fn deploy_quasi_static(
+    model: &Model,
+    state: &mut State,
+    ws: &mut Workspace,
+    mut on_step: impl FnMut(&PathStep, &State, &Workspace),
+) -> Result<Vec<PathStep>, SolveError> {
+    let settings = model.solver;
+    let mut solver = StaticSolver::new(model);
+    let mut path = Vec::new();
+    let fail = |time, load_step, (iterations, residual): (usize, f64), cuts| SolveError::NoEquilibrium {
+        time,
+        load_step,
+        residual,
+        iterations,
+        cuts,
+    };
+    model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
+    let report = solver.equilibrate(model, state, ws, &settings).map_err(|e| fail(state.time, 0, e, 0))?;
+    evaluate(model, state, ws, Tangents::None);
+    let first = PathStep { index: 0, time: state.time, report, cuts: 0 };
+    on_step(&first, state, ws);
+    path.push(first);
+
+    let t0 = state.time;
+    let t_end = model.schedule.end_time().max(t0);
+    let steps = model.schedule.steps.max(1);
+    for s in 1..=steps {
+        let target = t0 + (t_end - t0) * s as f64 / steps as f64;
+        let mut h = target - state.time;
+        let mut cuts = 0;
+        let mut last;
+        loop {
+            let t_try = (state.time + h).min(target);
+            let saved_rest = state.rest_lengths.clone();
+            model.scheduled_rest_lengths(t_try, &mut state.rest_lengths);
+            match solver.equilibrate(model, state, ws, &settings) {
+                Ok(r) => {
+                    state.time = t_try;
+                    last = r;
+                    if t_try >= target {
+                        break;
+                    }
+                }
+                Err(e) => {
+                    state.rest_lengths = saved_rest;
+                    cuts += 1;
+                    if cuts > settings.max_step_cuts {
+                        return Err(fail(t_try, s, e, cuts - 1));
+                    }
+                    h *= 0.5;
+                }
+            }
+        }
+        evaluate(model, state, ws, Tangents::None);
+        let row = PathStep { index: s, time: state.time, report: last, cuts };
+        on_step(&row, state, ws);
+        path.push(row);
+    }
+    Ok(path)
+}

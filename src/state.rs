@@ -1,0 +1,67 @@
+//! What changes during a run (`State`): time, body poses, local velocities, cable rest lengths and
+//! joint reaction multipliers; plus `retract`, the group update that moves poses along local
+//! coordinate increments (see `crate::model` for the coordinates).
+
+use nalgebra::{DVector, UnitQuaternion, Vector3};
+
+use crate::model::{Model, Pose};
+
+/// Everything that changes during a run. Built from a `Model` with `State::initial`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct State {
+    /// Simulation time, s.
+    pub time: f64,
+    /// Body poses, parallel to `Model::bodies`.
+    pub poses: Vec<Pose>,
+    /// Generalized velocities in local coordinates (m/s and rad/s, body-frame rotations).
+    pub velocities: DVector<f64>,
+    /// Current rest length of every cable, m (> 0).
+    pub rest_lengths: Vec<f64>,
+    /// Joint reaction multipliers (N), one per constraint row: the force that holds the joint.
+    pub multipliers: DVector<f64>,
+}
+
+impl State {
+    /// The state at t = 0: initial poses, at rest, initial rest lengths, zero reactions.
+    pub fn initial(model: &Model) -> Self {
+        Self {
+            time: 0.0,
+            poses: model.bodies.iter().map(|b| b.initial_pose).collect(),
+            velocities: DVector::zeros(model.dof_count),
+            rest_lengths: model.initial_rest_lengths.clone(),
+            multipliers: DVector::zeros(model.constraint_count),
+        }
+    }
+
+    /// True if every number in the state is finite.
+    pub fn is_finite(&self) -> bool {
+        self.time.is_finite()
+            && self.velocities.iter().all(|v| v.is_finite())
+            && self.multipliers.iter().all(|v| v.is_finite())
+            && self.rest_lengths.iter().all(|v| v.is_finite())
+            && self.poses.iter().all(|p| {
+                p.position.iter().all(|v| v.is_finite())
+                    && p.rotation.coords.iter().all(|v| v.is_finite())
+            })
+    }
+}
+
+/// Moves every pose by `scale * dq` in local coordinates:
+/// `x <- x + B_t dq_b`, `R <- R exp([B_r dq_b]x)` for each body `b`.
+///
+/// `dq` has `model.dof_count` entries. The exponential map is exact, so rotations stay unit.
+pub fn retract(model: &Model, poses: &mut [Pose], dq: &DVector<f64>, scale: f64) {
+    for (body, pose) in model.bodies.iter().zip(poses.iter_mut()) {
+        if body.dof_count == 0 {
+            continue;
+        }
+        let local = dq.rows(body.dof_offset, body.dof_count) * scale;
+        let incr = body.basis.columns(0, body.dof_count) * local;
+        pose.position += Vector3::new(incr[0], incr[1], incr[2]);
+        let theta = Vector3::new(incr[3], incr[4], incr[5]);
+        if theta.norm_squared() > 0.0 {
+            pose.rotation *= UnitQuaternion::from_scaled_axis(theta);
+            pose.rotation.renormalize();
+        }
+    }
+}

@@ -1,0 +1,71 @@
+//! Shared helpers for the integration tests: scene construction from specs and finite differences
+//! along the group retraction.
+#![allow(dead_code)]
+
+use nalgebra::{DMatrix, DVector};
+use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::model::Model;
+use tensegrity::scene::{build_model, SceneSpec};
+use tensegrity::state::{retract, State};
+
+/// Builds a model from a spec, panicking with the scene error.
+pub fn model_of(spec: &SceneSpec) -> Model {
+    build_model(spec, "<test>", None).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Model from TOML text.
+pub fn model_from_toml(text: &str) -> Model {
+    tensegrity::scene::from_toml(text, "<test>").unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// `state` moved by `h` along local coordinate `j`.
+pub fn perturbed(model: &Model, state: &State, j: usize, h: f64) -> State {
+    let mut s = state.clone();
+    let mut dq = DVector::zeros(model.dof_count);
+    dq[j] = 1.0;
+    retract(model, &mut s.poses, &dq, h);
+    s
+}
+
+/// Generalized force at `state`.
+pub fn force_at(model: &Model, state: &State) -> DVector<f64> {
+    let mut ws = Workspace::new(model);
+    evaluate(model, state, &mut ws, Tangents::None);
+    ws.force.clone()
+}
+
+/// `-dQ/dq` by central differences along the retraction.
+pub fn fd_stiffness(model: &Model, state: &State, h: f64) -> DMatrix<f64> {
+    let n = model.dof_count;
+    let mut k = DMatrix::zeros(n, n);
+    for j in 0..n {
+        let qp = force_at(model, &perturbed(model, state, j, h));
+        let qm = force_at(model, &perturbed(model, state, j, -h));
+        k.set_column(j, &(-(qp - qm) / (2.0 * h)));
+    }
+    k
+}
+
+/// `-dQ/dv` by central differences.
+pub fn fd_damping(model: &Model, state: &State, h: f64) -> DMatrix<f64> {
+    let n = model.dof_count;
+    let mut c = DMatrix::zeros(n, n);
+    for j in 0..n {
+        let mut sp = state.clone();
+        sp.velocities[j] += h;
+        let mut sm = state.clone();
+        sm.velocities[j] -= h;
+        c.set_column(j, &(-(force_at(model, &sp) - force_at(model, &sm)) / (2.0 * h)));
+    }
+    c
+}
+
+/// Max-norm of `a - b` relative to the max-norm of `b` (floored at `floor`).
+pub fn rel_err(a: &DMatrix<f64>, b: &DMatrix<f64>, floor: f64) -> f64 {
+    (a - b).amax() / b.amax().max(floor)
+}
+
+/// Parses a spec from TOML text (for tests that edit a scene before building it).
+pub fn spec_from_toml(text: &str) -> SceneSpec {
+    tensegrity::scene::parse(text, "<test>").unwrap_or_else(|e| panic!("{e}"))
+}
