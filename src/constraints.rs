@@ -12,12 +12,7 @@ use crate::kinematics::{force_jacobian_derivative, PointKinematics};
 use crate::model::{JointTarget, Model, Pose};
 
 /// Fills `phi` (rows) and `phi_q` (rows x coordinates) for all joints.
-pub fn evaluate(
-    model: &Model,
-    kin: &[PointKinematics],
-    phi: &mut DVector<f64>,
-    phi_q: &mut DMatrix<f64>,
-) {
+pub fn evaluate(model: &Model, kin: &[PointKinematics], phi: &mut DVector<f64>, phi_q: &mut DMatrix<f64>) {
     if model.joints.is_empty() {
         return;
     }
@@ -47,12 +42,7 @@ pub fn evaluate(
 }
 
 /// Adds `d(Phi_q^T lambda)/dq` (multipliers `lambda`, N) into `out`.
-pub fn add_multiplier_hessian(
-    model: &Model,
-    poses: &[Pose],
-    lambda: &DVector<f64>,
-    out: &mut DMatrix<f64>,
-) {
+pub fn add_multiplier_hessian(model: &Model, poses: &[Pose], lambda: &DVector<f64>, out: &mut DMatrix<f64>) {
     let rows = model.joint_rows();
     for joint in &model.joints {
         let mut f = Vector3::zeros();

@@ -43,12 +43,7 @@ fn raw_jacobian(pose: &Pose, p: &Vector3<f64>) -> PointJacobian {
 }
 
 /// Kinematics of point `pid` at `poses`, with local velocities `v` (length `model.dof_count`).
-pub fn point_kinematics(
-    model: &Model,
-    poses: &[Pose],
-    v: &DVector<f64>,
-    pid: PointId,
-) -> PointKinematics {
+pub fn point_kinematics(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: PointId) -> PointKinematics {
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];
     let pose = &poses[point.body.0];
@@ -77,12 +72,7 @@ pub fn force_jacobian_derivative(
 }
 
 /// `d(rdot)/dq_b` of point `pid` at fixed local velocities `v` (3 x 6, 1/s).
-pub fn velocity_derivative(
-    model: &Model,
-    poses: &[Pose],
-    v: &DVector<f64>,
-    pid: PointId,
-) -> PointJacobian {
+pub fn velocity_derivative(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: PointId) -> PointJacobian {
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];
     if body.dof_count == 0 {

@@ -47,7 +47,12 @@ pub fn pulley_coordinates(model: &Model, ws: &Workspace, rest_length: f64, c: us
 
 /// Reports of every cable. `reference` holds each cable's pulley coordinates at the start
 /// (from `pulley_coordinates`), for the slip.
-pub fn cable_reports(model: &Model, state: &State, ws: &Workspace, reference: &[Vec<f64>]) -> Vec<CableReport> {
+pub fn cable_reports(
+    model: &Model,
+    state: &State,
+    ws: &Workspace,
+    reference: &[Vec<f64>],
+) -> Vec<CableReport> {
     (0..model.cables.len())
         .map(|c| {
             let r = &ws.cables[c];
@@ -90,7 +95,11 @@ pub fn body_reports(model: &Model, state: &State) -> Vec<BodyReport> {
         .zip(&state.poses)
         .map(|(b, p)| {
             let q = p.rotation.quaternion();
-            BodyReport { name: b.name.clone(), position: p.position.into(), orientation: [q.w, q.i, q.j, q.k] }
+            BodyReport {
+                name: b.name.clone(),
+                position: p.position.into(),
+                orientation: [q.w, q.i, q.j, q.k],
+            }
         })
         .collect()
 }
@@ -103,4 +112,90 @@ pub fn point_positions(model: &Model, ws: &Workspace) -> Vec<(String, [f64; 3])>
 /// The cable of `name`, if any.
 pub fn cable_index(model: &Model, name: &str) -> Option<CableId> {
     model.cable_id(name)
+}
+
+/// CSV header of a deployment path: step, time, solver columns, every actuated cable's rest
+/// length, every cable's tension, every point's position.
+pub fn path_csv_header(model: &Model) -> String {
+    let mut cols: Vec<String> =
+        ["step", "time_s", "iterations", "residual_N", "stable"].iter().map(|s| s.to_string()).collect();
+    for a in &model.actuators {
+        cols.push(format!("rest_length_{}_m", model.cable_names[a.cable.0]));
+    }
+    for name in &model.cable_names {
+        cols.push(format!("tension_{name}_N"));
+    }
+    for p in &model.points {
+        for ax in ["x", "y", "z"] {
+            cols.push(format!("{}_{ax}_m", p.name));
+        }
+    }
+    cols.join(",")
+}
+
+/// One CSV row matching `path_csv_header`.
+pub fn path_csv_row(
+    model: &Model,
+    state: &State,
+    ws: &Workspace,
+    step: usize,
+    iterations: usize,
+    residual: f64,
+    stable: bool,
+) -> String {
+    use std::fmt::Write;
+    let mut row = format!("{step},{:.9},{iterations},{residual:.3e},{}", state.time, stable as u8);
+    for a in &model.actuators {
+        let _ = write!(row, ",{:.12}", state.rest_lengths[a.cable.0]);
+    }
+    for c in &ws.cables {
+        let _ = write!(row, ",{:.12}", c.tension);
+    }
+    for k in &ws.points {
+        let _ = write!(row, ",{:.12},{:.12},{:.12}", k.position.x, k.position.y, k.position.z);
+    }
+    row
+}
+
+/// Counts printed by `tensegrity check`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModelSummary {
+    /// Scene name.
+    pub name: String,
+    /// Bodies per kind: node, bar, rigid, fixed.
+    pub bodies: [usize; 4],
+    /// Generalized coordinates.
+    pub coordinates: usize,
+    /// Constraint equations.
+    pub constraints: usize,
+    /// Cables (all).
+    pub cables: usize,
+    /// Sliding cables (with at least one pulley).
+    pub sliding_cables: usize,
+    /// Pulleys over all cables.
+    pub pulleys: usize,
+    /// Actuators.
+    pub actuators: usize,
+    /// Ramps in the deployment schedule.
+    pub ramps: usize,
+    /// Planar scene.
+    pub planar: bool,
+}
+
+/// Summary of `model`.
+pub fn summary(model: &Model) -> ModelSummary {
+    use crate::model::BodyKind;
+    let count = |k: BodyKind| model.bodies.iter().filter(|b| b.kind == k).count();
+    ModelSummary {
+        name: model.name.clone(),
+        bodies: [count(BodyKind::Node), count(BodyKind::Bar), count(BodyKind::Rigid), count(BodyKind::Fixed)],
+        coordinates: model.dof_count,
+        constraints: model.constraint_count,
+        cables: model.cables.len(),
+        sliding_cables: model.cables.iter().filter(|c| c.pulley_count() > 0).count(),
+        pulleys: model.pulley_count(),
+        actuators: model.actuators.len(),
+        ramps: model.schedule.ramps.len(),
+        planar: model.planar,
+    }
 }

@@ -40,8 +40,7 @@ impl State {
             && self.multipliers.iter().all(|v| v.is_finite())
             && self.rest_lengths.iter().all(|v| v.is_finite())
             && self.poses.iter().all(|p| {
-                p.position.iter().all(|v| v.is_finite())
-                    && p.rotation.coords.iter().all(|v| v.is_finite())
+                p.position.iter().all(|v| v.is_finite()) && p.rotation.coords.iter().all(|v| v.is_finite())
             })
     }
 }

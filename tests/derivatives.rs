@@ -16,7 +16,16 @@ use tensegrity::scene::{BodyKindSpec, BodySpec, CableSpec, JointKindSpec, JointS
 use tensegrity::state::State;
 
 fn body(name: &str, kind: BodyKindSpec) -> BodySpec {
-    BodySpec { name: name.into(), kind, mass: None, position: None, rotation: None, ends: None, inertia: None, points: BTreeMap::new() }
+    BodySpec {
+        name: name.into(),
+        kind,
+        mass: None,
+        position: None,
+        rotation: None,
+        ends: None,
+        inertia: None,
+        points: BTreeMap::new(),
+    }
 }
 
 /// A scene with one body of each kind; `route` indexes into its point pool.
@@ -49,7 +58,15 @@ fn scene(p: &Params, route: &[usize], planar: bool) -> SceneSpec {
     if names.len() < 2 {
         names = vec!["n".into(), "r.p".into()];
     }
-    let cable = CableSpec { name: "c".into(), route: names, ea: 1e3, damping: Some(p.damping), damping_ratio: None, rest_length: Some(0.5), prestress: None };
+    let cable = CableSpec {
+        name: "c".into(),
+        route: names,
+        ea: 1e3,
+        damping: Some(p.damping),
+        damping_ratio: None,
+        rest_length: Some(0.5),
+        prestress: None,
+    };
     SceneSpec { planar, bodies: vec![g, n, b, r], cables: vec![cable], ..Default::default() }
 }
 
@@ -67,7 +84,13 @@ fn v3() -> impl Strategy<Value = [f64; 3]> {
 }
 
 fn params() -> impl Strategy<Value = Params> {
-    ([v3(), v3(), v3(), v3()], [v3(), v3()], [v3(), v3(), v3(), v3()], prop_oneof![Just(0.0), 0.1..20.0f64], proptest::collection::vec(-1.0..1.0f64, 14))
+    (
+        [v3(), v3(), v3(), v3()],
+        [v3(), v3()],
+        [v3(), v3(), v3(), v3()],
+        prop_oneof![Just(0.0), 0.1..20.0f64],
+        proptest::collection::vec(-1.0..1.0f64, 14),
+    )
         .prop_map(|(pos, rot, local, damping, vel)| Params { pos, rot, local, damping, vel })
 }
 
@@ -100,10 +123,21 @@ fn check(p: &Params, route: &[usize], planar: bool) -> Result<(), TestCaseError>
 
     let k_fd = fd_stiffness(&model, &state, 1e-5);
     let ek = rel_err(&ws.stiffness, &k_fd, cable.tension);
-    prop_assert!(ek < 1e-6, "stiffness rel err {ek} damping {} T {} v {:?}\nK-K_fd = {:.3e}", p.damping, cable.tension, state.velocities.as_slice(), &ws.stiffness - &k_fd);
+    prop_assert!(
+        ek < 1e-6,
+        "stiffness rel err {ek} damping {} T {} v {:?}\nK-K_fd = {:.3e}",
+        p.damping,
+        cable.tension,
+        state.velocities.as_slice(),
+        &ws.stiffness - &k_fd
+    );
     // Q is affine in v while the cable stays taut, so a large step is exact
     let c_fd = fd_damping(&model, &state, 1e-3);
-    prop_assert!((&ws.damping - &c_fd).amax() < 1e-6 * c_fd.amax().max(1.0), "damping C = {} C_fd = {c_fd}", ws.damping);
+    prop_assert!(
+        (&ws.damping - &c_fd).amax() < 1e-6 * c_fd.amax().max(1.0),
+        "damping C = {} C_fd = {c_fd}",
+        ws.damping
+    );
     // symmetric part of the elastic K equals the FD Hessian of the energy when undamped
     Ok(())
 }

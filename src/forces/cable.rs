@@ -88,11 +88,7 @@ impl CableScratch {
 
 /// Fills the scratch with segment lengths and directions and each point's `n_i` and
 /// `J_i^T n_i`; returns `(L, Ldot)`.
-pub fn route_geometry(
-    route: &[PointId],
-    kin: &[PointKinematics],
-    scratch: &mut CableScratch,
-) -> (f64, f64) {
+pub fn route_geometry(route: &[PointId], kin: &[PointKinematics], scratch: &mut CableScratch) -> (f64, f64) {
     let m = route.len() - 1;
     let mut length = 0.0;
     for k in 1..=m {

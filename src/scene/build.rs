@@ -8,8 +8,8 @@ use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 use super::{BodyKindSpec, JointKindSpec, PointSpec, SceneSpec};
 use crate::error::SceneError;
 use crate::model::{
-    ActuatorId, ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, JointModel, JointTarget,
-    Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings,
+    ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, JointModel, JointTarget, Model, PointId,
+    PointModel, Pose, Ramp, Schedule, SolverSettings,
 };
 use crate::solve::formfind::{find_rest_lengths, RestLengthSpec};
 
@@ -20,11 +20,8 @@ struct Ctx<'a> {
 
 impl Ctx<'_> {
     fn err(&self, array: &str, index: usize, field: &str, reason: impl Into<String>) -> SceneError {
-        let path = if field.is_empty() {
-            format!("{array}[{index}]")
-        } else {
-            format!("{array}[{index}].{field}")
-        };
+        let path =
+            if field.is_empty() { format!("{array}[{index}]") } else { format!("{array}[{index}].{field}") };
         SceneError {
             file: self.file.to_string(),
             line: self.text.and_then(|t| super::locate(t, array, index, field)),
@@ -33,9 +30,8 @@ impl Ctx<'_> {
         }
     }
     fn top(&self, field: &str, reason: impl Into<String>) -> SceneError {
-        let line = self.text.and_then(|t| {
-            t.lines().position(|l| l.trim_start().starts_with(field)).map(|i| i + 1)
-        });
+        let line =
+            self.text.and_then(|t| t.lines().position(|l| l.trim_start().starts_with(field)).map(|i| i + 1));
         SceneError { file: self.file.into(), line, field: field.into(), reason: reason.into() }
     }
 }
@@ -75,7 +71,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     for (i, b) in spec.bodies.iter().enumerate() {
         let e = |field: &str, reason: String| cx.err("bodies", i, field, reason);
         if b.name.is_empty() || b.name.contains('.') || b.name.contains(char::is_whitespace) {
-            return Err(e("name", format!("'{}' is not a valid name (non-empty, no dots or spaces)", b.name)));
+            return Err(e(
+                "name",
+                format!("'{}' is not a valid name (non-empty, no dots or spaces)", b.name),
+            ));
         }
         if bodies.iter().any(|o: &BodyModel| o.name == b.name) {
             return Err(e("name", format!("duplicate body name '{}'", b.name)));
@@ -95,13 +94,24 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                 let mass = positive(b.mass).map_err(|r| e("mass", r))?;
                 let x = position.ok_or_else(|| e("position", "missing (required for a node)".into()))?;
                 if b.rotation.is_some() || b.ends.is_some() || b.inertia.is_some() || !b.points.is_empty() {
-                    return Err(e("kind", "a node takes only name, mass and position (its point is the node itself)".into()));
+                    return Err(e(
+                        "kind",
+                        "a node takes only name, mass and position (its point is the node itself)".into(),
+                    ));
                 }
-                (BodyKind::Node, mass, Matrix3::zeros(), Pose { position: x, rotation: UnitQuaternion::identity() }, 0.0)
+                (
+                    BodyKind::Node,
+                    mass,
+                    Matrix3::zeros(),
+                    Pose { position: x, rotation: UnitQuaternion::identity() },
+                    0.0,
+                )
             }
             BodyKindSpec::Bar => {
                 let mass = positive(b.mass).map_err(|r| e("mass", r))?;
-                let ends = b.ends.ok_or_else(|| e("ends", "missing (a bar is given by its two end positions)".into()))?;
+                let ends = b
+                    .ends
+                    .ok_or_else(|| e("ends", "missing (a bar is given by its two end positions)".into()))?;
                 if !finite3(&ends[0]) || !finite3(&ends[1]) {
                     return Err(e("ends", "must be finite".into()));
                 }
@@ -122,15 +132,27 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                 let it = match b.inertia.as_deref() {
                     None => mass * len * len / 12.0,
                     Some([it]) if it.is_finite() && *it > 0.0 => *it,
-                    Some(v) => return Err(e("inertia", format!("a bar takes one positive transverse inertia, got {v:?}"))),
+                    Some(v) => {
+                        return Err(e(
+                            "inertia",
+                            format!("a bar takes one positive transverse inertia, got {v:?}"),
+                        ))
+                    }
                 };
                 local_points.push(("a".into(), Vector3::new(0.0, 0.0, -len / 2.0)));
                 local_points.push(("b".into(), Vector3::new(0.0, 0.0, len / 2.0)));
-                (BodyKind::Bar, mass, Matrix3::from_diagonal(&Vector3::new(it, it, 0.0)), Pose { position: (a + bb) / 2.0, rotation: rot }, len)
+                (
+                    BodyKind::Bar,
+                    mass,
+                    Matrix3::from_diagonal(&Vector3::new(it, it, 0.0)),
+                    Pose { position: (a + bb) / 2.0, rotation: rot },
+                    len,
+                )
             }
             BodyKindSpec::Rigid => {
                 let mass = positive(b.mass).map_err(|r| e("mass", r))?;
-                let x = position.ok_or_else(|| e("position", "missing (required for a rigid body)".into()))?;
+                let x =
+                    position.ok_or_else(|| e("position", "missing (required for a rigid body)".into()))?;
                 let j = match b.inertia.as_deref() {
                     Some([a, bb, c]) => Matrix3::from_diagonal(&Vector3::new(*a, *bb, *c)),
                     Some([a, bb, c, xy, xz, yz]) => Matrix3::new(*a, *xy, *xz, *xy, *bb, *yz, *xz, *yz, *c),
@@ -143,7 +165,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                 let eig = SymmetricEigen::new(j).eigenvalues;
                 let (mn, sum) = (eig.min(), eig.sum());
                 if mn <= 0.0 || eig.iter().any(|l| 2.0 * l > sum * (1.0 + 1e-12)) {
-                    return Err(e("inertia", format!("not a physical inertia tensor (principal moments {:?} must be positive and obey the triangle inequality)", eig.as_slice())));
+                    return Err(e("inertia", format!("every rotation of a rigid body is a free coordinate and needs inertia: principal moments {:?} must be positive and obey the triangle inequality", eig.as_slice())));
                 }
                 (BodyKind::Rigid, mass, j, Pose { position: x, rotation }, 0.0)
             }
@@ -151,7 +173,13 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                 if b.mass.is_some() || b.inertia.is_some() || b.ends.is_some() {
                     return Err(e("mass", "a fixed body takes no mass, inertia or ends".into()));
                 }
-                (BodyKind::Fixed, 0.0, Matrix3::zeros(), Pose { position: position.unwrap_or_else(Vector3::zeros), rotation }, 0.0)
+                (
+                    BodyKind::Fixed,
+                    0.0,
+                    Matrix3::zeros(),
+                    Pose { position: position.unwrap_or_else(Vector3::zeros), rotation },
+                    0.0,
+                )
             }
         };
         for (pname, p) in &b.points {
@@ -162,15 +190,22 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             if local_points.iter().any(|(n, _)| n == pname) {
                 return Err(e(&field, format!("duplicate point name '{pname}' (bars define 'a' and 'b')")));
             }
-            let local = match (kind, p) {
-                (BodyKind::Bar, PointSpec::Along(s)) if s.is_finite() => Vector3::new(0.0, 0.0, (s - 0.5) * bar_len),
-                (BodyKind::Bar, PointSpec::Local(_)) => {
-                    return Err(e(&field, "a bar's points lie on its axis: give the fraction along the bar from a (0) to b (1)".into()))
-                }
-                (_, PointSpec::Local(v)) if finite3(v) => Vector3::from(*v),
-                (_, PointSpec::Along(_)) => return Err(e(&field, "expected body coordinates [x, y, z]".into())),
-                _ => return Err(e(&field, "must be finite".into())),
-            };
+            let local =
+                match (kind, p) {
+                    (BodyKind::Bar, PointSpec::Along(s)) if s.is_finite() => {
+                        Vector3::new(0.0, 0.0, (s - 0.5) * bar_len)
+                    }
+                    (BodyKind::Bar, PointSpec::Local(_)) => return Err(e(
+                        &field,
+                        "a bar's points lie on its axis: give the fraction along the bar from a (0) to b (1)"
+                            .into(),
+                    )),
+                    (_, PointSpec::Local(v)) if finite3(v) => Vector3::from(*v),
+                    (_, PointSpec::Along(_)) => {
+                        return Err(e(&field, "expected body coordinates [x, y, z]".into()))
+                    }
+                    _ => return Err(e(&field, "must be finite".into())),
+                };
             local_points.push((pname.clone(), local));
         }
         // basis
@@ -222,7 +257,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         bodies[pm.body.0].initial_pose.transform_point(&pm.local)
     };
     let lookup = |name: &str| point_names.get(name).copied();
-    let length_scale = points.iter().enumerate().map(|(i, _)| point_pos(PointId(i)).norm()).fold(1.0, f64::max);
+    let length_scale =
+        points.iter().enumerate().map(|(i, _)| point_pos(PointId(i)).norm()).fold(1.0, f64::max);
 
     // ---- joints
     let rows = if spec.planar { 2 } else { 3 };
@@ -233,7 +269,9 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         let body_a = points[a.0].body;
         let target = match j.kind {
             JointKindSpec::Ball => {
-                let bname = j.b.as_ref().ok_or_else(|| e("b", "missing: a ball joint joins point a to point b".into()))?;
+                let bname =
+                    j.b.as_ref()
+                        .ok_or_else(|| e("b", "missing: a ball joint joins point a to point b".into()))?;
                 let b = lookup(bname).ok_or_else(|| e("b", format!("unknown point '{bname}'")))?;
                 if points[b.0].body == body_a {
                     return Err(e("b", "both points are on the same body".into()));
@@ -248,7 +286,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             }
             JointKindSpec::Pin => {
                 if j.b.is_some() {
-                    return Err(e("b", "a pin holds one point to the ground; use kind = \"ball\" to join two bodies".into()));
+                    return Err(e(
+                        "b",
+                        "a pin holds one point to the ground; use kind = \"ball\" to join two bodies".into(),
+                    ));
                 }
                 if bodies[body_a.0].dof_count == 0 {
                     return Err(e("a", "the point is on a fixed body: nothing to pin".into()));
@@ -266,7 +307,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             JointTarget::World(x) => point_pos(a) - x,
         };
         if gap.norm() > 1e-9 * length_scale {
-            return Err(e("a", format!("the joint's points are {:.3e} m apart at the start; they must coincide", gap.norm())));
+            return Err(e(
+                "a",
+                format!("the joint's points are {:.3e} m apart at the start; they must coincide", gap.norm()),
+            ));
         }
         joints.push(JointModel { point: a, target, row_offset: i * rows });
     }
@@ -307,15 +351,21 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             return Err(e("ea", format!("EA must be positive and finite, got {}", c.ea)));
         }
         let rest = match (c.rest_length, c.prestress) {
-            (Some(_), Some(_)) => return Err(e("prestress", "give rest_length or prestress, not both".into())),
+            (Some(_), Some(_)) => {
+                return Err(e("prestress", "give rest_length or prestress, not both".into()))
+            }
             (Some(l), None) if l.is_finite() && l > 0.0 => RestLengthSpec::Given(l),
             (Some(l), None) => return Err(e("rest_length", format!("must be positive and finite, got {l}"))),
             (None, Some(t)) if t.is_finite() && t >= 0.0 => RestLengthSpec::Prestress(t),
-            (None, Some(t)) => return Err(e("prestress", format!("a cable can only pull: prestress must be >= 0, got {t}"))),
+            (None, Some(t)) => {
+                return Err(e("prestress", format!("a cable can only pull: prestress must be >= 0, got {t}")))
+            }
             (None, None) => RestLengthSpec::Free,
         };
         let (damping, ratio) = match (c.damping, c.damping_ratio) {
-            (Some(_), Some(_)) => return Err(e("damping_ratio", "give damping or damping_ratio, not both".into())),
+            (Some(_), Some(_)) => {
+                return Err(e("damping_ratio", "give damping or damping_ratio, not both".into()))
+            }
             (Some(d), None) if d.is_finite() && d >= 0.0 => (d, None),
             (Some(d), None) => return Err(e("damping", format!("must be >= 0 and finite, got {d}"))),
             (None, Some(z)) if z.is_finite() && z >= 0.0 => (0.0, Some(z)),
@@ -324,7 +374,12 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         };
         rest_specs.push(rest);
         damping_ratios.push(ratio);
-        cables.push(CableModel { route_start: start, route_len: c.route.len(), axial_stiffness: c.ea, damping });
+        cables.push(CableModel {
+            route_start: start,
+            route_len: c.route.len(),
+            axial_stiffness: c.ea,
+            damping,
+        });
         cable_names.push(c.name.clone());
     }
 
@@ -336,7 +391,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         if a.name.is_empty() || actuator_names.contains(&a.name) {
             return Err(e("name", format!("empty or duplicate actuator name '{}'", a.name)));
         }
-        let cable = cable_names.iter().position(|n| *n == a.cable).ok_or_else(|| e("cable", format!("unknown cable '{}'", a.cable)))?;
+        let cable = cable_names
+            .iter()
+            .position(|n| *n == a.cable)
+            .ok_or_else(|| e("cable", format!("unknown cable '{}'", a.cable)))?;
         if actuators.iter().any(|o: &ActuatorModel| o.cable.0 == cable) {
             return Err(e("cable", format!("cable '{}' already has an actuator", a.cable)));
         }
@@ -344,7 +402,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             return Err(e("min_rest_length", format!("must be positive, got {}", a.min_rest_length)));
         }
         if !(a.max_rest_length.is_finite() && a.max_rest_length >= a.min_rest_length) {
-            return Err(e("max_rest_length", format!("must be >= min_rest_length, got {}", a.max_rest_length)));
+            return Err(e(
+                "max_rest_length",
+                format!("must be >= min_rest_length, got {}", a.max_rest_length),
+            ));
         }
         if !(a.max_rate.is_finite() && a.max_rate > 0.0) {
             return Err(e("max_rate", format!("must be positive, got {}", a.max_rate)));
@@ -395,10 +456,11 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     check_mass_on_free_coordinates(&model, &cx)?;
 
     // ---- rest lengths (form finding where asked)
-    model.initial_rest_lengths = find_rest_lengths(&model, &rest_specs).map_err(|(cable, reason)| match cable {
-        Some(c) => cx.err("cables", c, "prestress", reason),
-        None => cx.top("cables", reason),
-    })?;
+    model.initial_rest_lengths =
+        find_rest_lengths(&model, &rest_specs).map_err(|(cable, reason)| match cable {
+            Some(c) => cx.err("cables", c, "prestress", reason),
+            None => cx.top("cables", reason),
+        })?;
     for (c, ratio) in damping_ratios.iter().enumerate() {
         if let Some(zeta) = ratio {
             let inv_m: f64 = model
@@ -419,7 +481,15 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     for (i, a) in model.actuators.iter().enumerate() {
         let l0 = model.initial_rest_lengths[a.cable.0];
         if l0 < a.min_rest_length || l0 > a.max_rest_length {
-            return Err(cx.err("actuators", i, "min_rest_length", format!("the cable's initial rest length {l0:.6} m is outside [{}, {}]", a.min_rest_length, a.max_rest_length)));
+            return Err(cx.err(
+                "actuators",
+                i,
+                "min_rest_length",
+                format!(
+                    "the cable's initial rest length {l0:.6} m is outside [{}, {}]",
+                    a.min_rest_length, a.max_rest_length
+                ),
+            ));
         }
     }
 
@@ -431,7 +501,9 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         let mut ramps = Vec::new();
         for (i, r) in d.ramps.iter().enumerate() {
             let e = |field: &str, reason: String| cx.err("deployment.ramps", i, field, reason);
-            let id = model.actuator_id(&r.actuator).ok_or_else(|| e("actuator", format!("unknown actuator '{}'", r.actuator)))?;
+            let id = model
+                .actuator_id(&r.actuator)
+                .ok_or_else(|| e("actuator", format!("unknown actuator '{}'", r.actuator)))?;
             if !(r.start.is_finite() && r.start >= 0.0) {
                 return Err(e("start", format!("must be >= 0, got {}", r.start)));
             }
@@ -440,11 +512,22 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             }
             let act = model.actuators[id.0];
             if !(r.rest_length >= act.min_rest_length && r.rest_length <= act.max_rest_length) {
-                return Err(e("rest_length", format!("{} m is outside the actuator's range [{}, {}]", r.rest_length, act.min_rest_length, act.max_rest_length)));
+                return Err(e(
+                    "rest_length",
+                    format!(
+                        "{} m is outside the actuator's range [{}, {}]",
+                        r.rest_length, act.min_rest_length, act.max_rest_length
+                    ),
+                ));
             }
-            ramps.push((i, Ramp { actuator: id, start: r.start, duration: r.duration, target: r.rest_length }));
+            ramps.push((
+                i,
+                Ramp { actuator: id, start: r.start, duration: r.duration, target: r.rest_length },
+            ));
         }
-        ramps.sort_by(|a, b| (a.1.actuator, a.1.start).partial_cmp(&(b.1.actuator, b.1.start)).expect("finite"));
+        ramps.sort_by(|a, b| {
+            (a.1.actuator, a.1.start).partial_cmp(&(b.1.actuator, b.1.start)).expect("finite")
+        });
         let mut prev: Option<Ramp> = None;
         for (i, r) in &ramps {
             let e = |field: &str, reason: String| cx.err("deployment.ramps", *i, field, reason);
@@ -460,7 +543,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             let rate = (r.target - from).abs() / r.duration;
             let max_rate = model.actuators[r.actuator.0].max_rate;
             if rate > max_rate * (1.0 + 1e-12) {
-                return Err(e("duration", format!("needs {rate:.4} m/s, above the actuator's max_rate {max_rate} m/s")));
+                return Err(e(
+                    "duration",
+                    format!("needs {rate:.4} m/s, above the actuator's max_rate {max_rate} m/s"),
+                ));
             }
             prev = Some(*r);
         }
@@ -468,7 +554,6 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     } else {
         model.schedule.steps = 1;
     }
-    let _ = ActuatorId(0);
     Ok(model)
 }
 
@@ -483,7 +568,12 @@ fn check_mass_on_free_coordinates(model: &Model, cx: &Ctx) -> Result<(), SceneEr
         let sub = m.view((0, 0), (k, k)).into_owned();
         let eig = SymmetricEigen::new(sub).eigenvalues;
         if eig.min() <= 1e-12 * eig.max().max(1e-300) {
-            return Err(cx.err("bodies", i, "mass", format!("body '{}' has a free coordinate without mass or inertia", b.name)));
+            return Err(cx.err(
+                "bodies",
+                i,
+                "mass",
+                format!("body '{}' has a free coordinate without mass or inertia", b.name),
+            ));
         }
     }
     Ok(())

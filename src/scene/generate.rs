@@ -1,1 +1,462 @@
-//! placeholder
+//! Parametric scene generators: take a few numbers, give a `SceneSpec` (which `tensegrity generate`
+//! writes as TOML): the regular n-strut prism, an N-stage tower of stacked prisms with clustered
+//! side cables, a planar clustered T-bar, and the elastic Atwood machine.
+//!
+//! Prism geometry (DESIGN.md 5): bottom node i at angle `2 pi i / n` and height 0, top node i at
+//! `2 pi i / n + alpha` and height `h`, twist `alpha = pi/2 + pi/n`; bars bottom i to top i, side
+//! strings bottom i to top i-1, rings. Its self-stress has force densities `q_bar = -q_side` and
+//! `q_ring = q_side / (2 sin(pi/n))`. Bars stand on pins (their bottom ends are pinned to the
+//! ground), so the bottom ring is not needed; only the side strings get a prestress target and form
+//! finding determines the rest.
+
+use std::collections::BTreeMap;
+use std::f64::consts::PI;
+
+use super::{
+    ActuatorSpec, BodyKindSpec, BodySpec, CableSpec, DeploymentSpec, JointKindSpec, JointSpec, PointSpec,
+    RampSpec, SceneSpec,
+};
+
+/// Parameters of the regular n-strut prism.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PrismParams {
+    /// Number of struts (>= 3).
+    pub n: usize,
+    /// Radius of both rings, m.
+    pub radius: f64,
+    /// Height, m.
+    pub height: f64,
+    /// Mass of each bar, kg.
+    pub bar_mass: f64,
+    /// Axial stiffness of every cable, N.
+    pub ea: f64,
+    /// Target tension of each side string, N.
+    pub side_prestress: f64,
+    /// Replace the top ring's n strings by one closed clustered cable through pulleys at the top
+    /// nodes (anchored at top node 0), driven by an actuator.
+    pub cluster_top_ring: bool,
+    /// Damping ratio of every cable.
+    pub damping_ratio: f64,
+    /// Fraction by which the deployment schedule shortens the clustered ring (0 = no schedule).
+    pub deploy_shortening: f64,
+}
+
+impl Default for PrismParams {
+    fn default() -> Self {
+        Self {
+            n: 3,
+            radius: 1.0,
+            height: 1.5,
+            bar_mass: 2.0,
+            ea: 5e4,
+            side_prestress: 100.0,
+            cluster_top_ring: true,
+            damping_ratio: 0.05,
+            deploy_shortening: 0.1,
+        }
+    }
+}
+
+fn bar(name: String, mass: f64, a: [f64; 3], b: [f64; 3]) -> BodySpec {
+    BodySpec {
+        name,
+        kind: BodyKindSpec::Bar,
+        mass: Some(mass),
+        position: None,
+        rotation: None,
+        ends: Some([a, b]),
+        inertia: None,
+        points: BTreeMap::new(),
+    }
+}
+
+fn cable(name: String, route: Vec<String>, ea: f64, zeta: f64) -> CableSpec {
+    CableSpec {
+        name,
+        route,
+        ea,
+        damping: None,
+        damping_ratio: if zeta > 0.0 { Some(zeta) } else { None },
+        rest_length: None,
+        prestress: None,
+    }
+}
+
+fn ring_point(radius: f64, angle: f64, z: f64) -> [f64; 3] {
+    [radius * angle.cos(), radius * angle.sin(), z]
+}
+
+/// Twist of the regular n-prism, `pi/2 + pi/n` (rad).
+pub fn prism_twist(n: usize) -> f64 {
+    PI / 2.0 + PI / n as f64
+}
+
+/// The regular n-prism on pinned supports; see the module docs.
+pub fn prism(p: &PrismParams) -> SceneSpec {
+    tower(&TowerParams {
+        n: p.n,
+        stages: 1,
+        radius: p.radius,
+        stage_height: p.height,
+        bar_mass: p.bar_mass,
+        ea: p.ea,
+        side_prestress: p.side_prestress,
+        cluster_sides: false,
+        cluster_top_ring: p.cluster_top_ring,
+        damping_ratio: p.damping_ratio,
+        deploy_shortening: p.deploy_shortening,
+    })
+}
+
+/// Parameters of a tower of stacked prisms.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TowerParams {
+    /// Struts per stage (>= 3).
+    pub n: usize,
+    /// Number of stages (>= 1).
+    pub stages: usize,
+    /// Ring radius, m.
+    pub radius: f64,
+    /// Height of each stage, m.
+    pub stage_height: f64,
+    /// Mass of each bar, kg.
+    pub bar_mass: f64,
+    /// Axial stiffness of every cable, N.
+    pub ea: f64,
+    /// Target tension of the side strings, N.
+    pub side_prestress: f64,
+    /// Cluster the side strings that continue from stage to stage into n helical cables through
+    /// pulleys at the stage joints, each driven by an actuator.
+    pub cluster_sides: bool,
+    /// Cluster the top ring into one closed cable, driven by an actuator.
+    pub cluster_top_ring: bool,
+    /// Damping ratio of every cable.
+    pub damping_ratio: f64,
+    /// Fraction by which the schedule shortens the actuated cables.
+    pub deploy_shortening: f64,
+}
+
+impl Default for TowerParams {
+    fn default() -> Self {
+        Self {
+            n: 3,
+            stages: 3,
+            radius: 1.0,
+            stage_height: 1.2,
+            bar_mass: 2.0,
+            ea: 5e4,
+            side_prestress: 100.0,
+            cluster_sides: true,
+            cluster_top_ring: false,
+            damping_ratio: 0.05,
+            deploy_shortening: 0.05,
+        }
+    }
+}
+
+/// A tower of `stages` regular prisms stacked with the same twist: node `i` of level `l` at height
+/// `l h` and angle `2 pi i / n + l alpha`; the bars of consecutive stages are joined by ball joints at
+/// the shared nodes and the bottom bars are pinned to the ground. Every stage carries the prism's
+/// self-stress, so intermediate rings carry twice the top ring's force density.
+pub fn tower(p: &TowerParams) -> SceneSpec {
+    let (n, s) = (p.n, p.stages);
+    let alpha = prism_twist(n);
+    let node = |level: usize, i: usize| {
+        ring_point(
+            p.radius,
+            2.0 * PI * i as f64 / n as f64 + level as f64 * alpha,
+            level as f64 * p.stage_height,
+        )
+    };
+    // name of the point at level l, index i: the bottom end of the bar above, or the top end of the
+    // last stage's bar
+    let point = |level: usize, i: usize| {
+        let i = i % n;
+        if level < s {
+            format!("bar{level}_{i}.a")
+        } else {
+            format!("bar{}_{i}.b", s - 1)
+        }
+    };
+    let mut spec = SceneSpec {
+        name: if s == 1 { format!("prism{n}") } else { format!("tower{n}x{s}") },
+        description: if s == 1 {
+            format!(
+                "Regular {n}-strut prism on pinned supports, side strings prestressed to {} N",
+                p.side_prestress
+            )
+        } else {
+            format!(
+                "Tower of {s} stacked {n}-strut prisms, clustered side cables, prestress {} N",
+                p.side_prestress
+            )
+        },
+        ..Default::default()
+    };
+    for l in 0..s {
+        for i in 0..n {
+            spec.bodies.push(bar(format!("bar{l}_{i}"), p.bar_mass, node(l, i), node(l + 1, i)));
+        }
+    }
+    for i in 0..n {
+        spec.joints.push(JointSpec { kind: JointKindSpec::Pin, a: point(0, i), b: None, at: None });
+    }
+    for l in 1..s {
+        for i in 0..n {
+            spec.joints.push(JointSpec {
+                kind: JointKindSpec::Ball,
+                a: format!("bar{}_{i}.b", l - 1),
+                b: Some(point(l, i)),
+                at: None,
+            });
+        }
+    }
+    let mut actuated = Vec::new();
+    // side strings: bottom i to top i-1 in every stage
+    if p.cluster_sides && s > 1 {
+        for i in 0..n {
+            let route = (0..=s).map(|l| point(l, i + n * s - l)).collect();
+            let mut c = cable(format!("side{i}"), route, p.ea, p.damping_ratio);
+            c.prestress = Some(p.side_prestress);
+            actuated.push(c.name.clone());
+            spec.cables.push(c);
+        }
+    } else {
+        for l in 0..s {
+            for i in 0..n {
+                let name = if s == 1 { format!("side{i}") } else { format!("side{l}_{i}") };
+                let mut c = cable(name, vec![point(l, i), point(l + 1, i + n - 1)], p.ea, p.damping_ratio);
+                c.prestress = Some(p.side_prestress);
+                spec.cables.push(c);
+            }
+        }
+    }
+    // rings at every level above the ground
+    for l in 1..=s {
+        if l == s && p.cluster_top_ring {
+            let mut route: Vec<String> = (0..n).map(|i| point(l, i)).collect();
+            route.push(point(l, 0));
+            let c = cable("ring".into(), route, p.ea, p.damping_ratio);
+            actuated.push(c.name.clone());
+            spec.cables.push(c);
+        } else {
+            for i in 0..n {
+                let name = if s == 1 { format!("ring{i}") } else { format!("ring{l}_{i}") };
+                spec.cables.push(cable(name, vec![point(l, i), point(l, i + 1)], p.ea, p.damping_ratio));
+            }
+        }
+    }
+    if p.deploy_shortening > 0.0 && !actuated.is_empty() {
+        let scene_model = super::build_model(&spec, "<generated>", None).expect("generated scenes are valid");
+        let mut ramps = Vec::new();
+        for name in actuated {
+            let c = scene_model.cable_id(&name).expect("generated cable");
+            let l0 = scene_model.initial_rest_lengths[c.0];
+            let target = l0 * (1.0 - p.deploy_shortening);
+            spec.actuators.push(ActuatorSpec {
+                name: format!("{name}_winch"),
+                cable: name.clone(),
+                min_rest_length: round6(0.5 * l0),
+                max_rest_length: round6(1.2 * l0),
+                max_rate: round6(l0),
+            });
+            ramps.push(RampSpec {
+                actuator: format!("{name}_winch"),
+                start: 0.0,
+                duration: 1.0,
+                rest_length: round6(target),
+            });
+        }
+        spec.deployment = Some(DeploymentSpec { steps: 40, ramps });
+    }
+    spec
+}
+
+fn round6(x: f64) -> f64 {
+    (x * 1e6).round() / 1e6
+}
+
+/// Parameters of the planar clustered T-bar.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TbarParams {
+    /// Half-length of the vertical bar (the mast), m.
+    pub half_height: f64,
+    /// Half-length of the horizontal bar, m.
+    pub half_width: f64,
+    /// Horizontal distance of the guy anchors from the mast foot, m.
+    pub anchor_distance: f64,
+    /// Bar masses, kg.
+    pub bar_mass: f64,
+    /// Axial stiffness of every cable, N.
+    pub ea: f64,
+    /// Target tension of the sliding upper cable, N.
+    pub prestress: f64,
+    /// Target tension of the two lower strings, N.
+    pub lower_prestress: f64,
+    /// Target tension of the two guys, N.
+    pub guy_prestress: f64,
+    /// Damping ratio of every cable.
+    pub damping_ratio: f64,
+    /// Fraction by which the schedule shortens the upper cable.
+    pub deploy_shortening: f64,
+}
+
+impl Default for TbarParams {
+    fn default() -> Self {
+        Self {
+            half_height: 1.0,
+            half_width: 0.6,
+            anchor_distance: 1.5,
+            bar_mass: 1.0,
+            ea: 2e4,
+            prestress: 50.0,
+            lower_prestress: 50.0,
+            guy_prestress: 80.0,
+            damping_ratio: 0.05,
+            deploy_shortening: 0.1,
+        }
+    }
+}
+
+/// Planar T-bar (Skelton's unit) in the xy plane, y up, gravity -y: a vertical mast pinned at its
+/// foot and held by two guys from its top to ground anchors, a horizontal bar joined at its centre
+/// to the mast's centre, and a diamond of strings: the two lower strings (bar end to mast foot) and
+/// the two upper strings (bar end, mast top, other bar end) as one sliding cable through a pulley at
+/// the mast top, driven by an actuator. The scene's symmetric tensions are independent self-stress
+/// states, so every cable gets a prestress target.
+pub fn tbar(p: &TbarParams) -> SceneSpec {
+    let h = p.half_height;
+    let mut mast = bar("mast".into(), p.bar_mass, [0.0, 0.0, 0.0], [0.0, 2.0 * h, 0.0]);
+    mast.points.insert("mid".into(), PointSpec::Along(0.5));
+    let cross = bar("cross".into(), p.bar_mass, [-p.half_width, h, 0.0], [p.half_width, h, 0.0]);
+    let mut ground = BodySpec {
+        name: "ground".into(),
+        kind: BodyKindSpec::Fixed,
+        mass: None,
+        position: None,
+        rotation: None,
+        ends: None,
+        inertia: None,
+        points: BTreeMap::new(),
+    };
+    ground.points.insert("left".into(), PointSpec::Local([-p.anchor_distance, 0.0, 0.0]));
+    ground.points.insert("right".into(), PointSpec::Local([p.anchor_distance, 0.0, 0.0]));
+    let string = |name: &str, route: &[&str], t: f64| {
+        let mut c = cable(name.into(), route.iter().map(|s| s.to_string()).collect(), p.ea, p.damping_ratio);
+        c.prestress = Some(t);
+        c
+    };
+    let mut spec = SceneSpec {
+        name: "tbar".into(),
+        description: "Planar clustered T-bar: the two upper strings are one sliding cable over the mast top"
+            .into(),
+        gravity: [0.0, -9.81, 0.0],
+        planar: true,
+        bodies: vec![ground, mast, cross],
+        joints: vec![
+            JointSpec { kind: JointKindSpec::Pin, a: "mast.a".into(), b: None, at: None },
+            JointSpec { kind: JointKindSpec::Ball, a: "cross".into(), b: Some("mast.mid".into()), at: None },
+        ],
+        cables: vec![
+            string("upper", &["cross.a", "mast.b", "cross.b"], p.prestress),
+            string("lower_left", &["cross.a", "mast.a"], p.lower_prestress),
+            string("lower_right", &["cross.b", "mast.a"], p.lower_prestress),
+            string("guy_left", &["mast.b", "ground.left"], p.guy_prestress),
+            string("guy_right", &["mast.b", "ground.right"], p.guy_prestress),
+        ],
+        ..Default::default()
+    };
+    if p.deploy_shortening > 0.0 {
+        let model = super::build_model(&spec, "<generated>", None).expect("generated scenes are valid");
+        let l0 = model.initial_rest_lengths[0];
+        spec.actuators.push(ActuatorSpec {
+            name: "upper_winch".into(),
+            cable: "upper".into(),
+            min_rest_length: round6(0.5 * l0),
+            max_rest_length: round6(1.2 * l0),
+            max_rate: round6(l0),
+        });
+        spec.deployment = Some(DeploymentSpec {
+            steps: 40,
+            ramps: vec![RampSpec {
+                actuator: "upper_winch".into(),
+                start: 0.0,
+                duration: 1.0,
+                rest_length: round6(l0 * (1.0 - p.deploy_shortening)),
+            }],
+        });
+    }
+    spec
+}
+
+/// Parameters of the elastic Atwood machine.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AtwoodParams {
+    /// First mass, kg.
+    pub m1: f64,
+    /// Second mass, kg.
+    pub m2: f64,
+    /// Cable stiffness `k = EA/L0`, N/m.
+    pub stiffness: f64,
+    /// Length of each hanging segment, m.
+    pub drop: f64,
+    /// Distance between the two fixed pulleys, m.
+    pub pulley_spacing: f64,
+    /// Initial stretch `L - L0`, m (0 = just taut; negative = slack).
+    pub initial_stretch: f64,
+}
+
+impl Default for AtwoodParams {
+    fn default() -> Self {
+        Self { m1: 2.0, m2: 1.0, stiffness: 1000.0, drop: 1.0, pulley_spacing: 0.2, initial_stretch: 0.0 }
+    }
+}
+
+/// Elastic Atwood machine: two point masses hanging from one cable over two fixed pulleys
+/// (gravity -z); rest length `L0 = L - stretch` and `EA = k L0`.
+pub fn atwood(p: &AtwoodParams) -> SceneSpec {
+    let half = p.pulley_spacing / 2.0;
+    let mut ceiling = BodySpec {
+        name: "ceiling".into(),
+        kind: BodyKindSpec::Fixed,
+        mass: None,
+        position: None,
+        rotation: None,
+        ends: None,
+        inertia: None,
+        points: BTreeMap::new(),
+    };
+    ceiling.points.insert("left".into(), PointSpec::Local([-half, 0.0, 0.0]));
+    ceiling.points.insert("right".into(), PointSpec::Local([half, 0.0, 0.0]));
+    let mass = |name: &str, m: f64, x: f64| BodySpec {
+        name: name.into(),
+        kind: BodyKindSpec::Node,
+        mass: Some(m),
+        position: Some([x, 0.0, -p.drop]),
+        rotation: None,
+        ends: None,
+        inertia: None,
+        points: BTreeMap::new(),
+    };
+    let length = 2.0 * p.drop + p.pulley_spacing;
+    let rest = length - p.initial_stretch;
+    SceneSpec {
+        name: "atwood".into(),
+        description: format!(
+            "Elastic Atwood machine: m1 = {} kg, m2 = {} kg, k = EA/L0 = {} N/m",
+            p.m1, p.m2, p.stiffness
+        ),
+        gravity: [0.0, 0.0, -9.81],
+        bodies: vec![ceiling, mass("m1", p.m1, -half), mass("m2", p.m2, half)],
+        cables: vec![CableSpec {
+            name: "rope".into(),
+            route: vec!["m1".into(), "ceiling.left".into(), "ceiling.right".into(), "m2".into()],
+            ea: p.stiffness * rest,
+            damping: None,
+            damping_ratio: None,
+            rest_length: Some(rest),
+            prestress: None,
+        }],
+        ..Default::default()
+    }
+}

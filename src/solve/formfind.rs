@@ -33,7 +33,8 @@ pub fn find_rest_lengths(
     model: &Model,
     specs: &[RestLengthSpec],
 ) -> Result<Vec<f64>, (Option<usize>, String)> {
-    let unknown: Vec<usize> = (0..specs.len()).filter(|&c| !matches!(specs[c], RestLengthSpec::Given(_))).collect();
+    let unknown: Vec<usize> =
+        (0..specs.len()).filter(|&c| !matches!(specs[c], RestLengthSpec::Given(_))).collect();
     let mut state = State::initial(model);
     state.rest_lengths.iter_mut().for_each(|l| *l = f64::MAX);
     let mut ws = Workspace::new(model);
@@ -45,7 +46,10 @@ pub fn find_rest_lengths(
         }
     }
     if unknown.is_empty() {
-        return Ok(specs.iter().map(|s| if let RestLengthSpec::Given(l) = s { *l } else { unreachable!() }).collect());
+        return Ok(specs
+            .iter()
+            .map(|s| if let RestLengthSpec::Given(l) = s { *l } else { unreachable!() })
+            .collect());
     }
 
     let n = model.dof_count;
@@ -84,7 +88,9 @@ pub fn find_rest_lengths(
     let targets: Vec<(usize, f64)> = unknown
         .iter()
         .enumerate()
-        .filter_map(|(col, &c)| if let RestLengthSpec::Prestress(t) = specs[c] { Some((col, t)) } else { None })
+        .filter_map(
+            |(col, &c)| if let RestLengthSpec::Prestress(t) = specs[c] { Some((col, t)) } else { None },
+        )
         .collect();
     let scale = targets.iter().map(|t| t.1.abs()).fold(b.amax(), f64::max).max(1e-12);
 
@@ -97,13 +103,11 @@ pub fn find_rest_lengths(
         return Err((None, format!("the initial geometry is not an equilibrium for any cable tensions (force residual {residual:.3e} N); move the bodies or give rest lengths")));
     }
     let v_t = svd.v_t.as_ref().expect("requested");
-    let null: Vec<DVector<f64>> = (0..p)
-        .filter(|&i| svd.singular_values[i] <= tol)
-        .map(|i| v_t.row(i).transpose())
-        .collect();
+    let null: Vec<DVector<f64>> =
+        (0..p).filter(|&i| svd.singular_values[i] <= tol).map(|i| v_t.row(i).transpose()).collect();
     let mut x = x_p;
-    let nb = DMatrix::from_columns(&null);
     if !null.is_empty() {
+        let nb = DMatrix::from_columns(&null);
         let mut sn = DMatrix::zeros(targets.len().max(null.len()), null.len());
         let mut rhs = DVector::zeros(sn.nrows());
         for (r, (col, t)) in targets.iter().enumerate() {
@@ -121,7 +125,10 @@ pub fn find_rest_lengths(
                 continue;
             }
             let dir = &nb * v2.row(i).transpose();
-            let open: Vec<&str> = (0..nu).filter(|&col| dir[col].abs() > 1e-8).map(|col| model.cable_names[unknown[col]].as_str()).collect();
+            let open: Vec<&str> = (0..nu)
+                .filter(|&col| dir[col].abs() > 1e-8)
+                .map(|col| model.cable_names[unknown[col]].as_str())
+                .collect();
             if !open.is_empty() {
                 return Err((None, format!("form finding cannot determine the tensions of cables {}: give one of them a prestress or a rest_length", open.join(", "))));
             }
@@ -139,7 +146,10 @@ pub fn find_rest_lengths(
             (_, Some(col)) => {
                 let t = x[col];
                 if t < -1e-9 * scale {
-                    return Err((Some(c), format!("equilibrium needs this cable to push (T = {t:.6} N); a cable can only pull")));
+                    return Err((
+                        Some(c),
+                        format!("equilibrium needs this cable to push (T = {t:.6} N); a cable can only pull"),
+                    ));
                 }
                 let ea = model.cables[c].axial_stiffness;
                 ea * lengths[c] / (ea + t.max(0.0))

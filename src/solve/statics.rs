@@ -7,7 +7,8 @@
 //! Newton step from the KKT system
 //! `[[K + H_lambda, Phi_q^T], [Phi_q, 0]] [dq; dlambda] = [Q - Phi_q^T lambda; -Phi]`,
 //! with `K = -dQ/dq` and `H_lambda = d(Phi_q^T lambda)/dq`; the pose update is the group retraction
-//! `crate::state::retract`. Converged when `|Q - Phi_q^T lambda|_inf <= tol * F_scale` (N, N m) and
+//! `crate::state::retract`. Converged when `|Q - Phi_q^T lambda|_inf <= max(tol * F_scale, F_floor)`
+//! (N, N m), with the round-off floor `F_floor = 16 eps max_c(EA_c L_c / L0_c)`, and
 //! `|Phi|_inf <= tol * L_scale` (m), with `F_scale` the largest of the cable tensions and body
 //! weights and `L_scale` the largest cable length.
 //!
@@ -55,6 +56,9 @@ struct Residual {
     constraint: f64,
     force_scale: f64,
     length_scale: f64,
+    /// Round-off floor of the force residual: positions carry a relative error of about machine
+    /// epsilon, so a cable's force is only known to `~eps EA L / L0`.
+    force_floor: f64,
 }
 
 impl Residual {
@@ -76,7 +80,14 @@ fn residual_of(model: &Model, state: &State, ws: &mut Workspace, rhs: &mut DVect
     let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
     let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
     let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max);
+    let force_floor = model
+        .cables
+        .iter()
+        .zip(&ws.cables)
+        .map(|(m, c)| 16.0 * f64::EPSILON * m.axial_stiffness * c.length / c.rest_length)
+        .fold(0.0, f64::max);
     Residual {
+        force_floor,
         force: r.amax(),
         constraint: ws.constraint.amax(),
         force_scale: weight.max(tension).max(1e-12),
@@ -121,7 +132,7 @@ impl StaticSolver {
                 break;
             }
             best = best.min(res.force);
-            if res.force <= settings.tolerance * res.force_scale
+            if res.force <= (settings.tolerance * res.force_scale).max(res.force_floor)
                 && res.constraint <= settings.tolerance * res.length_scale
             {
                 let (min_eig, stable) = self.stability(model, state, ws);
@@ -178,7 +189,8 @@ impl StaticSolver {
                 std::mem::swap(&mut state.poses, &mut self.trial_poses);
                 state.multipliers = &base_multipliers + &dlambda * alpha;
                 evaluate(model, state, ws, Tangents::None);
-                let trial = residual_of(model, state, ws, &mut self.rhs).merit(res.force_scale, res.length_scale);
+                let trial =
+                    residual_of(model, state, ws, &mut self.rhs).merit(res.force_scale, res.length_scale);
                 std::mem::swap(&mut state.poses, &mut self.trial_poses);
                 if trial.is_finite() && trial < best_trial.0 {
                     best_trial = (trial, alpha);
@@ -234,12 +246,13 @@ impl StaticSolver {
     }
 }
 
-/// Solves the KKT system; if the LU fails or gives non-finite values, retries with Levenberg
-/// regularization `mu I` on the coordinate block (growing mu), which turns a singular direction
-/// (mechanism, free motion) into a short step instead of an infinite one.
+/// Solves the KKT system with a Levenberg term `mu I` on the coordinate block, starting from
+/// `mu = 1e-14 max|K_ii|` (negligible for a regular system, but it turns an exactly neutral
+/// direction, such as an equal-mass Atwood machine's sliding mode, into a zero step instead of a
+/// round-off one) and growing it while the LU fails or gives non-finite values.
 fn solve_regularized(kkt: &DMatrix<f64>, rhs: &DVector<f64>, n: usize) -> Option<DVector<f64>> {
     let diag = (0..n).map(|i| kkt[(i, i)].abs()).fold(0.0, f64::max).max(1e-12);
-    let mut mu = 0.0;
+    let mut mu = 1e-14 * diag;
     for _ in 0..8 {
         let mut a = kkt.clone();
         for i in 0..n {
@@ -250,7 +263,7 @@ fn solve_regularized(kkt: &DMatrix<f64>, rhs: &DVector<f64>, n: usize) -> Option
                 return Some(x);
             }
         }
-        mu = if mu == 0.0 { 1e-10 * diag } else { mu * 100.0 };
+        mu *= 1000.0;
     }
     None
 }

@@ -1,0 +1,117 @@
+//! Invariant: the `tensegrity` command line does what the README says on the bundled scenes, the
+//! bundled scenes are exactly what the generators produce, and `statics` on `prism3` prints the
+//! closed-form self-stress (ring/side tension ratio `r / l_side`) to 1e-6.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use tensegrity::scene::generate;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn tensegrity(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_tensegrity")).args(args).current_dir(root()).output().expect("runs")
+}
+
+#[test]
+fn bundled_scenes_match_their_generators() {
+    let cases = [
+        (
+            "prism3.toml",
+            generate::prism(&generate::PrismParams { cluster_top_ring: true, ..Default::default() }),
+        ),
+        ("tbar.toml", generate::tbar(&Default::default())),
+        ("tower.toml", generate::tower(&Default::default())),
+        ("atwood.toml", generate::atwood(&Default::default())),
+    ];
+    for (file, spec) in cases {
+        let text = std::fs::read_to_string(root().join("config/scenes").join(file)).unwrap();
+        let bundled = tensegrity::scene::parse(&text, file).unwrap();
+        assert_eq!(
+            bundled, spec,
+            "{file} differs from its generator: regenerate it with `tensegrity generate`"
+        );
+    }
+}
+
+#[test]
+fn statics_on_prism3_prints_the_closed_form_self_stress() {
+    let out = tensegrity(&["statics", "config/scenes/prism3.toml", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["stable"].as_bool().unwrap());
+    let cable =
+        |name: &str| v["cables"].as_array().unwrap().iter().find(|c| c["name"] == name).unwrap().clone();
+    let (side, ring) = (cable("side0"), cable("ring"));
+    let p = generate::PrismParams::default();
+    let expected = p.radius / side["length"].as_f64().unwrap();
+    let ratio = ring["tension"].as_f64().unwrap() / side["tension"].as_f64().unwrap();
+    assert!((ratio - expected).abs() <= 1e-6 * expected, "ratio {ratio} vs {expected}");
+    assert!((side["tension"].as_f64().unwrap() - p.side_prestress).abs() <= 1e-6 * p.side_prestress);
+    assert_eq!(ring["segment_lengths"].as_array().unwrap().len(), 3);
+    assert_eq!(ring["pulley_slip"].as_array().unwrap().len(), 2);
+}
+
+#[test]
+fn check_prints_counts() {
+    let out = tensegrity(&["check", "config/scenes/tower.toml"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    for line in [
+        "bodies: 9 (0 node, 9 bar, 0 rigid, 0 fixed)",
+        "coordinates: 45",
+        "constraints: 27",
+        "cables: 12 (3 sliding)",
+        "pulleys: 6",
+    ] {
+        assert!(text.contains(line), "missing '{line}' in:\n{text}");
+    }
+}
+
+#[test]
+fn deploy_writes_one_row_per_step() {
+    let dir = std::env::temp_dir().join(format!("tensegrity-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv = dir.join("tbar.csv");
+    let out = tensegrity(&[
+        "deploy",
+        "config/scenes/tbar.toml",
+        "--quasi-static",
+        "--steps",
+        "8",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 1 + 9);
+    let header: Vec<&str> = lines[0].split(',').collect();
+    assert!(
+        header.contains(&"tension_upper_N")
+            && header.contains(&"rest_length_upper_m")
+            && header.contains(&"mast.b_y_m")
+    );
+    assert!(lines[1..].iter().all(|l| l.split(',').count() == header.len()));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn malformed_scene_fails_with_file_line_and_field() {
+    let dir = std::env::temp_dir().join(format!("tensegrity-cli-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.toml");
+    let text = std::fs::read_to_string(root().join("config/scenes/atwood.toml")).unwrap().replacen(
+        "mass = 2.0",
+        "mass = -2.0",
+        1,
+    );
+    std::fs::write(&bad, text).unwrap();
+    let out = tensegrity(&["check", bad.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("bad.toml:") && err.contains("bodies[1].mass: must be positive, got -2"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,0 +1,225 @@
+//! Invariant: a malformed scene never panics; it gets a `SceneError` naming the file, the line,
+//! the field path and the reason — for every case listed in the mechanics-core issue.
+
+use tensegrity::scene::from_toml;
+use tensegrity::SceneError;
+
+const VALID: &str = r#"name = "ok"
+gravity = [0.0, 0.0, -9.81]
+
+[[bodies]]
+name = "ground"
+kind = "fixed"
+points = { top = [0.0, 0.0, 2.0], left = [-1.0, 0.0, 2.0] }
+
+[[bodies]]
+name = "pole"
+kind = "bar"
+mass = 1.0
+ends = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+
+[[bodies]]
+name = "box"
+kind = "rigid"
+mass = 2.0
+position = [0.5, 0.0, 0.5]
+inertia = [0.1, 0.1, 0.1]
+points = { hook = [0.0, 0.0, 0.2] }
+
+[[joints]]
+kind = "pin"
+a = "pole.a"
+
+[[cables]]
+name = "stay"
+route = ["ground.top", "pole.b"]
+ea = 1000.0
+rest_length = 0.9
+
+[[cables]]
+name = "sling"
+route = ["ground.left", "pole.b", "box.hook"]
+ea = 1000.0
+rest_length = 2.0
+"#;
+
+fn error_of(text: &str) -> SceneError {
+    match from_toml(text, "scene.toml") {
+        Ok(_) => panic!("accepted a malformed scene:\n{text}"),
+        Err(e) => e,
+    }
+}
+
+fn expect(text: &str, field: &str, line: usize, reason_has: &str) {
+    let e = error_of(text);
+    assert_eq!(e.file, "scene.toml");
+    assert_eq!(e.field, field, "{e}");
+    assert_eq!(e.line, Some(line), "{e}");
+    assert!(e.reason.contains(reason_has), "reason of '{e}' should mention '{reason_has}'");
+    let shown = e.to_string();
+    assert!(shown.starts_with(&format!("scene.toml:{line}: {field}: ")), "{shown}");
+}
+
+#[test]
+fn the_valid_base_scene_is_accepted() {
+    let model = from_toml(VALID, "scene.toml").unwrap();
+    assert_eq!(model.dof_count, 5 + 6);
+    assert_eq!(model.pulley_count(), 1);
+}
+
+#[test]
+fn missing_mass_is_named() {
+    expect(&VALID.replace("mass = 2.0\n", ""), "bodies[2].mass", 15, "missing");
+}
+
+#[test]
+fn negative_mass_is_named() {
+    expect(&VALID.replace("mass = 2.0", "mass = -2.0"), "bodies[2].mass", 18, "positive");
+}
+
+#[test]
+fn non_positive_ea_is_named() {
+    expect(&VALID.replacen("ea = 1000.0", "ea = 0.0", 1), "cables[0].ea", 30, "positive");
+    expect(&VALID.replacen("ea = 1000.0", "ea = -5.0", 1), "cables[0].ea", 30, "positive");
+}
+
+#[test]
+fn non_positive_rest_length_is_named() {
+    expect(&VALID.replace("rest_length = 2.0", "rest_length = 0.0"), "cables[1].rest_length", 37, "positive");
+    expect(
+        &VALID.replace("rest_length = 2.0", "rest_length = -1.0"),
+        "cables[1].rest_length",
+        37,
+        "positive",
+    );
+}
+
+#[test]
+fn route_through_unknown_body_or_point_is_named() {
+    expect(
+        &VALID.replace("\"box.hook\"]", "\"crate.hook\"]"),
+        "cables[1].route",
+        35,
+        "unknown body in 'crate.hook'",
+    );
+    expect(&VALID.replace("\"box.hook\"]", "\"box.eye\"]"), "cables[1].route", 35, "no point 'box.eye'");
+}
+
+#[test]
+fn duplicate_names_are_named() {
+    expect(
+        &VALID.replace("name = \"box\"", "name = \"pole\""),
+        "bodies[2].name",
+        16,
+        "duplicate body name 'pole'",
+    );
+    expect(
+        &VALID.replace("name = \"sling\"", "name = \"stay\""),
+        "cables[1].name",
+        34,
+        "duplicate cable name 'stay'",
+    );
+}
+
+#[test]
+fn cable_with_fewer_than_two_points_is_named() {
+    expect(
+        &VALID.replace("route = [\"ground.top\", \"pole.b\"]", "route = [\"pole.b\"]"),
+        "cables[0].route",
+        29,
+        "at least two points",
+    );
+}
+
+#[test]
+fn free_coordinate_without_mass_is_named() {
+    expect(
+        &VALID.replace("inertia = [0.1, 0.1, 0.1]", "inertia = [0.0, 0.1, 0.1]"),
+        "bodies[2].inertia",
+        20,
+        "needs inertia",
+    );
+    expect(
+        &VALID.replace("inertia = [0.1, 0.1, 0.1]", "inertia = [0.1, 0.1, 0.5]"),
+        "bodies[2].inertia",
+        20,
+        "triangle inequality",
+    );
+    expect(&VALID.replace("mass = 1.0\nends", "mass = 0.0\nends"), "bodies[1].mass", 12, "positive");
+}
+
+#[test]
+fn unknown_fields_are_rejected_with_their_line() {
+    expect(
+        &VALID.replace("ea = 1000.0\nrest_length = 2.0", "ea = 1000.0\nstiffness = 3.0\nrest_length = 2.0"),
+        "cables[1].stiffness",
+        37,
+        "unknown field",
+    );
+    expect(&VALID.replace("name = \"ok\"", "name = \"ok\"\ncolour = \"red\""), "colour", 2, "unknown field");
+}
+
+#[test]
+fn wrong_types_and_syntax_errors_carry_their_line() {
+    expect(&VALID.replace("mass = 2.0", "mass = \"heavy\""), "bodies[2].mass", 18, "");
+    let e = error_of(&VALID.replace("[[cables]]\nname = \"sling\"", "[[cables]\nname = \"sling\""));
+    assert_eq!(e.line, Some(33), "{e}");
+}
+
+#[test]
+fn other_structural_mistakes_are_explained() {
+    expect(&VALID.replace("a = \"pole.a\"", "a = \"pole.q\""), "joints[0].a", 25, "unknown point");
+    expect(
+        &VALID.replace("rest_length = 0.9", "rest_length = 0.9\nprestress = 3.0"),
+        "cables[0].prestress",
+        32,
+        "not both",
+    );
+    expect(
+        &VALID.replace(
+            "route = [\"ground.left\", \"pole.b\", \"box.hook\"]",
+            "route = [\"ground.left\", \"pole.b\", \"pole.b\"]",
+        ),
+        "cables[1].route",
+        35,
+        "twice in a row",
+    );
+    expect(
+        &VALID.replace(
+            "ends = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]",
+            "ends = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]",
+        ),
+        "bodies[1].ends",
+        13,
+        "coincide",
+    );
+    let prestress_push = VALID.replace("rest_length = 0.9", "prestress = -3.0");
+    expect(&prestress_push, "cables[0].prestress", 31, "only pull");
+}
+
+#[test]
+fn a_missing_file_is_named() {
+    let e = tensegrity::scene::load(std::path::Path::new("/nonexistent/scene.toml")).unwrap_err();
+    assert_eq!(e.file, "/nonexistent/scene.toml");
+    assert!(e.reason.contains("cannot read"));
+}
+
+#[test]
+fn deployment_ramps_are_checked_against_actuator_limits() {
+    let with_actuator = format!(
+        "{VALID}\n[[actuators]]\nname = \"w\"\ncable = \"sling\"\nmin_rest_length = 1.5\nmax_rest_length = 2.5\nmax_rate = 0.1\n\n[deployment]\nsteps = 10\n\n[[deployment.ramps]]\nactuator = \"w\"\nduration = 1.0\nrest_length = 1.6\n"
+    );
+    expect(&with_actuator, "deployment.ramps[0].duration", 51, "max_rate");
+    expect(
+        &with_actuator.replace("rest_length = 1.6\n", "rest_length = 1.0\n"),
+        "deployment.ramps[0].rest_length",
+        52,
+        "outside",
+    );
+    expect(
+        &with_actuator.replace("actuator = \"w\"", "actuator = \"v\""),
+        "deployment.ramps[0].actuator",
+        50,
+        "unknown actuator",
+    );
+}
