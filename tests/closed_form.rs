@@ -149,3 +149,29 @@ fn clustering_the_top_ring_keeps_the_prism_equilibrium() {
         check_prism(n, true);
     }
 }
+
+#[test]
+fn force_density_targets_give_the_same_prism_as_tension_targets() {
+    // the 4-prism specified by force densities only: q_side on the sides, nothing on the rings
+    let spec =
+        prism(&PrismParams { n: 4, cluster_top_ring: false, deploy_shortening: 0.0, ..Default::default() });
+    let mut by_density = spec.clone();
+    let q_side = 100.0 / 1.7;
+    for c in by_density.cables.iter_mut() {
+        if c.name.starts_with("side") {
+            c.prestress = None;
+            c.force_density = Some(q_side);
+        }
+    }
+    let model = model_of(&by_density);
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).unwrap();
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let q_ring = q_side / (2.0 * (PI / 4.0).sin());
+    for (c, name) in model.cable_names.iter().enumerate() {
+        let q = ws.cables[c].tension / ws.cables[c].length;
+        let expected = if name.starts_with("side") { q_side } else { q_ring };
+        assert!((q - expected).abs() <= 1e-9 * expected, "{name}: {q} vs {expected}");
+    }
+}

@@ -124,3 +124,21 @@ rest_length = 1.3
         assert!((t[1] - 2.0 * 9.81).abs() < 1e-9 * t[1]);
     }
 }
+
+#[test]
+fn a_path_without_equilibrium_ends_in_a_typed_error() {
+    // the 2 kg / 1 kg Atwood machine has no static equilibrium
+    let model = bundled("atwood.toml");
+    let mut state = State::initial(&model);
+    let before = state.clone();
+    let mut ws = Workspace::new(&model);
+    match deploy_quasi_static(&model, &mut state, &mut ws, |_, _, _| {}) {
+        Err(tensegrity::SolveError::NoEquilibrium { load_step, residual, iterations, .. }) => {
+            assert_eq!(load_step, 0);
+            assert!(residual.is_finite() && residual > 1.0);
+            assert!(iterations > 0);
+        }
+        other => panic!("expected NoEquilibrium, got {other:?}"),
+    }
+    assert_eq!(state, before, "a failed solve leaves the state unchanged");
+}

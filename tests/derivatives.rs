@@ -66,6 +66,7 @@ fn scene(p: &Params, route: &[usize], planar: bool) -> SceneSpec {
         damping_ratio: None,
         rest_length: Some(0.5),
         prestress: None,
+        force_density: None,
     };
     SceneSpec { planar, bodies: vec![g, n, b, r], cables: vec![cable], ..Default::default() }
 }

@@ -181,3 +181,79 @@ rest_length = 1.5
         assert!((q.fixed_rows::<3>(3) - torque_body).norm() < 1e-10 * t);
     }
 }
+
+#[test]
+fn zero_length_segments_give_finite_forces_and_matrices() {
+    // a node sitting exactly on a fixed pulley point, and a route that starts where a body is
+    let text = r#"
+[[bodies]]
+name = "ground"
+kind = "fixed"
+points = { a = [0.0, 0.0, 0.0], p = [1.0, 0.0, 0.0], b = [2.0, 1.0, 0.0] }
+
+[[bodies]]
+name = "n"
+kind = "node"
+mass = 1.0
+position = [1.0, 0.0, 0.0]
+
+[[bodies]]
+name = "r"
+kind = "rigid"
+mass = 1.0
+position = [2.0, 1.0, 0.0]
+inertia = [0.1, 0.1, 0.1]
+
+[[cables]]
+name = "c"
+route = ["ground.a", "ground.p", "n", "r", "ground.b"]
+ea = 1000.0
+damping = 3.0
+rest_length = 1.5
+"#;
+    let model = model_from_toml(text);
+    let mut state = State::initial(&model);
+    state.velocities.iter_mut().enumerate().for_each(|(i, v)| *v = 0.1 * i as f64);
+    let mut ws = Workspace::new(&model);
+    evaluate(&model, &state, &mut ws, Tangents::StiffnessAndDamping);
+    let c = ws.cables[0];
+    assert!(c.tension > 0.0 && c.tension.is_finite());
+    assert_eq!(ws.cable_segments(&model, 0)[1], 0.0);
+    assert!(ws.force.iter().chain(ws.stiffness.iter()).chain(ws.damping.iter()).all(|x| x.is_finite()));
+}
+
+#[test]
+fn pulley_slip_follows_the_uniform_strain_rule() {
+    // a trolley node on a cable between two anchors: moving it shifts cable through the pulley
+    let text = r#"
+[[bodies]]
+name = "ground"
+kind = "fixed"
+points = { a = [0.0, 0.0, 0.0], b = [2.0, 0.0, 0.0] }
+
+[[bodies]]
+name = "trolley"
+kind = "node"
+mass = 1.0
+position = [1.0, 0.0, -0.5]
+
+[[cables]]
+name = "c"
+route = ["ground.a", "trolley", "ground.b"]
+ea = 1000.0
+rest_length = 2.0
+"#;
+    let model = model_from_toml(text);
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let reference = tensegrity::report::all_pulley_coordinates(&model, &state, &ws);
+    state.poses[1].position = Vector3::new(0.5, 0.0, -0.5);
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let report = &tensegrity::report::cable_reports(&model, &state, &ws, &reference)[0];
+    let (l1, l2) = (0.5f64.hypot(0.5), 1.5f64.hypot(0.5));
+    let expected = 2.0 * l1 / (l1 + l2) - 1.0;
+    assert!((report.pulley_slip[0] - expected).abs() < 1e-12, "{} vs {expected}", report.pulley_slip[0]);
+    assert_eq!(report.segment_lengths.len(), 2);
+    assert!((report.strain - ((l1 + l2) - 2.0) / 2.0).abs() < 1e-12);
+}

@@ -350,17 +350,29 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         if !(c.ea.is_finite() && c.ea > 0.0) {
             return Err(e("ea", format!("EA must be positive and finite, got {}", c.ea)));
         }
-        let rest = match (c.rest_length, c.prestress) {
-            (Some(_), Some(_)) => {
-                return Err(e("prestress", "give rest_length or prestress, not both".into()))
-            }
-            (Some(l), None) if l.is_finite() && l > 0.0 => RestLengthSpec::Given(l),
-            (Some(l), None) => return Err(e("rest_length", format!("must be positive and finite, got {l}"))),
-            (None, Some(t)) if t.is_finite() && t >= 0.0 => RestLengthSpec::Prestress(t),
-            (None, Some(t)) => {
+        let given = [c.rest_length.is_some(), c.prestress.is_some(), c.force_density.is_some()];
+        if given.iter().filter(|g| **g).count() > 1 {
+            let field = if c.force_density.is_some() { "force_density" } else { "prestress" };
+            return Err(e(
+                field,
+                "give at most one of rest_length, prestress and force_density, not both".into(),
+            ));
+        }
+        let rest = match (c.rest_length, c.prestress, c.force_density) {
+            (Some(l), _, _) if l.is_finite() && l > 0.0 => RestLengthSpec::Given(l),
+            (Some(l), _, _) => return Err(e("rest_length", format!("must be positive and finite, got {l}"))),
+            (_, Some(t), _) if t.is_finite() && t >= 0.0 => RestLengthSpec::Prestress(t),
+            (_, Some(t), _) => {
                 return Err(e("prestress", format!("a cable can only pull: prestress must be >= 0, got {t}")))
             }
-            (None, None) => RestLengthSpec::Free,
+            (_, _, Some(q)) if q.is_finite() && q >= 0.0 => RestLengthSpec::ForceDensity(q),
+            (_, _, Some(q)) => {
+                return Err(e(
+                    "force_density",
+                    format!("a cable can only pull: force density must be >= 0, got {q}"),
+                ))
+            }
+            (None, None, None) => RestLengthSpec::Free,
         };
         let (damping, ratio) = match (c.damping, c.damping_ratio) {
             (Some(_), Some(_)) => {

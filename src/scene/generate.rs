@@ -79,6 +79,7 @@ fn cable(name: String, route: Vec<String>, ea: f64, zeta: f64) -> CableSpec {
         damping_ratio: if zeta > 0.0 { Some(zeta) } else { None },
         rest_length: None,
         prestress: None,
+        force_density: None,
     }
 }
 
@@ -456,6 +457,7 @@ pub fn atwood(p: &AtwoodParams) -> SceneSpec {
             damping_ratio: None,
             rest_length: Some(rest),
             prestress: None,
+            force_density: None,
         }],
         ..Default::default()
     }

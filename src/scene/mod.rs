@@ -166,6 +166,10 @@ pub struct CableSpec {
     /// With neither `rest_length` nor `prestress`, form finding determines the tension.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prestress: Option<f64>,
+    /// Target force density `q = T / L` at the initial geometry, N/m (>= 0); form finding sets
+    /// the rest length. Excludes `rest_length` and `prestress`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_density: Option<f64>,
 }
 
 /// An actuator: sets one cable's rest length within limits.

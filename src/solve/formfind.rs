@@ -6,7 +6,7 @@
 //! `Q_g - sum_c T_c g_c - Phi_q^T lambda = 0`. Cables with a given rest length have known tensions;
 //! the others (`U`) and the reactions are unknowns of the linear system `A x = b`,
 //! `A = [-g_U, -Phi_q^T]`. Among its solutions we take the one closest (least squares) to the
-//! prestress targets. The result is refused when the geometry admits no equilibrium, when a
+//! targets (a prestress `T*`, or a force density `q*` meaning `T* = q* L`). The result is refused when the geometry admits no equilibrium, when a
 //! target cannot be met, when a cable would have to push, or when some tension is left undetermined.
 //! Rest lengths then follow from the tension law: `L0 = EA L / (EA + T)`.
 
@@ -24,6 +24,8 @@ pub enum RestLengthSpec {
     Given(f64),
     /// Target tension at the initial geometry, N.
     Prestress(f64),
+    /// Target force density `T / L` at the initial geometry, N/m.
+    ForceDensity(f64),
     /// To be determined by equilibrium.
     Free,
 }
@@ -88,9 +90,11 @@ pub fn find_rest_lengths(
     let targets: Vec<(usize, f64)> = unknown
         .iter()
         .enumerate()
-        .filter_map(
-            |(col, &c)| if let RestLengthSpec::Prestress(t) = specs[c] { Some((col, t)) } else { None },
-        )
+        .filter_map(|(col, &c)| match specs[c] {
+            RestLengthSpec::Prestress(t) => Some((col, t)),
+            RestLengthSpec::ForceDensity(q) => Some((col, q * lengths[c])),
+            _ => None,
+        })
         .collect();
     let scale = targets.iter().map(|t| t.1.abs()).fold(b.amax(), f64::max).max(1e-12);
 
