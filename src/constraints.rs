@@ -57,3 +57,23 @@ pub fn add_multiplier_hessian(model: &Model, poses: &[Pose], lambda: &DVector<f6
         }
     }
 }
+
+/// Orthonormal basis (columns) of the null space of `phi_q` (rows x n): the directions the joints
+/// allow. The identity without joints; `None` when the joints leave no freedom.
+pub fn null_space(phi_q: &DMatrix<f64>, n: usize) -> Option<DMatrix<f64>> {
+    if phi_q.nrows() == 0 {
+        return Some(DMatrix::identity(n, n));
+    }
+    let jtj = phi_q.transpose() * phi_q;
+    let eig = nalgebra::SymmetricEigen::new(jtj);
+    let tol = 1e-10 * eig.eigenvalues.amax().max(1e-300);
+    let cols: Vec<DVector<f64>> = (0..n)
+        .filter(|&i| eig.eigenvalues[i] <= tol)
+        .map(|i| eig.eigenvectors.column(i).into_owned())
+        .collect();
+    if cols.is_empty() {
+        None
+    } else {
+        Some(DMatrix::from_columns(&cols))
+    }
+}

@@ -29,6 +29,7 @@ pub mod kinematics;
 pub mod model;
 pub mod report;
 pub mod scene;
+pub mod sim;
 pub mod solve;
 pub mod state;
 

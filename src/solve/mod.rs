@@ -1,5 +1,6 @@
 //! Solvers: form finding (rest lengths from a prestressed geometry) and quasi-static equilibrium
 //! and deployment.
 
+pub mod dynamics;
 pub mod formfind;
 pub mod statics;

@@ -224,22 +224,10 @@ impl StaticSolver {
             add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut k);
         }
         let k_sym = (&k + k.transpose()) * 0.5;
-        let reduced = if model.constraint_count > 0 {
-            let jtj = ws.constraint_jacobian.transpose() * &ws.constraint_jacobian;
-            let eig = SymmetricEigen::new(jtj);
-            let tol = 1e-10 * eig.eigenvalues.amax().max(1e-300);
-            let cols: Vec<DVector<f64>> = (0..n)
-                .filter(|&i| eig.eigenvalues[i] <= tol)
-                .map(|i| eig.eigenvectors.column(i).into_owned())
-                .collect();
-            if cols.is_empty() {
-                return (f64::INFINITY, true);
-            }
-            let z = DMatrix::from_columns(&cols);
-            z.transpose() * k_sym * z
-        } else {
-            k_sym
+        let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
+            return (f64::INFINITY, true);
         };
+        let reduced = z.transpose() * k_sym * z;
         let eig = SymmetricEigen::new(reduced).eigenvalues;
         let min = eig.min();
         (min, min > 1e-9 * eig.amax().max(1e-300))

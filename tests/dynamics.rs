@@ -1,0 +1,220 @@
+//! Invariants of the dynamic integrators:
+//! - with no damping and no actuation total energy is conserved, and its drift shrinks with the
+//!   step at the integrator's order (2 for generalized-alpha, 1 for symplectic Euler);
+//! - with actuation and damping, actuator work minus damping loss equals the energy change;
+//! - generalized-alpha converges at order 2 (within 0.2) on a smooth deployment;
+//! - a free rigid body spinning about a non-principal axis keeps its angular momentum;
+//! - very slow dynamic deployment approaches the quasi-static path, fast deployment overshoots it;
+//! - the explicit integrator's stability limit is real and enforced.
+
+mod common;
+
+use common::*;
+use nalgebra::{DVector, Vector3};
+use std::path::PathBuf;
+use tensegrity::forces::Workspace;
+use tensegrity::scene::generate::{prism, PrismParams};
+use tensegrity::sim::{SimSettings, Simulator, StepError};
+use tensegrity::solve::dynamics::{stability_limit, Integrator};
+use tensegrity::solve::statics::deploy_quasi_static;
+use tensegrity::{Model, State};
+
+fn bundled(name: &str) -> Model {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
+    tensegrity::scene::load(&path).unwrap()
+}
+
+/// prism3 without damping or schedule, released with its ring `shortening` short: it oscillates.
+fn oscillating_prism(shortening: f64) -> Model {
+    let mut model =
+        model_of(&prism(&PrismParams { damping_ratio: 0.0, deploy_shortening: 0.0, ..Default::default() }));
+    let ring = model.cable_id("ring").unwrap().0;
+    model.initial_rest_lengths[ring] *= 1.0 - shortening;
+    model
+}
+
+fn ga(rho_inf: f64, dt: f64) -> SimSettings {
+    SimSettings { dt, integrator: Integrator::GeneralizedAlpha { rho_inf }, ..Default::default() }
+}
+
+/// Largest |E(t) - E(0)| over `duration` seconds.
+fn energy_drift(model: &Model, settings: SimSettings, duration: f64) -> f64 {
+    let mut sim = Simulator::new(model.clone(), settings).unwrap();
+    let e0 = sim.energy().total();
+    let steps = (duration / settings.dt).round() as usize;
+    let mut worst: f64 = 0.0;
+    for _ in 0..steps {
+        sim.step().unwrap();
+        worst = worst.max((sim.energy().total() - e0).abs());
+    }
+    worst
+}
+
+#[test]
+fn energy_is_conserved_and_its_drift_shrinks_at_the_integrators_order() {
+    let model = oscillating_prism(0.02);
+    let e_scale = Simulator::new(model.clone(), ga(1.0, 1e-3)).unwrap().energy().elastic;
+    let drifts: Vec<f64> =
+        [2e-3, 1e-3, 5e-4].iter().map(|&dt| energy_drift(&model, ga(1.0, dt), 0.2)).collect();
+    assert!(drifts[2] < 5e-3 * e_scale, "generalized-alpha drift {drifts:?} J of {e_scale} J");
+    for w in drifts.windows(2) {
+        let order = (w[0] / w[1]).log2();
+        assert!((order - 2.0).abs() < 0.3, "generalized-alpha energy drift order {order} ({drifts:?})");
+    }
+    let limit = stability_limit(&model, &State::initial(&model));
+    let dts = [limit / 8.0, limit / 16.0, limit / 32.0];
+    let euler = |dt| SimSettings { dt, integrator: Integrator::SymplecticEuler, ..Default::default() };
+    let drifts: Vec<f64> = dts.iter().map(|&dt| energy_drift(&model, euler(dt), 0.2)).collect();
+    for w in drifts.windows(2) {
+        let order = (w[0] / w[1]).log2();
+        assert!((order - 1.0).abs() < 0.3, "symplectic Euler energy drift order {order} ({drifts:?})");
+    }
+}
+
+#[test]
+fn actuator_work_and_damping_loss_balance_the_energy_change() {
+    // the bundled prism3: damped cables, ring shortened 10 % over 1 s
+    let model = bundled("prism3.toml");
+    let mut sim = Simulator::new(model, ga(1.0, 5e-4)).unwrap();
+    while sim.state().time < 1.5 {
+        sim.step().unwrap();
+    }
+    let e = *sim.energy();
+    assert!(e.actuator_work > 1.0 && e.damping_loss > 0.0, "{e:?}");
+    let unexplained = e.numerical_loss().abs();
+    assert!(
+        unexplained <= 1e-3 * e.actuator_work,
+        "energy balance off by {unexplained} J of {} J work ({e:?})",
+        e.actuator_work
+    );
+}
+
+/// Body positions and velocities after `duration` of the bundled prism3 deployment.
+fn prism_state_at(dt: f64, duration: f64) -> DVector<f64> {
+    let mut sim = Simulator::new(bundled("prism3.toml"), ga(0.8, dt)).unwrap();
+    for _ in 0..(duration / dt).round() as usize {
+        sim.step().unwrap();
+    }
+    let s = sim.state();
+    let mut out: Vec<f64> =
+        s.poses.iter().flat_map(|p| p.position.iter().copied().collect::<Vec<_>>()).collect();
+    out.extend(s.velocities.iter());
+    DVector::from_vec(out)
+}
+
+#[test]
+fn generalized_alpha_converges_at_second_order() {
+    let dts = [4e-3, 2e-3, 1e-3, 5e-4];
+    let sol: Vec<DVector<f64>> = dts.iter().map(|&dt| prism_state_at(dt, 0.4)).collect();
+    let diffs: Vec<f64> = sol.windows(2).map(|w| (&w[0] - &w[1]).amax()).collect();
+    let orders: Vec<f64> = diffs.windows(2).map(|w| (w[0] / w[1]).log2()).collect();
+    for p in &orders {
+        assert!((p - 2.0).abs() <= 0.2, "observed orders {orders:?} (differences {diffs:?})");
+    }
+}
+
+#[test]
+fn free_rigid_body_keeps_its_angular_momentum() {
+    let text = r#"
+[[bodies]]
+name = "top"
+kind = "rigid"
+mass = 1.0
+position = [0.0, 0.0, 0.0]
+rotation = [0.3, 0.2, 0.1]
+inertia = [0.2, 0.25, 0.3, 0.01, 0.0, 0.02]
+"#;
+    let model = model_from_toml(text);
+    let mut state = State::initial(&model);
+    state.velocities.copy_from_slice(&[0.0, 0.0, 0.0, 3.0, 1.0, 2.0]);
+    let momentum = |s: &State| {
+        let w = Vector3::new(s.velocities[3], s.velocities[4], s.velocities[5]);
+        s.poses[0].rotation * (model.bodies[0].inertia * w)
+    };
+    let h0 = momentum(&state);
+    let mut sim = Simulator::from_state(model.clone(), state, ga(0.9, 1e-3)).unwrap();
+    let mut worst: f64 = 0.0;
+    for _ in 0..3000 {
+        sim.step().unwrap();
+        worst = worst.max((momentum(sim.state()) - h0).norm() / h0.norm());
+    }
+    assert!(worst < 1e-3, "angular momentum drifted by {worst} (relative)");
+}
+
+/// Peak side-string tension of prism3's dynamic deployment with the ramp taking `duration` s.
+fn dynamic_peak(duration: f64) -> f64 {
+    let mut model = bundled("prism3.toml");
+    model.schedule.ramps[0].duration = duration;
+    let mut sim = Simulator::new(model, ga(0.8, 1e-3)).unwrap();
+    let side = sim.model().cable_id("side0").unwrap().0;
+    let mut peak: f64 = 0.0;
+    while sim.state().time < duration + 0.5 {
+        sim.step().unwrap();
+        peak = peak.max(sim.workspace().cables[side].tension);
+    }
+    peak
+}
+
+#[test]
+fn slow_deployment_approaches_quasi_static_and_fast_deployment_overshoots() {
+    let model = bundled("prism3.toml");
+    let side = model.cable_id("side0").unwrap().0;
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let mut qs_peak: f64 = 0.0;
+    deploy_quasi_static(&model, &mut state, &mut ws, |_, _, w| qs_peak = qs_peak.max(w.cables[side].tension))
+        .unwrap();
+    let deviations: Vec<f64> =
+        [0.02, 0.2, 2.0, 8.0].iter().map(|&d| (dynamic_peak(d) - qs_peak) / qs_peak).collect();
+    assert!(deviations[0] > 0.01, "fast deployment must overshoot: deviations {deviations:?}");
+    assert!(
+        deviations.windows(2).all(|w| w[1] < w[0]),
+        "deviation must shrink as the ramp slows: {deviations:?}"
+    );
+    assert!(deviations[3].abs() < 0.01, "slow deployment within 1 % of quasi-static: {deviations:?}");
+}
+
+#[test]
+fn explicit_step_above_the_stability_limit_is_refused_and_really_unstable() {
+    // small oscillations: the limit is a property of the linearized system (large ones raise the
+    // tensions, and with them omega_max, during the run)
+    let model = oscillating_prism(2e-4);
+    let limit = stability_limit(&model, &State::initial(&model));
+    let euler = |dt| SimSettings { dt, integrator: Integrator::SymplecticEuler, ..Default::default() };
+    match Simulator::new(model.clone(), euler(1.1 * limit)) {
+        Err(StepError::UnstableExplicitStep { limit: l, .. }) => assert!((l - limit).abs() < 1e-12 * limit),
+        other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
+    }
+    // below the limit the energy stays bounded over many periods
+    let e0 = Simulator::new(model.clone(), euler(0.9 * limit)).unwrap().energy().total();
+    let short = energy_drift(&model, euler(0.95 * limit), 200.0 * limit);
+    let long = energy_drift(&model, euler(0.95 * limit), 4000.0 * limit);
+    assert!(
+        long < 1.5 * short && long < 0.2 * e0.abs(),
+        "bounded below the limit: drift {short} J then {long} J of {e0} J"
+    );
+    // and above it, integrating anyway (through the low-level API) blows up
+    let mut dynamics = tensegrity::solve::dynamics::Dynamics::new(&model);
+    let mut state = State::initial(&model);
+    assert!(dynamics.initialize(&model, &mut state));
+    let rest = state.rest_lengths.clone();
+    let mut grew = false;
+    for _ in 0..20000 {
+        match dynamics.step(
+            &model,
+            Integrator::SymplecticEuler,
+            &Default::default(),
+            &mut state,
+            &rest,
+            &rest,
+            1.1 * limit,
+        ) {
+            Some(_) if state.velocities.amax() < 1e6 => {}
+            _ => {
+                grew = true;
+                break;
+            }
+        }
+    }
+    assert!(grew, "symplectic Euler above its limit should diverge");
+}
