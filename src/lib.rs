@@ -27,11 +27,13 @@ pub mod error;
 pub mod forces;
 pub mod kinematics;
 pub mod model;
+pub mod plot;
 pub mod report;
 pub mod scene;
 pub mod sim;
 pub mod solve;
 pub mod state;
+pub mod study;
 
 pub use error::{SceneError, SolveError};
 pub use forces::Workspace;

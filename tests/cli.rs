@@ -91,7 +91,7 @@ fn deploy_writes_one_row_per_step() {
     let header: Vec<&str> = lines[0].split(',').collect();
     assert!(
         header.contains(&"tension_upper_N")
-            && header.contains(&"rest_length_upper_m")
+            && header.contains(&"rest_length_lower_left_m")
             && header.contains(&"mast.b_y_m")
     );
     assert!(lines[1..].iter().all(|l| l.split(',').count() == header.len()));

@@ -10,7 +10,10 @@ use serde::Serialize;
 use tensegrity::forces::{evaluate, Tangents, Workspace};
 use tensegrity::report;
 use tensegrity::scene::{self, generate};
+use tensegrity::sim::SimSettings;
+use tensegrity::solve::dynamics::Integrator;
 use tensegrity::solve::statics::{deploy_quasi_static, EquilibriumReport, StaticSolver};
+use tensegrity::study;
 use tensegrity::{Model, State};
 
 #[derive(Parser)]
@@ -35,19 +38,55 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Follow the scene's deployment schedule and write one CSV row per step.
+    /// Follow the scene's deployment schedule: a path of equilibria (--quasi-static, one CSV row per
+    /// load step) or a time history (--dynamic, one CSV row per step).
+    #[command(group(clap::ArgGroup::new("mode").required(true).args(["quasi_static", "dynamic"])))]
     Deploy {
         /// Scene file (TOML).
         scene: PathBuf,
         /// Quasi-static deployment: a path of equilibria (load stepping).
-        #[arg(long, required = true)]
+        #[arg(long)]
         quasi_static: bool,
-        /// Number of load steps (default: the scene's `deployment.steps`).
+        /// Dynamic deployment: implicit or explicit time integration.
+        #[arg(long)]
+        dynamic: bool,
+        /// Number of load steps (quasi-static; default: the scene's `deployment.steps`).
         #[arg(long)]
         steps: Option<usize>,
+        #[command(flatten)]
+        dynamics: DynamicArgs,
+        /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
+        #[arg(long)]
+        duration: Option<f64>,
         /// Output CSV file.
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Quasi-static path and dynamic deployments at several actuation times: CSVs, a summary
+    /// table, and plots (PNG and SVG) of the deviation and of the time histories.
+    Study {
+        /// Scene file (TOML) with a deployment schedule.
+        scene: PathBuf,
+        /// Actuation times, s (the whole schedule is time-scaled to end at each).
+        #[arg(long, value_delimiter = ',', required = true)]
+        ramp_times: Vec<f64>,
+        /// Point whose displacement is tracked (default: the one that moves most along the
+        /// quasi-static path).
+        #[arg(long)]
+        point: Option<String>,
+        /// Time simulated after the schedule ends, s.
+        #[arg(long, default_value_t = 1.0)]
+        settle: f64,
+        #[command(flatten)]
+        dynamics: DynamicArgs,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        kind: BenchKind,
     },
     /// Write a generated scene as TOML.
     Generate {
@@ -56,6 +95,65 @@ enum Command {
         /// Output file (default: standard output).
         #[arg(long, global = true)]
         out: Option<PathBuf>,
+    },
+}
+
+#[derive(clap::Args, Clone, Copy)]
+struct DynamicArgs {
+    /// Integrator: generalized-alpha (ga) or symplectic-euler (euler).
+    #[arg(long, default_value = "generalized-alpha")]
+    integrator: IntegratorName,
+    /// Physics step, s.
+    #[arg(long, default_value_t = 1e-3)]
+    dt: f64,
+    /// Spectral radius at infinity of generalized-alpha, in [0, 1].
+    #[arg(long, default_value_t = 0.8)]
+    rho_inf: f64,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy)]
+enum IntegratorName {
+    #[value(name = "generalized-alpha", alias = "ga")]
+    GeneralizedAlpha,
+    #[value(name = "symplectic-euler", alias = "euler")]
+    SymplecticEuler,
+}
+
+impl DynamicArgs {
+    fn settings(&self) -> Result<SimSettings, String> {
+        if !(self.rho_inf.is_finite() && (0.0..=1.0).contains(&self.rho_inf)) {
+            return Err(format!("--rho-inf must be in [0, 1], got {}", self.rho_inf));
+        }
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(format!("--dt must be positive, got {}", self.dt));
+        }
+        let integrator = match self.integrator {
+            IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf: self.rho_inf },
+            IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
+        };
+        Ok(SimSettings { dt: self.dt, integrator, ..Default::default() })
+    }
+}
+
+#[derive(Subcommand)]
+enum BenchKind {
+    /// One deployment over integrators and step sizes: error against a converged reference vs
+    /// wall time (table and plot).
+    WorkPrecision {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Step of the reference run (generalized-alpha, rho_inf 0.8), s.
+        #[arg(long, default_value_t = 1e-5)]
+        reference_dt: f64,
+        /// Timed repeats per run (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        /// Simulated time, s (default: the schedule's end + 0.5 s).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
     },
 }
 
@@ -98,6 +196,57 @@ enum GenerateKind {
 /// Writes to standard output; a closed pipe (`| head`) is not an error.
 fn emit(text: &str) {
     let _ = std::io::stdout().write_all(text.as_bytes());
+}
+
+fn progress(len: u64, unit: &str) -> ProgressBar {
+    if std::io::stderr().is_terminal() {
+        let b = ProgressBar::new(len);
+        b.set_style(
+            ProgressStyle::with_template(&format!("{{bar:40}} {{pos}}/{{len}} {unit} {{msg}}"))
+                .expect("valid template"),
+        );
+        b
+    } else {
+        ProgressBar::hidden()
+    }
+}
+
+fn deploy_dynamic(
+    model: &Model,
+    scene: &Path,
+    settings: SimSettings,
+    duration: Option<f64>,
+    out: &Path,
+) -> Result<(), String> {
+    let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
+    if !(duration.is_finite() && duration > 0.0) {
+        return Err(format!("--duration must be positive, got {duration}"));
+    }
+    let mut file =
+        std::io::BufWriter::new(std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?);
+    writeln!(file, "{}", study::dynamic_csv_header(model)).map_err(|e| e.to_string())?;
+    let steps = (duration / settings.dt).round().max(1.0) as u64;
+    let bar = progress(steps, "steps");
+    let totals = study::run_dynamic(model, settings, duration, |sim, stats| {
+        bar.inc(1);
+        writeln!(file, "{}", study::dynamic_csv_row(sim, stats))
+            .map_err(|e| format!("{}: {e}", out.display()))
+    })
+    .map_err(|e| format!("{}: {e}", scene.display()))?;
+    bar.finish_and_clear();
+    file.flush().map_err(|e| e.to_string())?;
+    println!(
+        "{}: {} steps of {} s with {} written to {} ({} Newton iterations, {} rejected attempts, {:.3} s wall)",
+        model.name,
+        totals.steps,
+        settings.dt,
+        settings.integrator.name(),
+        out.display(),
+        totals.newton_iterations,
+        totals.rejected,
+        totals.wall_time.as_secs_f64()
+    );
+    Ok(())
 }
 
 fn load(path: &Path) -> Result<Model, String> {
@@ -185,8 +334,11 @@ fn run(cli: Cli) -> Result<(), String> {
             }
             Ok(())
         }
-        Command::Deploy { scene, quasi_static: _, steps, out } => {
+        Command::Deploy { scene, quasi_static: _, dynamic, steps, dynamics, duration, out } => {
             let mut model = load(&scene)?;
+            if dynamic {
+                return deploy_dynamic(&model, &scene, dynamics.settings()?, duration, &out);
+            }
             if let Some(n) = steps {
                 if n == 0 {
                     return Err("--steps must be >= 1".into());
@@ -197,15 +349,7 @@ fn run(cli: Cli) -> Result<(), String> {
                 std::fs::File::create(&out).map_err(|e| format!("{}: {e}", out.display()))?,
             );
             writeln!(file, "{}", report::path_csv_header(&model)).map_err(|e| e.to_string())?;
-            let bar = if std::io::stderr().is_terminal() {
-                let b = ProgressBar::new(model.schedule.steps as u64 + 1);
-                b.set_style(
-                    ProgressStyle::with_template("{bar:40} {pos}/{len} steps {msg}").expect("valid template"),
-                );
-                b
-            } else {
-                ProgressBar::hidden()
-            };
+            let bar = progress(model.schedule.steps as u64 + 1, "steps");
             let mut state = State::initial(&model);
             let mut ws = Workspace::new(&model);
             let mut io_error = None;
@@ -239,6 +383,33 @@ fn run(cli: Cli) -> Result<(), String> {
                 out.display(),
                 path.iter().map(|p| p.report.iterations).sum::<usize>()
             );
+            Ok(())
+        }
+        Command::Study { scene, ramp_times, point, settle, dynamics, out } => {
+            let model = load(&scene)?;
+            let result = study::deployment_study(
+                &model,
+                &ramp_times,
+                point.as_deref(),
+                dynamics.settings()?,
+                settle,
+                &out,
+            )?;
+            print!("{}", result.markdown());
+            println!("written to {}", out.display());
+            Ok(())
+        }
+        Command::Bench { kind: BenchKind::WorkPrecision { scene, reference_dt, repeats, duration, out } } => {
+            let model = load(&scene)?;
+            let duration = duration.unwrap_or(model.schedule.end_time() + 0.5);
+            let configs = vec![
+                (Integrator::GeneralizedAlpha { rho_inf: 0.8 }, vec![1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]),
+                (Integrator::GeneralizedAlpha { rho_inf: 0.0 }, vec![1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]),
+                (Integrator::SymplecticEuler, vec![5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]),
+            ];
+            let rows = study::work_precision(&model, &configs, reference_dt, duration, repeats, &out)?;
+            print!("{}", std::fs::read_to_string(out.join("work_precision.md")).map_err(|e| e.to_string())?);
+            println!("{} runs written to {}", rows.len(), out.display());
             Ok(())
         }
         Command::Generate { kind, out } => {

@@ -298,7 +298,7 @@ pub struct TbarParams {
     pub guy_prestress: f64,
     /// Damping ratio of every cable.
     pub damping_ratio: f64,
-    /// Fraction by which the schedule shortens the upper cable.
+    /// Fraction by which the schedule shortens the left lower string.
     pub deploy_shortening: f64,
 }
 
@@ -323,7 +323,8 @@ impl Default for TbarParams {
 /// foot and held by two guys from its top to ground anchors, a horizontal bar joined at its centre
 /// to the mast's centre, and a diamond of strings: the two lower strings (bar end to mast foot) and
 /// the two upper strings (bar end, mast top, other bar end) as one sliding cable through a pulley at
-/// the mast top, driven by an actuator. The scene's symmetric tensions are independent self-stress
+/// the mast top. An actuator hauls in the left lower string, tilting the cross bar so that the upper
+/// cable slides over the mast top. The scene's symmetric tensions are independent self-stress
 /// states, so every cable gets a prestress target.
 pub fn tbar(p: &TbarParams) -> SceneSpec {
     let h = p.half_height;
@@ -368,11 +369,13 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
         ..Default::default()
     };
     if p.deploy_shortening > 0.0 {
+        // the winch hauls in the left lower string: the cross bar tilts and the upper cable slides
+        // over the mast top (a symmetric pull would only change tensions: the bars are rigid)
         let model = super::build_model(&spec, "<generated>", None).expect("generated scenes are valid");
-        let l0 = model.initial_rest_lengths[0];
+        let l0 = model.initial_rest_lengths[1];
         spec.actuators.push(ActuatorSpec {
-            name: "upper_winch".into(),
-            cable: "upper".into(),
+            name: "lower_winch".into(),
+            cable: "lower_left".into(),
             min_rest_length: round6(0.5 * l0),
             max_rest_length: round6(1.2 * l0),
             max_rate: round6(l0),
@@ -380,7 +383,7 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
         spec.deployment = Some(DeploymentSpec {
             steps: 40,
             ramps: vec![RampSpec {
-                actuator: "upper_winch".into(),
+                actuator: "lower_winch".into(),
                 start: 0.0,
                 duration: 1.0,
                 rest_length: round6(l0 * (1.0 - p.deploy_shortening)),

@@ -1,0 +1,165 @@
+//! Invariant: the dynamic-deployment command line produces what the README promises: `deploy
+//! --dynamic` writes a time history with energies and step statistics, `study` writes the
+//! quasi-static path, one history per actuation time, a summary whose deviations shrink as the
+//! actuation slows, and PNG and SVG plots, and `bench work-precision` writes its table and plot with
+//! errors that fall as the step falls. The 1 % threshold is interpolated between bracketing runs.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use tensegrity::study::one_percent_threshold;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn tensegrity(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_tensegrity")).args(args).current_dir(root()).output().expect("runs")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("tensegrity-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+#[test]
+fn threshold_is_interpolated_between_bracketing_runs() {
+    assert_eq!(one_percent_threshold(&[1.0, 2.0], &[0.001, 0.0005]), None);
+    assert_eq!(one_percent_threshold(&[1.0, 2.0], &[0.05, 0.02]), Some(f64::INFINITY));
+    let t = one_percent_threshold(&[0.1, 1.0], &[0.1, 0.001]).unwrap();
+    assert!((t - 0.1f64.sqrt()).abs() < 1e-12, "{t}");
+}
+
+#[test]
+fn deploy_dynamic_writes_a_time_history() {
+    let dir = scratch("dyn");
+    let csv = dir.join("prism3.csv");
+    let out = tensegrity(&[
+        "deploy",
+        "config/scenes/prism3.toml",
+        "--dynamic",
+        "--dt",
+        "2e-3",
+        "--duration",
+        "0.2",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 1 + 100);
+    let header: Vec<&str> = lines[0].split(',').collect();
+    for col in [
+        "time_s",
+        "ring_tension_N",
+        "ring_rest_length_m",
+        "bar0_0.b_z_m",
+        "kinetic_J",
+        "actuator_work_J",
+        "damping_loss_J",
+        "newton_iterations",
+        "rejected",
+        "wall_us",
+    ] {
+        assert!(header.contains(&col), "missing column {col}");
+    }
+    let last: Vec<f64> = lines[100].split(',').map(|v| v.parse().unwrap()).collect();
+    assert!((last[0] - 0.2).abs() < 1e-9);
+    assert!(last.iter().all(|v| v.is_finite()));
+    // symplectic Euler above its limit is refused with the limit in the message
+    let out = tensegrity(&[
+        "deploy",
+        "config/scenes/prism3.toml",
+        "--dynamic",
+        "--integrator",
+        "euler",
+        "--dt",
+        "0.05",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("stability limit"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn study_writes_tables_histories_and_plots() {
+    let dir = scratch("study");
+    let out = tensegrity(&[
+        "study",
+        "config/scenes/tbar.toml",
+        "--ramp-times",
+        "0.05,0.5,3",
+        "--settle",
+        "0.3",
+        "--dt",
+        "2e-3",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for f in [
+        "quasi_static.csv",
+        "dynamic_T0.05.csv",
+        "dynamic_T0.5.csv",
+        "dynamic_T3.csv",
+        "summary.csv",
+        "summary.md",
+        "deviation.png",
+        "deviation.svg",
+        "histories.png",
+        "histories.svg",
+    ] {
+        let meta = std::fs::metadata(dir.join(f)).unwrap_or_else(|_| panic!("missing {f}"));
+        assert!(meta.len() > 100, "{f} is nearly empty");
+    }
+    let summary = std::fs::read_to_string(dir.join("summary.csv")).unwrap();
+    let dev: Vec<f64> =
+        summary.lines().skip(1).map(|l| l.split(',').nth(2).unwrap().parse().unwrap()).collect();
+    assert_eq!(dev.len(), 3);
+    assert!(dev[0] > 0.01 && dev[0] > dev[1] && dev[1] > dev[2].abs(), "tension deviations {dev:?}");
+    let png = std::fs::read(dir.join("deviation.png")).unwrap();
+    assert_eq!(&png[1..4], b"PNG");
+    assert!(std::fs::read_to_string(dir.join("deviation.svg")).unwrap().contains("<svg"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn work_precision_bench_writes_a_table_with_converging_errors() {
+    let dir = scratch("wp");
+    let out = tensegrity(&[
+        "bench",
+        "work-precision",
+        "config/scenes/tbar.toml",
+        "--reference-dt",
+        "1e-4",
+        "--repeats",
+        "1",
+        "--duration",
+        "0.3",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = std::fs::read_to_string(dir.join("work_precision.csv")).unwrap();
+    let ga: Vec<(f64, f64, f64)> = table
+        .lines()
+        .skip(1)
+        .filter(|l| l.starts_with("generalized-alpha(rho=0.8)"))
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[1].parse().unwrap(), f[2].parse().unwrap(), f[3].parse().unwrap())
+        })
+        .collect();
+    assert_eq!(ga.len(), 6);
+    assert!(ga.windows(2).all(|w| w[1].1 < w[0].1), "errors fall as the step falls: {ga:?}");
+    assert!(ga.iter().all(|r| r.2 > 0.0), "every run was timed");
+    assert!(table.lines().any(|l| l.starts_with("symplectic-euler")));
+    for f in ["work_precision.md", "work_precision.png", "work_precision.svg"] {
+        assert!(dir.join(f).exists(), "missing {f}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
