@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 use crate::forces::{evaluate, Tangents, Workspace};
 use crate::model::Model;
 use crate::solve::dynamics::{cable_powers, stability_limit, Dynamics, Integrator, NewtonSettings};
+use crate::solve::linear::LinearBackend;
 use crate::state::State;
 
 /// How the simulator steps.
@@ -24,6 +25,8 @@ pub struct SimSettings {
     pub newton: NewtonSettings,
     /// Smallest sub-step a rejected step may be cut to, s.
     pub min_dt: f64,
+    /// Factorization of the Newton systems.
+    pub linear: LinearBackend,
 }
 
 impl Default for SimSettings {
@@ -33,6 +36,7 @@ impl Default for SimSettings {
             integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
             newton: NewtonSettings::default(),
             min_dt: 1e-9,
+            linear: LinearBackend::Auto,
         }
     }
 }
@@ -144,7 +148,7 @@ impl Simulator {
         if !(settings.dt.is_finite() && settings.dt > 0.0) {
             return Err(StepError::InvalidStep(settings.dt));
         }
-        let mut dynamics = Dynamics::new(&model);
+        let mut dynamics = Dynamics::new(&model, settings.linear);
         model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
         if settings.integrator == Integrator::SymplecticEuler {
             let limit = stability_limit(&model, &state);
@@ -199,6 +203,10 @@ impl Simulator {
     /// Step settings.
     pub fn settings(&self) -> &SimSettings {
         &self.settings
+    }
+    /// The linear-solver backend in use (dense or sparse).
+    pub fn linear_backend(&self) -> LinearBackend {
+        self.dynamics.linear_backend()
     }
     /// Current true acceleration (local coordinates).
     pub fn acceleration(&self) -> &nalgebra::DVector<f64> {

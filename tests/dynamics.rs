@@ -194,7 +194,8 @@ fn explicit_step_above_the_stability_limit_is_refused_and_really_unstable() {
         "bounded below the limit: drift {short} J then {long} J of {e0} J"
     );
     // and above it, integrating anyway (through the low-level API) blows up
-    let mut dynamics = tensegrity::solve::dynamics::Dynamics::new(&model);
+    let mut dynamics =
+        tensegrity::solve::dynamics::Dynamics::new(&model, tensegrity::solve::linear::LinearBackend::Auto);
     let mut state = State::initial(&model);
     assert!(dynamics.initialize(&model, &mut state));
     let rest = state.rest_lengths.clone();
@@ -217,4 +218,53 @@ fn explicit_step_above_the_stability_limit_is_refused_and_really_unstable() {
         }
     }
     assert!(grew, "symplectic Euler above its limit should diverge");
+}
+
+#[test]
+fn sparse_and_dense_factorizations_give_the_same_motion() {
+    use tensegrity::solve::linear::LinearBackend;
+    let model = bundled("tower.toml");
+    let run = |linear| {
+        let mut sim = Simulator::new(model.clone(), SimSettings { linear, ..ga(0.8, 2e-3) }).unwrap();
+        assert_eq!(sim.linear_backend(), linear);
+        for _ in 0..150 {
+            sim.step().unwrap();
+        }
+        sim.state().clone()
+    };
+    let (dense, sparse) = (run(LinearBackend::Dense), run(LinearBackend::Sparse));
+    for (a, b) in dense.poses.iter().zip(&sparse.poses) {
+        assert!((a.position - b.position).norm() < 1e-9, "{} vs {}", a.position, b.position);
+    }
+    assert!((&dense.velocities - &sparse.velocities).amax() < 1e-7);
+}
+
+#[test]
+fn long_runs_stay_on_the_constraint_manifold() {
+    // the tower's 27 joint equations over 4 s of deployment and settling: generalized-alpha solves
+    // them at position level (gap at round-off), symplectic Euler projects velocities and corrects
+    // the O(h^2) gap every step, so its gap stays small and does not grow
+    let model = bundled("tower.toml");
+    for (settings, bound) in [
+        (ga(0.8, 2e-3), 1e-11),
+        (SimSettings { dt: 5e-4, integrator: Integrator::SymplecticEuler, ..Default::default() }, 1e-7),
+    ] {
+        let mut sim = Simulator::new(model.clone(), settings).unwrap();
+        let (mut early, mut late): (f64, f64) = (0.0, 0.0);
+        while sim.state().time < 4.0 {
+            sim.step().unwrap();
+            let gap = sim.workspace().constraint.amax();
+            if sim.state().time < 2.0 {
+                early = early.max(gap);
+            } else {
+                late = late.max(gap);
+            }
+        }
+        assert!(early.max(late) < bound, "{:?}: joint gap {early} then {late} m", settings.integrator);
+        assert!(
+            late <= 2.0 * early.max(1e-15),
+            "{:?}: joint gap grew from {early} to {late} m",
+            settings.integrator
+        );
+    }
 }

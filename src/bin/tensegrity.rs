@@ -137,6 +137,18 @@ impl DynamicArgs {
 
 #[derive(Subcommand)]
 enum BenchKind {
+    /// Step time against structure size (towers of stacked prisms), dense vs sparse LU.
+    Scaling {
+        /// Tower stages to run.
+        #[arg(long, value_delimiter = ',', default_value = "1,2,3,4,6,8,12,16")]
+        stages: Vec<usize>,
+        /// Steps timed per run.
+        #[arg(long, default_value_t = 200)]
+        steps: usize,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// One deployment over integrators and step sizes: error against a converged reference vs
     /// wall time (table and plot).
     WorkPrecision {
@@ -396,6 +408,15 @@ fn run(cli: Cli) -> Result<(), String> {
                 &out,
             )?;
             print!("{}", result.markdown());
+            println!("written to {}", out.display());
+            Ok(())
+        }
+        Command::Bench { kind: BenchKind::Scaling { stages, steps, out } } => {
+            if stages.contains(&0) || steps == 0 {
+                return Err("stages and steps must be >= 1".into());
+            }
+            study::scaling(&stages, steps, &out)?;
+            print!("{}", std::fs::read_to_string(out.join("scaling.md")).map_err(|e| e.to_string())?);
             println!("written to {}", out.display());
             Ok(())
         }

@@ -33,6 +33,7 @@ use crate::constraints::add_multiplier_hessian;
 use crate::forces::cable::{add_block, add_vector};
 use crate::forces::{evaluate, Tangents, Workspace};
 use crate::model::{BodyId, BodyKind, Model, Pose};
+use crate::solve::linear::{LinearBackend, LinearSolver};
 use crate::state::{retract, State};
 
 /// Which integrator advances the dynamics.
@@ -129,6 +130,7 @@ pub struct Dynamics {
     rhs: DVector<f64>,
     residual: DVector<f64>,
     hessian: DMatrix<f64>,
+    linear: LinearSolver,
 }
 
 /// Gyroscopic generalized force `B^T [0; w x J w]` of rigid bodies, added into `out`, and its
@@ -211,8 +213,8 @@ fn all_finite(v: &DVector<f64>) -> bool {
 }
 
 impl Dynamics {
-    /// Buffers for `model`.
-    pub fn new(model: &Model) -> Self {
+    /// Buffers for `model`, solving its Newton systems with `backend`.
+    pub fn new(model: &Model, backend: LinearBackend) -> Self {
         let n = model.dof_count;
         let size = n + model.constraint_count;
         Self {
@@ -225,7 +227,13 @@ impl Dynamics {
             rhs: DVector::zeros(size),
             residual: DVector::zeros(n),
             hessian: DMatrix::zeros(n, n),
+            linear: LinearSolver::new(model, backend),
         }
+    }
+
+    /// The linear-solver backend in use (dense or sparse).
+    pub fn linear_backend(&self) -> LinearBackend {
+        self.linear.backend()
     }
 
     /// Sets consistent accelerations and reactions at `state` (solves
@@ -248,8 +256,8 @@ impl Dynamics {
         if nc > 0 {
             self.rhs.rows_mut(n, nc).copy_from(&(-curvature));
         }
-        let Some(x) = self.matrix.clone().lu().solve(&self.rhs) else { return false };
-        if !all_finite(&x) {
+        let mut x = self.rhs.clone();
+        if !self.linear.solve(&self.matrix, &mut x) {
             return false;
         }
         self.acceleration.copy_from(&x.rows(0, n));
@@ -358,10 +366,10 @@ impl Dynamics {
                 self.rhs.rows_mut(n, nc).copy_from(&(-&self.ws.constraint));
             }
             self.rhs.rows_mut(0, n).copy_from(&(-&self.residual / beta_p));
-            let x = self.matrix.clone().lu().solve(&self.rhs)?;
-            if !all_finite(&x) {
+            if !self.linear.solve(&self.matrix, &mut self.rhs) {
                 return None;
             }
+            let x = &self.rhs;
             let dd = x.rows(0, n);
             delta += dd;
             v += dd * gamma_p;
@@ -410,10 +418,10 @@ impl Dynamics {
             self.matrix.view_mut((n, 0), (nc, n)).copy_from(&self.ws.constraint_jacobian);
             self.rhs.rows_mut(n, nc).copy_from(&(-&self.ws.constraint / h));
         }
-        let x = self.matrix.clone().lu().solve(&self.rhs)?;
-        if !all_finite(&x) {
+        if !self.linear.solve(&self.matrix, &mut self.rhs) {
             return None;
         }
+        let x = &self.rhs;
         let v_next = x.rows(0, n).into_owned();
         let accel = (&v_next - &state.velocities) / h;
         let mut poses: Vec<Pose> = state.poses.clone();

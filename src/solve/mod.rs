@@ -3,4 +3,5 @@
 
 pub mod dynamics;
 pub mod formfind;
+pub mod linear;
 pub mod statics;
