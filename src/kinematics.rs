@@ -78,7 +78,7 @@ pub fn velocity_derivative(model: &Model, poses: &[Pose], v: &DVector<f64>, pid:
     if body.dof_count == 0 {
         return PointJacobian::zeros();
     }
-    let local = body.basis.columns(0, body.dof_count) * v.rows(body.dof_offset, body.dof_count);
+    let local = body.local_increment(v.as_slice(), 1.0);
     let omega = Vector3::new(local[3], local[4], local[5]);
     let rot = poses[point.body.0].rotation.to_rotation_matrix();
     let mut d = PointJacobian::zeros();

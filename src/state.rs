@@ -54,8 +54,7 @@ pub fn retract(model: &Model, poses: &mut [Pose], dq: &DVector<f64>, scale: f64)
         if body.dof_count == 0 {
             continue;
         }
-        let local = dq.rows(body.dof_offset, body.dof_count) * scale;
-        let incr = body.basis.columns(0, body.dof_count) * local;
+        let incr = body.local_increment(dq.as_slice(), scale);
         pose.position += Vector3::new(incr[0], incr[1], incr[2]);
         let theta = Vector3::new(incr[3], incr[4], incr[5]);
         if theta.norm_squared() > 0.0 {

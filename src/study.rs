@@ -546,6 +546,8 @@ pub fn work_precision(
 /// One row of the scaling benchmark.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScalingRow {
+    /// Clustered side cables (helices through all stages) or classical two-point strings.
+    pub clustered: bool,
     /// Tower stages.
     pub stages: usize,
     /// Generalized coordinates.
@@ -558,6 +560,8 @@ pub struct ScalingRow {
     pub dense_step: f64,
     /// Median wall time per step with the sparse LU, s.
     pub sparse_step: f64,
+    /// Newton iterations per step.
+    pub newton_per_step: f64,
 }
 
 /// Median wall time per step (s) of `steps` generalized-alpha steps of `model` (dt 1 ms).
@@ -565,57 +569,72 @@ fn median_step_time(
     model: &Model,
     linear: crate::solve::linear::LinearBackend,
     steps: usize,
-) -> Result<f64, String> {
+) -> Result<(f64, f64), String> {
     let settings = SimSettings { dt: 1e-3, linear, ..Default::default() };
     let mut times = Vec::with_capacity(steps);
-    run_dynamic(model, settings, steps as f64 * 1e-3, |_, stats| {
+    let totals = run_dynamic(model, settings, steps as f64 * 1e-3, |_, stats| {
         times.push(stats.wall_time.as_secs_f64());
         Ok(())
     })?;
     times.sort_by(f64::total_cmp);
-    Ok(times[times.len() / 2])
+    Ok((times[times.len() / 2], totals.newton_iterations as f64 / totals.steps.max(1) as f64))
 }
 
-/// Scaling benchmark: towers of 3-strut prisms with `stages` stages (clustered sides, deploying),
-/// `steps` generalized-alpha steps each with the dense and the sparse LU; writes `scaling.csv`,
-/// `scaling.md` and `scaling.{png,svg}` (median wall time per step against problem size).
+/// Scaling benchmark: towers of 3-strut prisms with `stages` stages, with clustered side cables
+/// (helices through every stage, which couple all bars on them) and with classical two-point
+/// strings (each couples two bars), `steps` generalized-alpha steps each with the dense and the
+/// sparse LU; writes `scaling.csv`, `scaling.md` and `scaling.{png,svg}` (median wall time per step
+/// against problem size).
 pub fn scaling(stages: &[usize], steps: usize, out_dir: &Path) -> Result<Vec<ScalingRow>, String> {
     use crate::scene::generate::{tower, TowerParams};
     use crate::solve::linear::{KktPattern, LinearBackend};
     std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
     let mut rows = Vec::new();
-    for &s in stages {
-        let spec = tower(&TowerParams { stages: s, ..Default::default() });
-        let model =
-            crate::scene::build_model(&spec, &format!("<tower {s}>"), None).map_err(|e| e.to_string())?;
-        rows.push(ScalingRow {
-            stages: s,
-            coordinates: model.dof_count,
-            constraints: model.constraint_count,
-            nonzeros: KktPattern::new(&model).nonzeros(),
-            dense_step: median_step_time(&model, LinearBackend::Dense, steps)?,
-            sparse_step: median_step_time(&model, LinearBackend::Sparse, steps)?,
-        });
+    for clustered in [true, false] {
+        for &s in stages {
+            // the classical tower deploys by its clustered top ring, so that both families move
+            let spec = tower(&TowerParams {
+                stages: s,
+                cluster_sides: clustered,
+                cluster_top_ring: !clustered,
+                ..Default::default()
+            });
+            let model =
+                crate::scene::build_model(&spec, &format!("<tower {s}>"), None).map_err(|e| e.to_string())?;
+            rows.push(ScalingRow {
+                clustered,
+                stages: s,
+                coordinates: model.dof_count,
+                constraints: model.constraint_count,
+                nonzeros: KktPattern::new(&model).nonzeros(),
+                dense_step: median_step_time(&model, LinearBackend::Dense, steps)?.0,
+                sparse_step: median_step_time(&model, LinearBackend::Sparse, steps)?.0,
+                newton_per_step: median_step_time(&model, LinearBackend::Dense, 20)?.1,
+            });
+        }
     }
     let mut csv = create(&out_dir.join("scaling.csv"))?;
-    let _ = writeln!(csv, "stages,coordinates,constraints,kkt_nonzeros,dense_step_s,sparse_step_s");
+    let _ =
+        writeln!(csv, "side_strings,stages,coordinates,constraints,kkt_nonzeros,dense_step_s,sparse_step_s");
     let mut md = format!(
-        "Towers of 3-strut prisms (clustered side cables, deploying), generalized-alpha at dt = 1 ms, median wall time per step over {steps} steps.\n\n| stages | coordinates | constraints | KKT size | KKT nonzeros | dense LU step ms | sparse LU step ms | dense / sparse |\n| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+        "Towers of 3-strut prisms, generalized-alpha at dt = 1 ms, median wall time per step over {steps} steps.\n\n| side strings | stages | coordinates | constraints | KKT size | KKT nonzeros | Newton / step | dense LU step ms | sparse LU step ms | dense / sparse |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
     );
     for r in &rows {
+        let kind = if r.clustered { "clustered" } else { "classical" };
         let _ = writeln!(
             csv,
-            "{},{},{},{},{:.6e},{:.6e}",
+            "{kind},{},{},{},{},{:.6e},{:.6e}",
             r.stages, r.coordinates, r.constraints, r.nonzeros, r.dense_step, r.sparse_step
         );
         let _ = writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.2} |",
+            "| {kind} | {} | {} | {} | {} | {} | {:.2} | {:.3} | {:.3} | {:.2} |",
             r.stages,
             r.coordinates,
             r.constraints,
             r.coordinates + r.constraints,
             r.nonzeros,
+            r.newton_per_step,
             1e3 * r.dense_step,
             1e3 * r.sparse_step,
             r.dense_step / r.sparse_step

@@ -102,6 +102,16 @@ pub struct BodyModel {
 }
 
 impl BodyModel {
+    /// `(dx, dtheta) = B dq_b` for this body's slice of a global coordinate vector `dq`, times
+    /// `scale` (fixed size, no allocation).
+    pub fn local_increment(&self, dq: &[f64], scale: f64) -> nalgebra::Vector6<f64> {
+        let mut out = nalgebra::Vector6::zeros();
+        for c in 0..self.dof_count {
+            out += self.basis.column(c) * (dq[self.dof_offset + c] * scale);
+        }
+        out
+    }
+
     /// The body's constant mass matrix in its local coordinates, `B^T diag(m I, J) B` (k x k,
     /// top-left block of the returned 6 x 6).
     pub fn mass_matrix(&self) -> Matrix6<f64> {

@@ -32,7 +32,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SymmetricEigen, Vector3, Vect
 use crate::constraints::add_multiplier_hessian;
 use crate::forces::cable::{add_block, add_vector};
 use crate::forces::{evaluate, Tangents, Workspace};
-use crate::model::{BodyId, BodyKind, Model, Pose};
+use crate::model::{BodyId, BodyKind, Model};
 use crate::solve::linear::{LinearBackend, LinearSolver};
 use crate::state::{retract, State};
 
@@ -131,6 +131,12 @@ pub struct Dynamics {
     residual: DVector<f64>,
     hessian: DMatrix<f64>,
     linear: LinearSolver,
+    // generalized-alpha iterates, preallocated so that a step never allocates
+    vdot: DVector<f64>,
+    a_next: DVector<f64>,
+    v: DVector<f64>,
+    delta: DVector<f64>,
+    lambda: DVector<f64>,
 }
 
 /// Gyroscopic generalized force `B^T [0; w x J w]` of rigid bodies, added into `out`, and its
@@ -145,7 +151,7 @@ pub fn add_gyroscopic(
         if body.kind != BodyKind::Rigid {
             continue;
         }
-        let local = body.basis.columns(0, body.dof_count) * v.rows(body.dof_offset, body.dof_count);
+        let local = body.local_increment(v.as_slice(), 1.0);
         let w = Vector3::new(local[3], local[4], local[5]);
         let jw = body.inertia * w;
         let t = w.cross(&jw);
@@ -228,6 +234,11 @@ impl Dynamics {
             residual: DVector::zeros(n),
             hessian: DMatrix::zeros(n, n),
             linear: LinearSolver::new(model, backend),
+            vdot: DVector::zeros(n),
+            a_next: DVector::zeros(n),
+            v: DVector::zeros(n),
+            delta: DVector::zeros(n),
+            lambda: DVector::zeros(model.constraint_count),
         }
     }
 
@@ -302,32 +313,33 @@ impl Dynamics {
         let gamma_p = c.gamma / (h * c.beta);
 
         // predictor: constant acceleration
-        let mut vdot = self.acceleration.clone();
-        let a_next = (&self.acceleration * c.alpha_f - &self.pseudo_acceleration * c.alpha_m
-            + &vdot * (1.0 - c.alpha_f))
-            / (1.0 - c.alpha_m);
-        let mut v = &state.velocities + (&self.pseudo_acceleration * (1.0 - c.gamma) + &a_next * c.gamma) * h;
-        let mut delta =
-            &state.velocities * h + (&self.pseudo_acceleration * (0.5 - c.beta) + &a_next * c.beta) * (h * h);
-        let mut lambda = state.multipliers.clone();
+        self.vdot.copy_from(&self.acceleration);
+        self.update_pseudo_acceleration(&c);
+        self.v.copy_from(&state.velocities);
+        self.v.axpy(h * (1.0 - c.gamma), &self.pseudo_acceleration, 1.0);
+        self.v.axpy(h * c.gamma, &self.a_next, 1.0);
+        self.delta.copy_from(&state.velocities);
+        self.delta.axpy(h * h * (0.5 - c.beta), &self.pseudo_acceleration, h);
+        self.delta.axpy(h * h * c.beta, &self.a_next, 1.0);
+        self.lambda.copy_from(&state.multipliers);
 
         self.trial.time = state.time + h;
         self.trial.rest_lengths.copy_from_slice(rest_next);
         let mut stats = AttemptStats::default();
         for iter in 0..=newton.max_iterations {
             self.trial.poses.copy_from_slice(&state.poses);
-            retract(model, &mut self.trial.poses, &delta, 1.0);
-            self.trial.velocities.copy_from(&v);
-            self.trial.multipliers.copy_from(&lambda);
+            retract(model, &mut self.trial.poses, &self.delta, 1.0);
+            self.trial.velocities.copy_from(&self.v);
+            self.trial.multipliers.copy_from(&self.lambda);
             evaluate(model, &self.trial, &mut self.ws, Tangents::StiffnessAndDamping);
 
             // residual r = M vdot + gyro - Q + Phi_q^T lambda
-            self.residual.copy_from(&(&self.mass * &vdot));
+            self.mass.mul_to(&self.vdot, &mut self.residual);
             let inertial = self.residual.amax();
-            add_gyroscopic(model, &v, &mut self.residual, Some(&mut self.ws.damping));
+            add_gyroscopic(model, &self.v, &mut self.residual, Some(&mut self.ws.damping));
             self.residual -= &self.ws.force;
             if nc > 0 {
-                self.residual += self.ws.constraint_jacobian.transpose() * &lambda;
+                self.residual.gemv_tr(1.0, &self.ws.constraint_jacobian, &self.lambda, 1.0);
             }
             if !all_finite(&self.residual) {
                 return None;
@@ -345,51 +357,62 @@ impl Dynamics {
             if iter == newton.max_iterations {
                 return None;
             }
-            // S / beta' and the constraint rows
-            self.matrix.fill(0.0);
-            for j in 0..n {
-                for i in 0..n {
-                    self.matrix[(i, j)] = self.mass[(i, j)]
-                        + (gamma_p * self.ws.damping[(i, j)] + self.ws.stiffness[(i, j)]) / beta_p;
-                }
-            }
+            // [S / beta', Phi_q^T; Phi_q, 0] [d delta; d lambda / beta'] = [-r / beta'; -Phi]
             if nc > 0 {
                 self.hessian.fill(0.0);
-                add_multiplier_hessian(model, &self.trial.poses, &lambda, &mut self.hessian);
-                for j in 0..n {
-                    for i in 0..n {
-                        self.matrix[(i, j)] += self.hessian[(i, j)] / beta_p;
-                    }
-                }
-                self.matrix.view_mut((0, n), (n, nc)).copy_from(&self.ws.constraint_jacobian.transpose());
-                self.matrix.view_mut((n, 0), (nc, n)).copy_from(&self.ws.constraint_jacobian);
-                self.rhs.rows_mut(n, nc).copy_from(&(-&self.ws.constraint));
+                add_multiplier_hessian(model, &self.trial.poses, &self.lambda, &mut self.hessian);
             }
-            self.rhs.rows_mut(0, n).copy_from(&(-&self.residual / beta_p));
+            for j in 0..n {
+                for i in 0..n {
+                    let mut a = self.mass[(i, j)]
+                        + (gamma_p * self.ws.damping[(i, j)] + self.ws.stiffness[(i, j)]) / beta_p;
+                    if nc > 0 {
+                        a += self.hessian[(i, j)] / beta_p;
+                    }
+                    self.matrix[(i, j)] = a;
+                }
+                self.rhs[j] = -self.residual[j] / beta_p;
+            }
+            for r in 0..nc {
+                for j in 0..n {
+                    let g = self.ws.constraint_jacobian[(r, j)];
+                    self.matrix[(n + r, j)] = g;
+                    self.matrix[(j, n + r)] = g;
+                }
+                for q in 0..nc {
+                    self.matrix[(n + r, n + q)] = 0.0;
+                }
+                self.rhs[n + r] = -self.ws.constraint[r];
+            }
             if !self.linear.solve(&self.matrix, &mut self.rhs) {
                 return None;
             }
-            let x = &self.rhs;
-            let dd = x.rows(0, n);
-            delta += dd;
-            v += dd * gamma_p;
-            vdot += dd * beta_p;
+            let dd = self.rhs.rows(0, n);
+            self.delta += dd;
+            self.v.axpy(gamma_p, &dd, 1.0);
+            self.vdot.axpy(beta_p, &dd, 1.0);
             if nc > 0 {
-                lambda += x.rows(n, nc) * beta_p;
+                self.lambda.axpy(beta_p, &self.rhs.rows(n, nc), 1.0);
             }
         }
         // commit
-        let a_next = (&self.acceleration * c.alpha_f - &self.pseudo_acceleration * c.alpha_m
-            + &vdot * (1.0 - c.alpha_f))
-            / (1.0 - c.alpha_m);
+        self.update_pseudo_acceleration(&c);
         state.poses.copy_from_slice(&self.trial.poses);
-        state.velocities.copy_from(&v);
-        state.multipliers.copy_from(&lambda);
+        state.velocities.copy_from(&self.v);
+        state.multipliers.copy_from(&self.lambda);
         state.rest_lengths.copy_from_slice(rest_next);
         state.time = self.trial.time;
-        self.acceleration = vdot;
-        self.pseudo_acceleration = a_next;
+        self.acceleration.copy_from(&self.vdot);
+        self.pseudo_acceleration.copy_from(&self.a_next);
         Some(stats)
+    }
+
+    /// `a_next = (alpha_f vdot_n - alpha_m a_n + (1 - alpha_f) vdot) / (1 - alpha_m)`, in place.
+    fn update_pseudo_acceleration(&mut self, c: &AlphaCoefficients) {
+        self.a_next.copy_from(&self.acceleration);
+        self.a_next.axpy(-c.alpha_m, &self.pseudo_acceleration, c.alpha_f);
+        self.a_next.axpy(1.0 - c.alpha_f, &self.vdot, 1.0);
+        self.a_next /= 1.0 - c.alpha_m;
     }
 
     fn symplectic_euler(
@@ -402,42 +425,56 @@ impl Dynamics {
     ) -> Option<AttemptStats> {
         let n = model.dof_count;
         let nc = model.constraint_count;
-        self.trial.clone_from(state);
+        self.trial.time = state.time;
+        self.trial.poses.copy_from_slice(&state.poses);
+        self.trial.velocities.copy_from(&state.velocities);
+        self.trial.multipliers.copy_from(&state.multipliers);
         self.trial.rest_lengths.copy_from_slice(rest_now);
         evaluate(model, &self.trial, &mut self.ws, Tangents::None);
-        let mut f = self.ws.force.clone();
-        let mut gyro = DVector::zeros(n);
-        add_gyroscopic(model, &state.velocities, &mut gyro, None);
-        f -= gyro;
+        // f = Q - gyro (in `residual`), M v_n (in `vdot`)
+        self.v.fill(0.0);
+        add_gyroscopic(model, &state.velocities, &mut self.v, None);
+        self.residual.copy_from(&self.ws.force);
+        self.residual -= &self.v;
+        self.mass.mul_to(&state.velocities, &mut self.vdot);
         // [M Phi_q^T; Phi_q 0] [v+; h lambda] = [M v + h f; -Phi / h]
-        self.matrix.fill(0.0);
-        self.matrix.view_mut((0, 0), (n, n)).copy_from(&self.mass);
-        self.rhs.rows_mut(0, n).copy_from(&(&self.mass * &state.velocities + &f * h));
-        if nc > 0 {
-            self.matrix.view_mut((0, n), (n, nc)).copy_from(&self.ws.constraint_jacobian.transpose());
-            self.matrix.view_mut((n, 0), (nc, n)).copy_from(&self.ws.constraint_jacobian);
-            self.rhs.rows_mut(n, nc).copy_from(&(-&self.ws.constraint / h));
+        for j in 0..n {
+            for i in 0..n {
+                self.matrix[(i, j)] = self.mass[(i, j)];
+            }
+            self.rhs[j] = self.vdot[j] + h * self.residual[j];
+        }
+        for r in 0..nc {
+            for j in 0..n {
+                let g = self.ws.constraint_jacobian[(r, j)];
+                self.matrix[(n + r, j)] = g;
+                self.matrix[(j, n + r)] = g;
+            }
+            for q in 0..nc {
+                self.matrix[(n + r, n + q)] = 0.0;
+            }
+            self.rhs[n + r] = -self.ws.constraint[r] / h;
         }
         if !self.linear.solve(&self.matrix, &mut self.rhs) {
             return None;
         }
-        let x = &self.rhs;
-        let v_next = x.rows(0, n).into_owned();
-        let accel = (&v_next - &state.velocities) / h;
-        let mut poses: Vec<Pose> = state.poses.clone();
-        retract(model, &mut poses, &v_next, h);
-        if poses.iter().any(|p| !p.position.iter().all(|x| x.is_finite())) {
+        self.v.copy_from(&self.rhs.rows(0, n));
+        retract(model, &mut self.trial.poses, &self.v, h);
+        if self.trial.poses.iter().any(|p| !p.position.iter().all(|x| x.is_finite())) {
             return None;
         }
-        state.poses = poses;
-        state.velocities = v_next;
-        if nc > 0 {
-            state.multipliers.copy_from(&(x.rows(n, nc) / h));
+        // commit
+        self.vdot.copy_from(&self.v);
+        self.vdot.axpy(-1.0 / h, &state.velocities, 1.0 / h);
+        state.poses.copy_from_slice(&self.trial.poses);
+        state.velocities.copy_from(&self.v);
+        for r in 0..nc {
+            state.multipliers[r] = self.rhs[n + r] / h;
         }
         state.rest_lengths.copy_from_slice(rest_next);
         state.time += h;
-        self.acceleration.copy_from(&accel);
-        self.pseudo_acceleration.copy_from(&accel);
+        self.acceleration.copy_from(&self.vdot);
+        self.pseudo_acceleration.copy_from(&self.vdot);
         Some(AttemptStats { iterations: 0, residual: 0.0 })
     }
 }

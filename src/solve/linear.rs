@@ -1,18 +1,23 @@
 //! Linear solves for the Newton iterations: takes the square KKT matrix of a model (coordinates
-//! then constraint rows) and a right-hand side, gives the solution, with a dense LU (nalgebra) or a
+//! then constraint rows) and a right-hand side, gives the solution, with a dense LU or a
 //! sparse LU (faer) whose symbolic analysis (column ordering, elimination structure) is done once
 //! per model and reused for every numeric factorization.
 //!
 //! The sparsity pattern is fixed by the model: each body's diagonal block (mass, damping,
 //! geometric and gyroscopic terms), the blocks between every pair of bodies that share a cable
 //! (`g g^T` couples all bodies on a route), the constraint rows against their bodies' columns and
-//! the transposes, and the diagonal. `LinearBackend::Auto` picks dense below
-//! `DENSE_SPARSE_CROSSOVER` unknowns, the size where the sparse path became faster in
-//! `tensegrity bench scaling` on the 2-core development machine.
+//! the transposes, and the diagonal. `LinearBackend::Auto` picks the sparse LU only for large, thin
+//! patterns (at least `SPARSE_MIN_SIZE` unknowns and at most `SPARSE_MAX_DENSITY` of the entries
+//! structurally nonzero): in `tensegrity bench scaling` on the 2-core development machine the
+//! sparse LU was 1.6-1.9x faster per step for classical towers of 576-768 unknowns (3-5 % full),
+//! and slower at every size for towers whose clustered cables couple every stage (16-20 % full)
+//! and for all systems below about 400 unknowns.
 
 use std::collections::BTreeSet;
 
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::lu::partial_pivoting as dense_lu;
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::lu::{factorize_symbolic_lu, LuSymbolicParams, NumericLu, SymbolicLu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par};
@@ -20,17 +25,19 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::model::{JointTarget, Model};
 
-/// Size (coordinates + constraint rows) from which `Auto` uses the sparse LU.
-pub const DENSE_SPARSE_CROSSOVER: usize = 160;
+/// Smallest size (coordinates + constraint rows) for which `Auto` uses the sparse LU.
+pub const SPARSE_MIN_SIZE: usize = 500;
+/// Largest fraction of structurally nonzero entries for which `Auto` uses the sparse LU.
+pub const SPARSE_MAX_DENSITY: f64 = 0.1;
 
 /// Which factorization solves the Newton systems.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LinearBackend {
-    /// Dense LU with partial pivoting (nalgebra).
+    /// Dense LU with partial pivoting (faer, in place in a preallocated buffer).
     Dense,
     /// Sparse LU (faer), symbolic analysis once per model.
     Sparse,
-    /// Dense below `DENSE_SPARSE_CROSSOVER` unknowns, sparse above.
+    /// Sparse for large thin patterns (`SPARSE_MIN_SIZE`, `SPARSE_MAX_DENSITY`), else dense.
     Auto,
 }
 
@@ -119,6 +126,9 @@ pub struct LinearSolver {
     numeric: NumericLu<usize, f64>,
     values: Vec<f64>,
     mem: MemBuffer,
+    dense: Vec<f64>,
+    perm: Vec<usize>,
+    perm_inv: Vec<usize>,
 }
 
 impl std::fmt::Debug for LinearSolver {
@@ -146,7 +156,13 @@ impl LinearSolver {
 
     fn from_pattern(pattern: KktPattern, backend: LinearBackend) -> Self {
         let backend = match backend {
-            LinearBackend::Auto if pattern.size >= DENSE_SPARSE_CROSSOVER => LinearBackend::Sparse,
+            LinearBackend::Auto
+                if pattern.size >= SPARSE_MIN_SIZE
+                    && pattern.nonzeros() as f64
+                        <= SPARSE_MAX_DENSITY * (pattern.size * pattern.size) as f64 =>
+            {
+                LinearBackend::Sparse
+            }
             LinearBackend::Auto => LinearBackend::Dense,
             b => b,
         };
@@ -163,15 +179,23 @@ impl LinearSolver {
             None
         };
         let backend = if symbolic.is_none() { LinearBackend::Dense } else { backend };
+        let size = pattern.size;
         let req = match &symbolic {
             Some(s) => StackReq::or(
                 s.factorize_numeric_lu_scratch::<f64>(Par::Seq, Default::default()),
                 s.solve_in_place_scratch::<f64>(1, Par::Seq),
             ),
-            None => StackReq::EMPTY,
+            None => StackReq::or(
+                dense_lu::factor::lu_in_place_scratch::<usize, f64>(size, size, Par::Seq, Default::default()),
+                dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
+            ),
         };
+        let dense_len = if symbolic.is_none() { size * size } else { 0 };
         Self {
             backend,
+            dense: vec![0.0; dense_len],
+            perm: vec![0; size],
+            perm_inv: vec![0; size],
             values: vec![0.0; pattern.nonzeros()],
             pattern,
             symbolic,
@@ -190,15 +214,36 @@ impl LinearSolver {
     pub fn solve(&mut self, a: &DMatrix<f64>, b: &mut DVector<f64>) -> bool {
         let ok = match self.backend {
             LinearBackend::Sparse => self.solve_sparse(a, b),
-            _ => match a.clone().lu().solve(b) {
-                Some(x) => {
-                    b.copy_from(&x);
-                    true
-                }
-                None => false,
-            },
+            _ => self.solve_dense(a, b),
         };
         ok && b.iter().all(|v| v.is_finite())
+    }
+
+    /// Dense LU with partial pivoting, in place in a preallocated buffer (faer; no allocation).
+    fn solve_dense(&mut self, a: &DMatrix<f64>, b: &mut DVector<f64>) -> bool {
+        let size = self.pattern.size;
+        if size == 0 {
+            return true;
+        }
+        self.dense.copy_from_slice(a.as_slice());
+        let mut lu = MatMut::from_column_major_slice_mut(&mut self.dense, size, size);
+        let (_, perm) = dense_lu::factor::lu_in_place(
+            lu.rb_mut(),
+            &mut self.perm,
+            &mut self.perm_inv,
+            Par::Seq,
+            MemStack::new(&mut self.mem),
+            Default::default(),
+        );
+        if (0..size).any(|i| {
+            let d = lu[(i, i)];
+            d == 0.0 || !d.is_finite()
+        }) {
+            return false;
+        }
+        let rhs = MatMut::from_column_major_slice_mut(b.as_mut_slice(), size, 1);
+        dense_lu::solve::solve_in_place(lu.rb(), lu.rb(), perm, rhs, Par::Seq, MemStack::new(&mut self.mem));
+        true
     }
 
     fn solve_sparse(&mut self, a: &DMatrix<f64>, b: &mut DVector<f64>) -> bool {
