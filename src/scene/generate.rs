@@ -9,7 +9,6 @@
 //! ground), so the bottom ring is not needed; only the side strings get a prestress target and form
 //! finding determines the rest.
 
-use std::collections::BTreeMap;
 use std::f64::consts::PI;
 
 use super::{
@@ -58,16 +57,7 @@ impl Default for PrismParams {
 }
 
 fn bar(name: String, mass: f64, a: [f64; 3], b: [f64; 3]) -> BodySpec {
-    BodySpec {
-        name,
-        kind: BodyKindSpec::Bar,
-        mass: Some(mass),
-        position: None,
-        rotation: None,
-        ends: Some([a, b]),
-        inertia: None,
-        points: BTreeMap::new(),
-    }
+    BodySpec { mass: Some(mass), ends: Some([a, b]), ..BodySpec::new(&name, BodyKindSpec::Bar) }
 }
 
 fn cable(name: String, route: Vec<String>, ea: f64, zeta: f64) -> CableSpec {
@@ -331,16 +321,7 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
     let mut mast = bar("mast".into(), p.bar_mass, [0.0, 0.0, 0.0], [0.0, 2.0 * h, 0.0]);
     mast.points.insert("mid".into(), PointSpec::Along(0.5));
     let cross = bar("cross".into(), p.bar_mass, [-p.half_width, h, 0.0], [p.half_width, h, 0.0]);
-    let mut ground = BodySpec {
-        name: "ground".into(),
-        kind: BodyKindSpec::Fixed,
-        mass: None,
-        position: None,
-        rotation: None,
-        ends: None,
-        inertia: None,
-        points: BTreeMap::new(),
-    };
+    let mut ground = BodySpec::new("ground", BodyKindSpec::Fixed);
     ground.points.insert("left".into(), PointSpec::Local([-p.anchor_distance, 0.0, 0.0]));
     ground.points.insert("right".into(), PointSpec::Local([p.anchor_distance, 0.0, 0.0]));
     let string = |name: &str, route: &[&str], t: f64| {
@@ -420,27 +401,13 @@ impl Default for AtwoodParams {
 /// (gravity -z); rest length `L0 = L - stretch` and `EA = k L0`.
 pub fn atwood(p: &AtwoodParams) -> SceneSpec {
     let half = p.pulley_spacing / 2.0;
-    let mut ceiling = BodySpec {
-        name: "ceiling".into(),
-        kind: BodyKindSpec::Fixed,
-        mass: None,
-        position: None,
-        rotation: None,
-        ends: None,
-        inertia: None,
-        points: BTreeMap::new(),
-    };
+    let mut ceiling = BodySpec::new("ceiling", BodyKindSpec::Fixed);
     ceiling.points.insert("left".into(), PointSpec::Local([-half, 0.0, 0.0]));
     ceiling.points.insert("right".into(), PointSpec::Local([half, 0.0, 0.0]));
     let mass = |name: &str, m: f64, x: f64| BodySpec {
-        name: name.into(),
-        kind: BodyKindSpec::Node,
         mass: Some(m),
         position: Some([x, 0.0, -p.drop]),
-        rotation: None,
-        ends: None,
-        inertia: None,
-        points: BTreeMap::new(),
+        ..BodySpec::new(name, BodyKindSpec::Node)
     };
     let length = 2.0 * p.drop + p.pulley_spacing;
     let rest = length - p.initial_stretch;

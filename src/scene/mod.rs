@@ -116,6 +116,22 @@ pub struct BodySpec {
     pub points: BTreeMap<String, PointSpec>,
 }
 
+impl BodySpec {
+    /// A body of `kind` called `name` with every optional field empty.
+    pub fn new(name: &str, kind: BodyKindSpec) -> Self {
+        Self {
+            name: name.into(),
+            kind,
+            mass: None,
+            position: None,
+            rotation: None,
+            ends: None,
+            inertia: None,
+            points: BTreeMap::new(),
+        }
+    }
+}
+
 /// Joint kinds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

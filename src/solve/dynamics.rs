@@ -373,17 +373,7 @@ impl Dynamics {
                 }
                 self.rhs[j] = -self.residual[j] / beta_p;
             }
-            for r in 0..nc {
-                for j in 0..n {
-                    let g = self.ws.constraint_jacobian[(r, j)];
-                    self.matrix[(n + r, j)] = g;
-                    self.matrix[(j, n + r)] = g;
-                }
-                for q in 0..nc {
-                    self.matrix[(n + r, n + q)] = 0.0;
-                }
-                self.rhs[n + r] = -self.ws.constraint[r];
-            }
+            self.fill_constraint_border(n, nc, 1.0);
             if !self.linear.solve(&self.matrix, &mut self.rhs) {
                 return None;
             }
@@ -405,6 +395,22 @@ impl Dynamics {
         self.acceleration.copy_from(&self.vdot);
         self.pseudo_acceleration.copy_from(&self.a_next);
         Some(stats)
+    }
+
+    /// Writes the KKT border `[., Phi_q^T; Phi_q, 0]` into the matrix and `-Phi * phi_scale` into
+    /// the constraint rows of the right-hand side.
+    fn fill_constraint_border(&mut self, n: usize, nc: usize, phi_scale: f64) {
+        for r in 0..nc {
+            for j in 0..n {
+                let g = self.ws.constraint_jacobian[(r, j)];
+                self.matrix[(n + r, j)] = g;
+                self.matrix[(j, n + r)] = g;
+            }
+            for q in 0..nc {
+                self.matrix[(n + r, n + q)] = 0.0;
+            }
+            self.rhs[n + r] = -self.ws.constraint[r] * phi_scale;
+        }
     }
 
     /// `a_next = (alpha_f vdot_n - alpha_m a_n + (1 - alpha_f) vdot) / (1 - alpha_m)`, in place.
@@ -444,17 +450,7 @@ impl Dynamics {
             }
             self.rhs[j] = self.vdot[j] + h * self.residual[j];
         }
-        for r in 0..nc {
-            for j in 0..n {
-                let g = self.ws.constraint_jacobian[(r, j)];
-                self.matrix[(n + r, j)] = g;
-                self.matrix[(j, n + r)] = g;
-            }
-            for q in 0..nc {
-                self.matrix[(n + r, n + q)] = 0.0;
-            }
-            self.rhs[n + r] = -self.ws.constraint[r] / h;
-        }
+        self.fill_constraint_border(n, nc, 1.0 / h);
         if !self.linear.solve(&self.matrix, &mut self.rhs) {
             return None;
         }
