@@ -23,6 +23,7 @@
 //! `ros2` and `shm` features.
 
 pub mod constraints;
+pub mod control;
 pub mod error;
 pub mod forces;
 pub mod kinematics;

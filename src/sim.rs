@@ -8,6 +8,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::control::{ActuatorCommand, CommandError, Control};
 use crate::forces::{evaluate, Tangents, Workspace};
 use crate::model::Model;
 use crate::solve::dynamics::{cable_powers, stability_limit, Dynamics, Integrator, NewtonSettings};
@@ -134,6 +135,8 @@ pub struct Simulator {
     rest_next: Vec<f64>,
     rest_rate: Vec<f64>,
     initial: State,
+    control: Control,
+    rejected_commands: usize,
 }
 
 impl Simulator {
@@ -170,6 +173,7 @@ impl Simulator {
             ..Default::default()
         };
         let nc = model.cables.len();
+        let control = Control::new(&model);
         Ok(Self {
             initial: state.clone(),
             model,
@@ -181,6 +185,8 @@ impl Simulator {
             rest_now: vec![0.0; nc],
             rest_next: vec![0.0; nc],
             rest_rate: vec![0.0; nc],
+            control,
+            rejected_commands: 0,
         })
     }
 
@@ -213,6 +219,26 @@ impl Simulator {
         &self.dynamics.acceleration
     }
 
+    /// Applies an actuator command by actuator name (see `crate::control`), effective from the
+    /// next step. A rejected command is counted (`rejected_commands`) and changes nothing.
+    pub fn command(&mut self, actuator: &str, cmd: ActuatorCommand) -> Result<(), CommandError> {
+        let r = self.control.command_by_name(&self.model, actuator, cmd);
+        if r.is_err() {
+            self.rejected_commands += 1;
+        }
+        r
+    }
+
+    /// Number of commands rejected since the start (or the last reset).
+    pub fn rejected_commands(&self) -> usize {
+        self.rejected_commands
+    }
+
+    /// The actuators' current modes.
+    pub fn control(&self) -> &Control {
+        &self.control
+    }
+
     /// Back to the state the simulator started from.
     pub fn reset(&mut self) {
         let settings = self.settings;
@@ -229,11 +255,9 @@ impl Simulator {
         let mut h = self.settings.dt;
         while self.state.time < target - 1e-12 * self.settings.dt {
             let h_try = h.min(target - self.state.time);
-            self.model.scheduled_rest_lengths(self.state.time, &mut self.rest_now);
-            self.model.scheduled_rest_lengths(self.state.time + h_try, &mut self.rest_next);
-            for c in 0..self.rest_rate.len() {
-                self.rest_rate[c] = (self.rest_next[c] - self.rest_now[c]) / h_try;
-            }
+            self.rest_now.copy_from_slice(&self.state.rest_lengths);
+            self.control.advance(&self.model, self.state.time, h_try, &self.rest_now, &mut self.rest_next);
+            Control::rates(&self.model, &self.rest_now, &self.rest_next, h_try, &mut self.rest_rate);
             // power at the start of the sub-step (the workspace holds the current state)
             let (p_act0, p_loss0) = cable_powers(&self.model, &self.ws, &self.rest_rate);
             let attempt = self.dynamics.step(

@@ -1,0 +1,165 @@
+//! Actuator control: takes actuator commands (a rest-length target and/or a rate) and the
+//! deployment schedule, gives each cable's rest length at the end of every step. Commands are
+//! validated against the actuator's limits before they are accepted: a non-finite, out-of-range or
+//! empty command is rejected with a `CommandError` and changes nothing. An accepted command takes
+//! the actuator off the schedule and is held until replaced.
+//!
+//! - target `L*` (with optional rate `r`, default the actuator's `max_rate`): the rest length moves
+//!   towards `L*` at `r` m/s and stays there;
+//! - rate only `r`: the rest length changes at `r` m/s (negative shortens) until a limit, where it
+//!   stops.
+
+use crate::model::{ActuatorId, Model};
+
+/// A command for one actuator. At least one field must be set.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ActuatorCommand {
+    /// Target rest length, m, within `[min_rest_length, max_rest_length]`.
+    pub rest_length: Option<f64>,
+    /// Rate, m/s: with a target, the speed towards it (> 0, <= max_rate); alone, the signed rate
+    /// (|rate| <= max_rate).
+    pub rate: Option<f64>,
+}
+
+/// Why a command was rejected. The actuator keeps its previous command.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CommandError {
+    /// No actuator has this name.
+    #[error("unknown actuator '{0}'")]
+    UnknownActuator(String),
+    /// A value is NaN or infinite.
+    #[error("actuator '{actuator}': {field} = {value} is not finite")]
+    NonFinite {
+        /// Actuator name.
+        actuator: String,
+        /// `rest_length` or `rate`.
+        field: &'static str,
+        /// The value received.
+        value: f64,
+    },
+    /// A value is outside the actuator's limits.
+    #[error("actuator '{actuator}': {field} = {value} is outside [{min}, {max}]")]
+    OutOfRange {
+        /// Actuator name.
+        actuator: String,
+        /// `rest_length` or `rate`.
+        field: &'static str,
+        /// The value received.
+        value: f64,
+        /// Lower limit.
+        min: f64,
+        /// Upper limit.
+        max: f64,
+    },
+    /// Neither a target nor a rate.
+    #[error("actuator '{0}': a command needs a rest length, a rate, or both")]
+    Empty(String),
+}
+
+/// What an actuator is following.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ActuatorMode {
+    /// The model's deployment schedule.
+    Schedule,
+    /// Move towards `rest_length` (m) at `rate` (m/s, > 0) and hold it.
+    Target {
+        /// Target rest length, m.
+        rest_length: f64,
+        /// Speed towards it, m/s.
+        rate: f64,
+    },
+    /// Change at a constant signed rate (m/s) until a limit.
+    Rate(f64),
+}
+
+/// The mode of every actuator.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Control {
+    modes: Vec<ActuatorMode>,
+}
+
+impl Control {
+    /// Every actuator on the schedule.
+    pub fn new(model: &Model) -> Self {
+        Self { modes: vec![ActuatorMode::Schedule; model.actuators.len()] }
+    }
+
+    /// Current mode of actuator `id`.
+    pub fn mode(&self, id: ActuatorId) -> ActuatorMode {
+        self.modes[id.0]
+    }
+
+    /// Validates `cmd` for actuator `id` and, if valid, makes it the actuator's mode.
+    pub fn command(
+        &mut self,
+        model: &Model,
+        id: ActuatorId,
+        cmd: ActuatorCommand,
+    ) -> Result<(), CommandError> {
+        let act = &model.actuators[id.0];
+        let name = || model.actuator_names[id.0].clone();
+        let check = |field: &'static str, value: f64, min: f64, max: f64| {
+            if !value.is_finite() {
+                Err(CommandError::NonFinite { actuator: name(), field, value })
+            } else if value < min || value > max {
+                Err(CommandError::OutOfRange { actuator: name(), field, value, min, max })
+            } else {
+                Ok(value)
+            }
+        };
+        let mode = match (cmd.rest_length, cmd.rate) {
+            (Some(l), r) => {
+                let rest_length = check("rest_length", l, act.min_rest_length, act.max_rest_length)?;
+                let rate = match r {
+                    Some(r) => check("rate", r, f64::MIN_POSITIVE, act.max_rate)?,
+                    None => act.max_rate,
+                };
+                ActuatorMode::Target { rest_length, rate }
+            }
+            (None, Some(r)) => ActuatorMode::Rate(check("rate", r, -act.max_rate, act.max_rate)?),
+            (None, None) => return Err(CommandError::Empty(name())),
+        };
+        self.modes[id.0] = mode;
+        Ok(())
+    }
+
+    /// Like `command`, by actuator name.
+    pub fn command_by_name(
+        &mut self,
+        model: &Model,
+        name: &str,
+        cmd: ActuatorCommand,
+    ) -> Result<(), CommandError> {
+        let id = model.actuator_id(name).ok_or_else(|| CommandError::UnknownActuator(name.to_string()))?;
+        self.command(model, id, cmd)
+    }
+
+    /// Rest lengths (m) at time `t + h` given those at `t` (`now`): scheduled actuators follow the
+    /// schedule, commanded ones move as their mode says, clamped to their limits; cables without
+    /// an actuator keep their rest length.
+    pub fn advance(&self, model: &Model, t: f64, h: f64, now: &[f64], out: &mut [f64]) {
+        out.copy_from_slice(now);
+        for (i, act) in model.actuators.iter().enumerate() {
+            let c = act.cable.0;
+            out[c] = match self.modes[i] {
+                ActuatorMode::Schedule => {
+                    model.schedule.rest_length(ActuatorId(i), model.initial_rest_lengths[c], t + h)
+                }
+                ActuatorMode::Target { rest_length, rate } => {
+                    let step = rate * h;
+                    now[c] + (rest_length - now[c]).clamp(-step, step)
+                }
+                ActuatorMode::Rate(r) => (now[c] + r * h).clamp(act.min_rest_length, act.max_rest_length),
+            };
+        }
+    }
+
+    /// Rate of each actuator's rest length (m/s) over a step from `now` to `next` of length `h`.
+    pub fn rates(model: &Model, now: &[f64], next: &[f64], h: f64, out: &mut [f64]) {
+        out.fill(0.0);
+        for a in &model.actuators {
+            let c = a.cable.0;
+            out[c] = (next[c] - now[c]) / h;
+        }
+    }
+}
