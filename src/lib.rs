@@ -26,6 +26,7 @@ pub mod constraints;
 pub mod control;
 pub mod error;
 pub mod forces;
+pub mod io;
 pub mod kinematics;
 pub mod model;
 pub mod plot;

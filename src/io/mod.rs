@@ -1,0 +1,5 @@
+//! The edge between the physics and the outside world: wire types (flat serde copies of the
+//! `msg/` package, usable without any middleware) and, behind the `ros2` and `shm` cargo features,
+//! the transports. Nothing outside this module and the binaries imports a transport crate.
+
+pub mod msg;

@@ -1,0 +1,127 @@
+//! Invariant: the Rust wire structs and the ROS 2 interface files agree field by field — same
+//! names, same types, same order (CDR serializes in field order, so any difference corrupts the
+//! wire). The `.msg` files in `msg/msg/` are parsed here; the Rust side is traced with
+//! serde-reflection. The standard types used (std_msgs/Header, builtin_interfaces/Time) are
+//! checked against their published definitions.
+
+use std::path::PathBuf;
+
+use serde_reflection::{ContainerFormat, Format, Tracer, TracerConfig};
+use tensegrity::io::msg::{ActuatorCommand, CableStates, Structure};
+
+/// (type, name) pairs of a `.msg` text, comments and blank lines skipped.
+fn parse_msg(text: &str) -> Vec<(String, String)> {
+    text.lines()
+        .map(|l| l.split('#').next().unwrap().trim())
+        .filter(|l| !l.is_empty())
+        .map(|l| {
+            let mut it = l.split_whitespace();
+            let (ty, name) = (it.next().unwrap(), it.next().expect("a field name"));
+            assert!(it.next().is_none(), "constants and defaults are not used: '{l}'");
+            (ty.to_string(), name.to_string())
+        })
+        .collect()
+}
+
+fn ros_to_format(ty: &str) -> Format {
+    if let Some(inner) = ty.strip_suffix("[]") {
+        return Format::Seq(Box::new(ros_to_format(inner)));
+    }
+    match ty {
+        "float64" => Format::F64,
+        "string" => Format::Str,
+        "bool" => Format::Bool,
+        "uint32" => Format::U32,
+        "int32" => Format::I32,
+        "std_msgs/Header" => Format::TypeName("Header".into()),
+        "builtin_interfaces/Time" => Format::TypeName("Time".into()),
+        other => panic!("add a mapping for ROS type '{other}'"),
+    }
+}
+
+fn fields_of(registry: &serde_reflection::Registry, name: &str) -> Vec<(String, Format)> {
+    match registry.get(name) {
+        Some(ContainerFormat::Struct(fields)) => {
+            fields.iter().map(|f| (f.name.clone(), f.value.clone())).collect()
+        }
+        other => panic!("{name} is not a struct: {other:?}"),
+    }
+}
+
+#[test]
+fn rust_structs_match_the_msg_files_field_by_field() {
+    let mut tracer = Tracer::new(TracerConfig::default());
+    tracer.trace_simple_type::<CableStates>().unwrap();
+    tracer.trace_simple_type::<ActuatorCommand>().unwrap();
+    tracer.trace_simple_type::<Structure>().unwrap();
+    let registry = tracer.registry().unwrap();
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg/msg");
+    let mut checked = 0;
+    for name in ["CableStates", "ActuatorCommand", "Structure"] {
+        let text = std::fs::read_to_string(dir.join(format!("{name}.msg"))).unwrap();
+        let expected: Vec<(String, Format)> =
+            parse_msg(&text).into_iter().map(|(ty, n)| (n, ros_to_format(&ty))).collect();
+        assert_eq!(fields_of(&registry, name), expected, "{name}.msg and the Rust struct differ");
+        checked += 1;
+    }
+    // every .msg file of the package is covered, and CMakeLists.txt lists them all
+    let files: Vec<String> =
+        std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    assert_eq!(files.len(), checked, "{files:?}");
+    let cmake = std::fs::read_to_string(dir.parent().unwrap().join("CMakeLists.txt")).unwrap();
+    for f in &files {
+        assert!(cmake.contains(&format!("\"msg/{f}\"")), "CMakeLists.txt does not list {f}");
+    }
+    // standard types as published by ROS 2
+    assert_eq!(
+        fields_of(&registry, "Header"),
+        vec![("stamp".into(), Format::TypeName("Time".into())), ("frame_id".into(), Format::Str)]
+    );
+    assert_eq!(
+        fields_of(&registry, "Time"),
+        vec![("sec".into(), Format::I32), ("nanosec".into(), Format::U32)]
+    );
+}
+
+fn bundled(name: &str) -> tensegrity::Model {
+    tensegrity::scene::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name))
+        .unwrap()
+}
+
+#[test]
+fn wire_conversions_carry_the_state_and_refuse_bad_commands_whole() {
+    use tensegrity::forces::{evaluate, Tangents, Workspace};
+    use tensegrity::io::msg::{MessageError, Time};
+    let model = bundled("tower.toml");
+    let state = tensegrity::State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let reference = tensegrity::report::all_pulley_coordinates(&model, &state, &ws);
+    let m = CableStates::from_state(&model, &state, &ws, &reference, "world");
+    assert!(m.is_finite());
+    assert_eq!(m.name, model.cable_names);
+    let segments: u32 = m.segment_count.iter().sum();
+    assert_eq!(m.segment_length.len(), segments as usize);
+    assert_eq!(m.pulley_slip.len(), segments as usize - m.name.len());
+    let s = Structure::from_model(&model, "world");
+    assert_eq!(s.cable_route_length.iter().sum::<u32>() as usize, s.route_points.len());
+
+    let t = Time::from_seconds(12.345678901);
+    assert_eq!((t.sec, t.nanosec), (12, 345_678_901));
+
+    let ok = ActuatorCommand {
+        name: vec!["side0_winch".into(), "side2_winch".into()],
+        rest_length: vec![3.8, 3.85],
+        ..Default::default()
+    };
+    assert_eq!(ok.commands(&model).unwrap().len(), 2);
+    let nan = ActuatorCommand { rest_length: vec![3.8, f64::NAN], ..ok.clone() };
+    assert!(matches!(nan.commands(&model), Err(MessageError::Command(_))));
+    let short = ActuatorCommand { rate: vec![0.1], ..ok.clone() };
+    assert!(matches!(
+        short.commands(&model),
+        Err(MessageError::WrongLength { field: "rate", got: 1, names: 2 })
+    ));
+    let unknown = ActuatorCommand { name: vec!["side0_winch".into(), "nope".into()], ..ok };
+    assert!(unknown.commands(&model).is_err());
+}
