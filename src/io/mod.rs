@@ -3,3 +3,4 @@
 //! the transports. Nothing outside this module and the binaries imports a transport crate.
 
 pub mod msg;
+pub mod params;

@@ -1,0 +1,247 @@
+//! Node parameters: takes the command line (with ROS 2's `--ros-args` section), a parameters file
+//! in the ROS YAML layout and the ROS environment variables, gives `NodeParams`. ros2-client reads
+//! none of these itself, so the node does it here (no middleware needed, so it is tested without
+//! DDS).
+//!
+//! Understood: `--ros-args` followed by `-p name:=value`, `--param name:=value`,
+//! `--params-file FILE`, `-r __ns:=/ns`, `-r __node:=name` (also `--remap`), ended by `--`;
+//! `ROS_DOMAIN_ID`; `ROS_LOCALHOST_ONLY=1` or `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST` bind DDS to
+//! 127.0.0.1. Later settings override earlier ones; `-p` overrides the file.
+
+use std::path::{Path, PathBuf};
+
+/// Everything the node is configured by. Defaults in `Default`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeParams {
+    /// Node name (`__node`), default `tensegrity_sim`.
+    pub node_name: String,
+    /// Namespace (`__ns`), default `/`.
+    pub namespace: String,
+    /// Scene file; the bundled default scene when absent.
+    pub scene: Option<PathBuf>,
+    /// Physics step, s (parameter `physics_dt`, default 0.001).
+    pub physics_dt: f64,
+    /// Real-time factor: 1 = real time, 0 = as fast as possible (`real_time_factor`).
+    pub real_time_factor: f64,
+    /// Start paused; advance with StepSimulation or unpause (`start_paused`).
+    pub start_paused: bool,
+    /// State publishing rate in sim-time Hz, 0 = every step (`state_publish_rate`, default 100).
+    pub state_publish_rate: f64,
+    /// Fixed frame of poses and transforms (`frame_id`, default `world`).
+    pub frame_id: String,
+    /// Integrator name (`integrator`: generalized-alpha or symplectic-euler).
+    pub integrator: String,
+    /// Generalized-alpha spectral radius (`rho_inf`, default 0.8).
+    pub rho_inf: f64,
+    /// DDS domain id (`ROS_DOMAIN_ID`, default 0).
+    pub domain_id: u16,
+    /// Bind DDS to 127.0.0.1 only.
+    pub localhost_only: bool,
+}
+
+impl Default for NodeParams {
+    fn default() -> Self {
+        Self {
+            node_name: "tensegrity_sim".into(),
+            namespace: "/".into(),
+            scene: None,
+            physics_dt: 1e-3,
+            real_time_factor: 1.0,
+            start_paused: false,
+            state_publish_rate: 100.0,
+            frame_id: "world".into(),
+            integrator: "generalized-alpha".into(),
+            rho_inf: 0.8,
+            domain_id: 0,
+            localhost_only: false,
+        }
+    }
+}
+
+/// A parameter or argument that could not be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct ParamError(pub String);
+
+fn err(s: impl Into<String>) -> ParamError {
+    ParamError(s.into())
+}
+
+impl NodeParams {
+    /// Sets parameter `name` from its text `value` (YAML scalar syntax for booleans and numbers).
+    pub fn set(&mut self, name: &str, value: &str) -> Result<(), ParamError> {
+        let num = |v: &str| -> Result<f64, ParamError> {
+            let x: f64 =
+                v.trim().parse().map_err(|_| err(format!("parameter {name}: '{v}' is not a number")))?;
+            if x.is_finite() {
+                Ok(x)
+            } else {
+                Err(err(format!("parameter {name}: {v} is not finite")))
+            }
+        };
+        let boolean = |v: &str| match v.trim().to_ascii_lowercase().as_str() {
+            "true" | "1" | "yes" | "on" => Ok(true),
+            "false" | "0" | "no" | "off" => Ok(false),
+            _ => Err(err(format!("parameter {name}: '{v}' is not a boolean"))),
+        };
+        let text = |v: &str| v.trim().trim_matches('"').trim_matches('\'').to_string();
+        match name {
+            "scene" => self.scene = Some(PathBuf::from(text(value))),
+            "physics_dt" => {
+                let dt = num(value)?;
+                if dt <= 0.0 {
+                    return Err(err(format!("parameter physics_dt must be > 0, got {dt}")));
+                }
+                self.physics_dt = dt;
+            }
+            "real_time_factor" => {
+                let r = num(value)?;
+                if r < 0.0 {
+                    return Err(err(format!("parameter real_time_factor must be >= 0, got {r}")));
+                }
+                self.real_time_factor = r;
+            }
+            "start_paused" => self.start_paused = boolean(value)?,
+            "state_publish_rate" => {
+                let r = num(value)?;
+                if r < 0.0 {
+                    return Err(err(format!("parameter state_publish_rate must be >= 0, got {r}")));
+                }
+                self.state_publish_rate = r;
+            }
+            "frame_id" => self.frame_id = text(value),
+            "integrator" => {
+                let v = text(value);
+                if !matches!(v.as_str(), "generalized-alpha" | "ga" | "symplectic-euler" | "euler") {
+                    return Err(err(format!("parameter integrator: unknown '{v}'")));
+                }
+                self.integrator = v;
+            }
+            "rho_inf" => {
+                let r = num(value)?;
+                if !(0.0..=1.0).contains(&r) {
+                    return Err(err(format!("parameter rho_inf must be in [0, 1], got {r}")));
+                }
+                self.rho_inf = r;
+            }
+            "use_sim_time" => {}
+            _ => return Err(err(format!("unknown parameter '{name}'"))),
+        }
+        Ok(())
+    }
+
+    /// Reads a ROS 2 parameters file: a map from node name (or `/**`, or the namespaced name) to
+    /// `ros__parameters`, whose entries are set in order. Entries for other nodes are ignored.
+    pub fn load_params_file(&mut self, path: &Path) -> Result<(), ParamError> {
+        let text = std::fs::read_to_string(path).map_err(|e| err(format!("{}: {e}", path.display())))?;
+        let docs = yaml_rust2::YamlLoader::load_from_str(&text)
+            .map_err(|e| err(format!("{}: not YAML: {e}", path.display())))?;
+        let full = format!("{}/{}", self.namespace.trim_end_matches('/'), self.node_name);
+        for doc in &docs {
+            let Some(map) = doc.as_hash() else { continue };
+            for (key, node) in map {
+                let k = key.as_str().unwrap_or("");
+                if !(k == "/**" || k == self.node_name || k == full || k == format!("/{}", self.node_name)) {
+                    continue;
+                }
+                let Some(params) = node["ros__parameters"].as_hash() else {
+                    return Err(err(format!("{}: {k}: missing ros__parameters", path.display())));
+                };
+                for (pk, pv) in params {
+                    let name = pk
+                        .as_str()
+                        .ok_or_else(|| err(format!("{}: parameter names must be strings", path.display())))?;
+                    let value = match pv {
+                        yaml_rust2::Yaml::Real(s) | yaml_rust2::Yaml::String(s) => s.clone(),
+                        yaml_rust2::Yaml::Integer(i) => i.to_string(),
+                        yaml_rust2::Yaml::Boolean(b) => b.to_string(),
+                        other => {
+                            return Err(err(format!(
+                                "{}: parameter {name}: unsupported value {other:?}",
+                                path.display()
+                            )))
+                        }
+                    };
+                    self.set(name, &value).map_err(|e| err(format!("{}: {e}", path.display())))?;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Parameters from the program arguments (without the program name) and the environment
+    /// (`env` looks a variable up). Returns the parameters and the arguments that were not part of
+    /// a `--ros-args` section.
+    pub fn from_args(
+        args: &[String],
+        env: impl Fn(&str) -> Option<String>,
+    ) -> Result<(Self, Vec<String>), ParamError> {
+        let mut p = Self::default();
+        if let Some(d) = env("ROS_DOMAIN_ID").filter(|d| !d.trim().is_empty()) {
+            p.domain_id = d
+                .trim()
+                .parse::<u16>()
+                .ok()
+                .filter(|d| *d <= 232)
+                .ok_or_else(|| err(format!("ROS_DOMAIN_ID '{d}' is not a domain id (0-232)")))?;
+        }
+        p.localhost_only = env("ROS_LOCALHOST_ONLY").is_some_and(|v| v.trim() == "1")
+            || env("ROS_AUTOMATIC_DISCOVERY_RANGE")
+                .is_some_and(|v| v.trim().eq_ignore_ascii_case("LOCALHOST"));
+        let mut rest = Vec::new();
+        let mut files = Vec::new();
+        let mut sets = Vec::new();
+        let mut i = 0;
+        let mut in_ros = false;
+        while i < args.len() {
+            let a = args[i].as_str();
+            if !in_ros {
+                if a == "--ros-args" {
+                    in_ros = true;
+                } else {
+                    rest.push(args[i].clone());
+                }
+                i += 1;
+                continue;
+            }
+            let value = |i: usize| args.get(i + 1).cloned().ok_or_else(|| err(format!("{a} needs a value")));
+            match a {
+                "--" => in_ros = false,
+                "-p" | "--param" => {
+                    let v = value(i)?;
+                    let (k, val) = v
+                        .split_once(":=")
+                        .ok_or_else(|| err(format!("-p expects name:=value, got '{v}'")))?;
+                    sets.push((k.to_string(), val.to_string()));
+                    i += 1;
+                }
+                "--params-file" => {
+                    files.push(PathBuf::from(value(i)?));
+                    i += 1;
+                }
+                "-r" | "--remap" => {
+                    let v = value(i)?;
+                    match v.split_once(":=") {
+                        Some(("__ns", ns)) => {
+                            p.namespace = if ns.starts_with('/') { ns.to_string() } else { format!("/{ns}") };
+                        }
+                        Some(("__node", n)) | Some(("__name", n)) => p.node_name = n.to_string(),
+                        _ => return Err(err(format!("unsupported remapping '{v}' (only __ns and __node)"))),
+                    }
+                    i += 1;
+                }
+                "--log-level" | "--enclave" => i += 1,
+                "--ros-args" => {}
+                other => return Err(err(format!("unsupported ROS argument '{other}'"))),
+            }
+            i += 1;
+        }
+        for f in files {
+            p.load_params_file(&f)?;
+        }
+        for (k, v) in sets {
+            p.set(&k, &v)?;
+        }
+        Ok((p, rest))
+    }
+}

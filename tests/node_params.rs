@@ -1,0 +1,95 @@
+//! Invariant: the node honours the ROS conventions that ros2-client leaves to it — `--ros-args`
+//! with `-p name:=value`, `--params-file` in the ROS YAML layout (node-specific and `/**` entries,
+//! `-p` overriding the file), `-r __ns:=` and `-r __node:=`, `ROS_DOMAIN_ID`, `ROS_LOCALHOST_ONLY`
+//! and `ROS_AUTOMATIC_DISCOVERY_RANGE` — and refuses what it cannot honour with a reason.
+
+use tensegrity::io::params::NodeParams;
+
+fn args(s: &str) -> Vec<String> {
+    s.split_whitespace().map(String::from).collect()
+}
+
+fn no_env(_: &str) -> Option<String> {
+    None
+}
+
+#[test]
+fn defaults_and_plain_arguments() {
+    let (p, rest) = NodeParams::from_args(&args("config/scenes/tbar.toml"), no_env).unwrap();
+    assert_eq!(p, NodeParams::default());
+    assert_eq!(rest, vec!["config/scenes/tbar.toml"]);
+    assert_eq!(
+        (p.node_name.as_str(), p.namespace.as_str(), p.physics_dt, p.domain_id),
+        ("tensegrity_sim", "/", 1e-3, 0)
+    );
+}
+
+#[test]
+fn ros_args_set_parameters_and_remap_name_and_namespace() {
+    let (p, rest) = NodeParams::from_args(
+        &args("scene.toml --ros-args -p physics_dt:=0.002 -p start_paused:=true -p real_time_factor:=0 -r __ns:=/lab -r __node:=sim2 -- --verbose"),
+        no_env,
+    )
+    .unwrap();
+    assert_eq!(rest, vec!["scene.toml", "--verbose"]);
+    assert_eq!(p.physics_dt, 0.002);
+    assert!(p.start_paused);
+    assert_eq!(p.real_time_factor, 0.0);
+    assert_eq!((p.namespace.as_str(), p.node_name.as_str()), ("/lab", "sim2"));
+}
+
+#[test]
+fn params_file_in_ros_layout_is_read_and_overridden_by_p() {
+    let dir = std::env::temp_dir().join(format!("tensegrity-params-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("params.yaml");
+    std::fs::write(
+        &file,
+        "/**:\n  ros__parameters:\n    frame_id: map\n    rho_inf: 0.5\nother_node:\n  ros__parameters:\n    physics_dt: 9.0\ntensegrity_sim:\n  ros__parameters:\n    physics_dt: 0.0005\n    state_publish_rate: 50\n    start_paused: true\n",
+    )
+    .unwrap();
+    let line = format!("--ros-args --params-file {} -p state_publish_rate:=25.0", file.display());
+    let (p, _) = NodeParams::from_args(&args(&line), no_env).unwrap();
+    assert_eq!(p.frame_id, "map");
+    assert_eq!(p.rho_inf, 0.5);
+    assert_eq!(p.physics_dt, 0.0005, "other nodes' entries are ignored");
+    assert!(p.start_paused);
+    assert_eq!(p.state_publish_rate, 25.0, "-p overrides the file");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn environment_sets_domain_and_localhost_only() {
+    let env = |k: &str| match k {
+        "ROS_DOMAIN_ID" => Some("42".to_string()),
+        "ROS_AUTOMATIC_DISCOVERY_RANGE" => Some("LOCALHOST".to_string()),
+        _ => None,
+    };
+    let (p, _) = NodeParams::from_args(&[], env).unwrap();
+    assert_eq!(p.domain_id, 42);
+    assert!(p.localhost_only);
+    let (p, _) =
+        NodeParams::from_args(&[], |k: &str| (k == "ROS_LOCALHOST_ONLY").then(|| "1".to_string())).unwrap();
+    assert!(p.localhost_only);
+}
+
+#[test]
+fn bad_parameters_are_refused_with_a_reason() {
+    for (line, needle) in [
+        ("--ros-args -p physics_dt:=-1", "physics_dt"),
+        ("--ros-args -p physics_dt:=nan", "not finite"),
+        ("--ros-args -p rho_inf:=2", "rho_inf"),
+        ("--ros-args -p warp_speed:=9", "unknown parameter"),
+        ("--ros-args -p start_paused:=maybe", "boolean"),
+        ("--ros-args -p physics_dt", "name:=value"),
+        ("--ros-args -r chatter:=talk", "unsupported remapping"),
+        ("--ros-args --params-file /nonexistent/p.yaml", "/nonexistent/p.yaml"),
+        ("--ros-args -p", "needs a value"),
+    ] {
+        let e = NodeParams::from_args(&args(line), no_env).unwrap_err();
+        assert!(e.to_string().contains(needle), "'{line}' gave '{e}'");
+    }
+    let e =
+        NodeParams::from_args(&[], |k: &str| (k == "ROS_DOMAIN_ID").then(|| "999".to_string())).unwrap_err();
+    assert!(e.to_string().contains("ROS_DOMAIN_ID"));
+}
