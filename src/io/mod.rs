@@ -4,3 +4,6 @@
 
 pub mod msg;
 pub mod params;
+
+#[cfg(feature = "ros2")]
+pub mod ros2;

@@ -221,3 +221,210 @@ impl Structure {
         }
     }
 }
+
+/// `rosgraph_msgs/msg/Clock`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Clock {
+    /// Simulation time.
+    pub clock: Time,
+}
+
+/// `geometry_msgs/msg/Point`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Point {
+    /// m.
+    pub x: f64,
+    /// m.
+    pub y: f64,
+    /// m.
+    pub z: f64,
+}
+
+/// `geometry_msgs/msg/Quaternion`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Quaternion {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+    /// w.
+    pub w: f64,
+}
+
+/// `geometry_msgs/msg/Pose`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Pose {
+    /// Position, m.
+    pub position: Point,
+    /// Orientation.
+    pub orientation: Quaternion,
+}
+
+/// `geometry_msgs/msg/PoseArray`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PoseArray {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Poses in structure order.
+    pub poses: Vec<Pose>,
+}
+
+impl PoseArray {
+    /// Every body's pose (centre of mass, body-to-world rotation).
+    pub fn from_state(state: &State, frame: &str) -> Self {
+        Self {
+            header: Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() },
+            poses: state.poses.iter().map(pose_of).collect(),
+        }
+    }
+}
+
+fn pose_of(p: &crate::model::Pose) -> Pose {
+    let q = p.rotation.quaternion();
+    Pose {
+        position: Point { x: p.position.x, y: p.position.y, z: p.position.z },
+        orientation: Quaternion { x: q.i, y: q.j, z: q.k, w: q.w },
+    }
+}
+
+/// `geometry_msgs/msg/Vector3`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Vector3 {
+    /// x.
+    pub x: f64,
+    /// y.
+    pub y: f64,
+    /// z.
+    pub z: f64,
+}
+
+/// `geometry_msgs/msg/Transform`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct Transform {
+    /// Translation, m.
+    pub translation: Vector3,
+    /// Rotation.
+    pub rotation: Quaternion,
+}
+
+/// `geometry_msgs/msg/TransformStamped`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TransformStamped {
+    /// Stamp and parent frame.
+    pub header: Header,
+    /// Child frame.
+    pub child_frame_id: String,
+    /// Parent-to-child transform.
+    pub transform: Transform,
+}
+
+/// `tf2_msgs/msg/TFMessage`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TfMessage {
+    /// Transforms.
+    pub transforms: Vec<TransformStamped>,
+}
+
+impl TfMessage {
+    /// One transform per body (`fixed` bodies when `fixed` is true, the others otherwise), from
+    /// `frame` to a child frame named after the body.
+    pub fn from_state(model: &Model, state: &State, frame: &str, fixed: bool) -> Self {
+        let transforms = model
+            .bodies
+            .iter()
+            .zip(&state.poses)
+            .filter(|(b, _)| (b.kind == crate::model::BodyKind::Fixed) == fixed)
+            .map(|(b, p)| {
+                let pose = pose_of(p);
+                TransformStamped {
+                    header: Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() },
+                    child_frame_id: b.name.clone(),
+                    transform: Transform {
+                        translation: Vector3 { x: pose.position.x, y: pose.position.y, z: pose.position.z },
+                        rotation: pose.orientation,
+                    },
+                }
+            })
+            .collect();
+        Self { transforms }
+    }
+}
+
+/// `sensor_msgs/msg/JointState`: for actuators, position = rest length (m), velocity = its rate
+/// (m/s), effort = the cable's tension (N).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct JointState {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Actuator names.
+    pub name: Vec<String>,
+    /// Rest lengths, m.
+    pub position: Vec<f64>,
+    /// Rates, m/s.
+    pub velocity: Vec<f64>,
+    /// Tensions, N.
+    pub effort: Vec<f64>,
+}
+
+impl JointState {
+    /// The actuators of an evaluated state; `rates` holds each cable's rest-length rate (m/s).
+    pub fn actuators(model: &Model, state: &State, ws: &Workspace, rates: &[f64]) -> Self {
+        let mut m = Self {
+            header: Header { stamp: Time::from_seconds(state.time), frame_id: String::new() },
+            ..Default::default()
+        };
+        for (i, a) in model.actuators.iter().enumerate() {
+            m.name.push(model.actuator_names[i].clone());
+            m.position.push(state.rest_lengths[a.cable.0]);
+            m.velocity.push(rates[a.cable.0]);
+            m.effort.push(ws.cables[a.cable.0].tension);
+        }
+        m
+    }
+
+    /// As actuator commands (topic-based ros2_control convention): position = target rest
+    /// length, velocity = rate; each array empty or parallel to `name`.
+    pub fn as_command(&self) -> ActuatorCommand {
+        ActuatorCommand {
+            header: self.header.clone(),
+            name: self.name.clone(),
+            rest_length: self.position.clone(),
+            rate: self.velocity.clone(),
+        }
+    }
+}
+
+/// `diagnostic_msgs/msg/KeyValue`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct KeyValue {
+    /// Key.
+    pub key: String,
+    /// Value.
+    pub value: String,
+}
+
+/// `diagnostic_msgs/msg/DiagnosticStatus` (level: 0 OK, 1 WARN, 2 ERROR, 3 STALE).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct DiagnosticStatus {
+    /// Level.
+    pub level: u8,
+    /// Component name.
+    pub name: String,
+    /// Summary.
+    pub message: String,
+    /// Hardware id.
+    pub hardware_id: String,
+    /// Values.
+    pub values: Vec<KeyValue>,
+}
+
+/// `diagnostic_msgs/msg/DiagnosticArray`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct DiagnosticArray {
+    /// Stamp.
+    pub header: Header,
+    /// Statuses.
+    pub status: Vec<DiagnosticStatus>,
+}

@@ -33,6 +33,9 @@ pub struct NodeParams {
     pub integrator: String,
     /// Generalized-alpha spectral radius (`rho_inf`, default 0.8).
     pub rho_inf: f64,
+    /// Follow the scene's deployment schedule (`follow_schedule`, default false: actuators hold
+    /// their initial rest lengths until commanded).
+    pub follow_schedule: bool,
     /// DDS domain id (`ROS_DOMAIN_ID`, default 0).
     pub domain_id: u16,
     /// Bind DDS to 127.0.0.1 only.
@@ -52,6 +55,7 @@ impl Default for NodeParams {
             frame_id: "world".into(),
             integrator: "generalized-alpha".into(),
             rho_inf: 0.8,
+            follow_schedule: false,
             domain_id: 0,
             localhost_only: false,
         }
@@ -102,6 +106,7 @@ impl NodeParams {
                 self.real_time_factor = r;
             }
             "start_paused" => self.start_paused = boolean(value)?,
+            "follow_schedule" => self.follow_schedule = boolean(value)?,
             "state_publish_rate" => {
                 let r = num(value)?;
                 if r < 0.0 {

@@ -1,0 +1,59 @@
+//! `tensegrity_node`: the simulator as a ROS 2 node (argument parsing and wiring only).
+//!
+//! Usage: `tensegrity_node [SCENE.toml] [--ros-args -p name:=value ...]`; without a scene it runs
+//! the bundled `prism3`. Stops cleanly on SIGINT and SIGTERM.
+
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use tensegrity::io::params::NodeParams;
+use tensegrity::io::ros2::SimNode;
+
+const DEFAULT_SCENE: &str = include_str!("../../config/scenes/prism3.toml");
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), String> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let (mut params, rest) =
+        NodeParams::from_args(&args, |k| std::env::var(k).ok()).map_err(|e| e.to_string())?;
+    match rest.as_slice() {
+        [] => {}
+        [scene] => params.scene = Some(scene.into()),
+        more => {
+            return Err(format!(
+                "unexpected arguments {more:?}; usage: tensegrity_node [SCENE.toml] [--ros-args ...]"
+            ))
+        }
+    }
+    let model = match &params.scene {
+        Some(path) => tensegrity::scene::load(path).map_err(|e| e.to_string())?,
+        None => tensegrity::scene::from_toml(DEFAULT_SCENE, "<bundled prism3>").map_err(|e| e.to_string())?,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).map_err(|e| e.to_string())?;
+    eprintln!(
+        "tensegrity_node: '{}' as {}/{} on domain {}{}, dt {} s, real-time factor {}",
+        model.name,
+        params.namespace.trim_end_matches('/'),
+        params.node_name,
+        params.domain_id,
+        if params.localhost_only { " (localhost only)" } else { "" },
+        params.physics_dt,
+        params.real_time_factor
+    );
+    let mut node = SimNode::new(model, params).map_err(|e| e.to_string())?;
+    node.run(&stop).map_err(|e| e.to_string())?;
+    eprintln!("tensegrity_node: stopped after {} steps", node.stats().steps);
+    Ok(())
+}
