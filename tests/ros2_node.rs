@@ -210,3 +210,120 @@ fn controller_sees_state_drives_a_cable_and_bad_commands_are_rejected() {
     assert_eq!(stats.commands_rejected, 1);
     assert!(stats.commands_received >= 2);
 }
+
+/// Sends one request and waits up to 10 s for its response.
+fn call<Req, Resp>(client: &ros2_client::Client<Req, Resp>, req: Req) -> Resp
+where
+    Req: ros2_client::Message + Clone + 'static,
+    Resp: ros2_client::Message + 'static,
+{
+    let id = client.send_request(req).expect("request sent");
+    wait_for(Duration::from_secs(10), || match client.receive_response() {
+        Ok(Some((rid, r))) if rid == id => Some(r),
+        _ => None,
+    })
+    .expect("service answered")
+}
+
+#[test]
+fn lockstep_services_step_exactly_n_steps_and_reset_restores_the_start() {
+    if !isolated_or_rerun("lockstep_services_step_exactly_n_steps_and_reset_restores_the_start") {
+        return;
+    }
+    use ros2_client::{ServiceMapping, ServiceTypeName};
+    let domain = 62;
+    let params =
+        NodeParams { domain_id: domain, start_paused: true, state_publish_rate: 0.0, ..Default::default() };
+    let model = bundled("tbar.toml");
+    let initial_rest = model.initial_rest_lengths.clone();
+    let stop = Arc::new(AtomicBool::new(false));
+    let node_stop = stop.clone();
+    let node = std::thread::spawn(move || {
+        let mut node = SimNode::new(model, params).unwrap();
+        node.run(&node_stop).unwrap();
+        node.stats()
+    });
+    let ctx = context(domain, false).unwrap();
+    let mut ctl = ctx.new_node(NodeName::new("/", "controller").unwrap(), NodeOptions::new()).unwrap();
+    let ns = "/tensegrity_sim";
+    macro_rules! client {
+        ($name:expr, $pkg:expr, $ty:expr) => {
+            ctl.create_client(
+                ServiceMapping::Enhanced,
+                &Name::new(ns, $name).unwrap(),
+                &ServiceTypeName::new($pkg, $ty),
+                qos(10, false),
+                qos(10, false),
+            )
+            .unwrap()
+        };
+    }
+    let step: ros2_client::Client<msg::StepSimulationRequest, msg::ResultResponse> =
+        client!("step_simulation", "simulation_interfaces", "StepSimulation");
+    let get_state: ros2_client::Client<msg::Empty, msg::GetSimulationStateResponse> =
+        client!("get_simulation_state", "simulation_interfaces", "GetSimulationState");
+    let set_state: ros2_client::Client<msg::SetSimulationStateRequest, msg::ResultResponse> =
+        client!("set_simulation_state", "simulation_interfaces", "SetSimulationState");
+    let reset: ros2_client::Client<msg::ResetSimulationRequest, msg::ResultResponse> =
+        client!("reset_simulation", "simulation_interfaces", "ResetSimulation");
+    let features: ros2_client::Client<msg::Empty, msg::GetSimulatorFeaturesResponse> =
+        client!("get_simulator_features", "simulation_interfaces", "GetSimulatorFeatures");
+    let unpause: ros2_client::Client<msg::Empty, msg::Empty> = client!("unpause", "std_srvs", "Empty");
+    let t_clock = ctl
+        .create_topic(
+            &Name::new("/", "clock").unwrap(),
+            MessageTypeName::new("rosgraph_msgs", "Clock"),
+            &qos(1, false),
+        )
+        .unwrap();
+    let clock = ctl.create_subscription::<msg::Clock>(&t_clock, Some(qos(1000, false))).unwrap();
+    let t_cables = ctl
+        .create_topic(
+            &Name::new(ns, "cable_states").unwrap(),
+            MessageTypeName::new("tensegrity_msgs", "CableStates"),
+            &qos(10, false),
+        )
+        .unwrap();
+    let cables = ctl.create_subscription::<msg::CableStates>(&t_cables, Some(qos(1000, false))).unwrap();
+    std::thread::sleep(Duration::from_millis(1500)); // discovery of every service pair
+
+    assert_eq!(call(&get_state, msg::Empty::default()).state.state, 2, "starts paused");
+    let f = call(&features, msg::Empty::default()).features;
+    assert!(f.features.contains(&31) && f.features.contains(&32) && f.features.contains(&20));
+
+    // StepSimulation of 25 steps while paused advances exactly 25 steps of 1 ms
+    assert_eq!(call(&step, msg::StepSimulationRequest { steps: 25 }).result.result, 1);
+    let mut ticks = Vec::new();
+    while let Some(t) =
+        wait_for(Duration::from_millis(300), || clock.take().ok().flatten().map(|(c, _)| c.clock.seconds()))
+    {
+        ticks.push(t);
+    }
+    assert_eq!(ticks.len(), 25, "one clock tick per step: {ticks:?}");
+    assert!((ticks[24] - 0.025).abs() < 1e-9, "{ticks:?}");
+    assert!(ticks.windows(2).all(|w| (w[1] - w[0] - 0.001).abs() < 1e-9));
+
+    // not while playing
+    call(&unpause, msg::Empty::default());
+    assert_eq!(call(&get_state, msg::Empty::default()).state.state, 1);
+    assert_eq!(
+        call(&step, msg::StepSimulationRequest { steps: 1 }).result.result,
+        3,
+        "INCORRECT_STATE while playing"
+    );
+    let r = call(&set_state, msg::SetSimulationStateRequest { state: msg::SimulationState { state: 2 } });
+    assert_eq!(r.result.result, 1);
+    let r = call(&set_state, msg::SetSimulationStateRequest { state: msg::SimulationState { state: 2 } });
+    assert_eq!(r.result.result, 101, "ALREADY_IN_TARGET_STATE");
+
+    // reset restores the initial time and rest lengths
+    assert_eq!(call(&reset, msg::ResetSimulationRequest { scope: 0 }).result.result, 1);
+    let restored = wait_for(Duration::from_secs(5), || {
+        cables.take().ok().flatten().filter(|(m, _)| m.header.stamp.seconds() == 0.0).map(|(m, _)| m)
+    })
+    .expect("the reset state is published at t = 0");
+    assert_eq!(restored.rest_length, initial_rest);
+
+    stop.store(true, Ordering::Relaxed);
+    node.join().unwrap();
+}

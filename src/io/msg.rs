@@ -428,3 +428,99 @@ pub struct DiagnosticArray {
     /// Statuses.
     pub status: Vec<DiagnosticStatus>,
 }
+
+/// An empty ROS message (`std_srvs/srv/Empty` request and response, and empty service requests):
+/// rosidl gives empty structures one placeholder byte.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Empty {
+    /// Placeholder (always 0).
+    pub structure_needs_at_least_one_member: u8,
+}
+
+/// `simulation_interfaces/msg/Result` (2.1.0).
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct SimResult {
+    /// `FEATURE_UNSUPPORTED = 0`, `OK = 1`, `NOT_FOUND = 2`, `INCORRECT_STATE = 3`,
+    /// `OPERATION_FAILED = 4`, service-specific codes above 100.
+    pub result: u8,
+    /// Details when useful.
+    pub error_message: String,
+}
+
+impl SimResult {
+    /// `OK`.
+    pub fn ok() -> Self {
+        Self { result: 1, error_message: String::new() }
+    }
+    /// A failure code with its message.
+    pub fn err(result: u8, message: impl Into<String>) -> Self {
+        Self { result, error_message: message.into() }
+    }
+}
+
+/// `simulation_interfaces/msg/SimulationState`: `STOPPED = 0`, `PLAYING = 1`, `PAUSED = 2`,
+/// `QUITTING = 3`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct SimulationState {
+    /// State code.
+    pub state: u8,
+}
+
+/// `simulation_interfaces/srv/StepSimulation` request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct StepSimulationRequest {
+    /// Steps to take (default 1).
+    pub steps: u64,
+}
+
+/// Response of the services that only return a `Result` (StepSimulation, ResetSimulation,
+/// SetSimulationState).
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct ResultResponse {
+    /// Outcome.
+    pub result: SimResult,
+}
+
+/// `simulation_interfaces/srv/ResetSimulation` request: `SCOPE_DEFAULT = 0`, `SCOPE_TIME = 1`,
+/// `SCOPE_STATE = 2`, `SCOPE_SPAWNED = 4`, `SCOPE_ALL = 255`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct ResetSimulationRequest {
+    /// Scope.
+    pub scope: u8,
+}
+
+/// `simulation_interfaces/srv/GetSimulationState` response.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct GetSimulationStateResponse {
+    /// Current state.
+    pub state: SimulationState,
+    /// Outcome.
+    pub result: SimResult,
+}
+
+/// `simulation_interfaces/srv/SetSimulationState` request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct SetSimulationStateRequest {
+    /// Target state.
+    pub state: SimulationState,
+}
+
+/// `simulation_interfaces/msg/SimulatorFeatures`.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct SimulatorFeatures {
+    /// Feature codes (`SIMULATION_RESET = 20`, `SIMULATION_STATE_GETTING = 24`,
+    /// `SIMULATION_STATE_SETTING = 25`, `SIMULATION_STATE_PAUSE = 26`,
+    /// `STEP_SIMULATION_SINGLE = 31`, `STEP_SIMULATION_MULTIPLE = 32`, ...).
+    pub features: Vec<u16>,
+    /// Spawn formats (none).
+    pub spawn_formats: Vec<String>,
+    /// Free text.
+    pub custom_info: String,
+}
+
+/// `simulation_interfaces/srv/GetSimulatorFeatures` response.
+#[derive(Debug, Clone, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct GetSimulatorFeaturesResponse {
+    /// Supported features.
+    pub features: SimulatorFeatures,
+}

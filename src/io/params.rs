@@ -36,6 +36,9 @@ pub struct NodeParams {
     /// Follow the scene's deployment schedule (`follow_schedule`, default false: actuators hold
     /// their initial rest lengths until commanded).
     pub follow_schedule: bool,
+    /// Service request/reply mapping (`service_mapping`: enhanced, the default, suits Fast DDS
+    /// and RustDDS clients; cyclone suits Cyclone DDS clients; basic).
+    pub service_mapping: String,
     /// DDS domain id (`ROS_DOMAIN_ID`, default 0).
     pub domain_id: u16,
     /// Bind DDS to 127.0.0.1 only.
@@ -56,6 +59,7 @@ impl Default for NodeParams {
             integrator: "generalized-alpha".into(),
             rho_inf: 0.8,
             follow_schedule: false,
+            service_mapping: "enhanced".into(),
             domain_id: 0,
             localhost_only: false,
         }
@@ -128,6 +132,15 @@ impl NodeParams {
                     return Err(err(format!("parameter rho_inf must be in [0, 1], got {r}")));
                 }
                 self.rho_inf = r;
+            }
+            "service_mapping" => {
+                let v = text(value).to_ascii_lowercase();
+                if !matches!(v.as_str(), "enhanced" | "cyclone" | "basic") {
+                    return Err(err(format!(
+                        "parameter service_mapping: '{v}' is not enhanced, cyclone or basic"
+                    )));
+                }
+                self.service_mapping = v;
             }
             "use_sim_time" => {}
             _ => return Err(err(format!("unknown parameter '{name}'"))),

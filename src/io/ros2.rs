@@ -5,7 +5,10 @@
 //!
 //! Every message of a step carries that step's simulation time, and state is published before the
 //! clock tick. Commands are validated as whole messages; a rejected one is counted, reported in
-//! `/diagnostics`, and changes nothing. Overruns (steps that finish later than real time allows)
+//! `/diagnostics`, and changes nothing. Services (in the node's private namespace):
+//! simulation_interfaces 2.1 StepSimulation (only while paused; responds after the steps),
+//! ResetSimulation, GetSimulationState, SetSimulationState, GetSimulatorFeatures, and std_srvs
+//! Empty `pause`, `unpause`, `reset`. Overruns (steps that finish later than real time allows)
 //! are counted, never caught up in bursts. Nothing non-finite is ever published: the physics never
 //! lets a NaN into its state, and the cable message is checked again before it leaves.
 
@@ -16,8 +19,8 @@ use std::time::{Duration, Instant};
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
 use ros2_client::qos::{Durability, History, WhenFull};
 use ros2_client::{
-    Context, ContextOptions, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher, QosProfile,
-    Subscription,
+    Context, ContextOptions, Message, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher,
+    QosProfile, Server, ServiceMapping, ServiceTypeName, Subscription,
 };
 
 use crate::control::ActuatorCommand as Command;
@@ -71,6 +74,35 @@ struct Publishers {
     diagnostics: Publisher<msg::DiagnosticArray>,
 }
 
+impl Message for msg::Empty {}
+impl Message for msg::StepSimulationRequest {}
+impl Message for msg::ResultResponse {}
+impl Message for msg::ResetSimulationRequest {}
+impl Message for msg::GetSimulationStateResponse {}
+impl Message for msg::SetSimulationStateRequest {}
+impl Message for msg::GetSimulatorFeaturesResponse {}
+
+/// `SimulationState` codes.
+const STOPPED: u8 = 0;
+const PLAYING: u8 = 1;
+const PAUSED: u8 = 2;
+const QUITTING: u8 = 3;
+/// `Result` codes.
+const INCORRECT_STATE: u8 = 3;
+const OPERATION_FAILED: u8 = 4;
+const ALREADY_IN_TARGET_STATE: u8 = 101;
+
+struct Services {
+    step: Server<msg::StepSimulationRequest, msg::ResultResponse>,
+    reset: Server<msg::ResetSimulationRequest, msg::ResultResponse>,
+    get_state: Server<msg::Empty, msg::GetSimulationStateResponse>,
+    set_state: Server<msg::SetSimulationStateRequest, msg::ResultResponse>,
+    features: Server<msg::Empty, msg::GetSimulatorFeaturesResponse>,
+    pause: Server<msg::Empty, msg::Empty>,
+    unpause: Server<msg::Empty, msg::Empty>,
+    reset_empty: Server<msg::Empty, msg::Empty>,
+}
+
 /// The simulator as a ROS 2 node. Start it in-process with `SimNode::new` and drive it with
 /// `run` (paced loop) or `spin_once` / `step_and_publish` (tests, lockstep).
 pub struct SimNode {
@@ -86,9 +118,26 @@ pub struct SimNode {
     publishers: Publishers,
     commands: Subscription<msg::ActuatorCommand>,
     joint_commands: Subscription<msg::JointState>,
+    services: Services,
+    quit: bool,
     // keep the DDS entities alive as long as the node
     _node: Node,
     _context: Context,
+}
+
+/// Commands every actuator to hold its current rest length (until a controller commands it).
+fn hold_actuators(sim: &mut Simulator) -> Result<(), NodeError> {
+    let holds: Vec<(String, f64)> = (0..sim.model().actuators.len())
+        .map(|i| {
+            let m = sim.model();
+            (m.actuator_names[i].clone(), sim.state().rest_lengths[m.actuators[i].cable.0])
+        })
+        .collect();
+    for (name, l0) in holds {
+        sim.command(&name, Command { rest_length: Some(l0), rate: None })
+            .map_err(|e| NodeError::Ros(format!("holding {name}: {e}")))?;
+    }
+    Ok(())
 }
 
 /// A DDS context on `domain_id`, bound to 127.0.0.1 when `localhost_only`.
@@ -125,17 +174,7 @@ impl SimNode {
         let mut sim =
             Simulator::new(model, SimSettings { dt: params.physics_dt, integrator, ..Default::default() })?;
         if !params.follow_schedule {
-            // hold every actuator at its initial rest length until a controller commands it
-            let holds: Vec<(String, f64)> = (0..sim.model().actuators.len())
-                .map(|i| {
-                    let m = sim.model();
-                    (m.actuator_names[i].clone(), m.initial_rest_lengths[m.actuators[i].cable.0])
-                })
-                .collect();
-            for (name, l0) in holds {
-                sim.command(&name, Command { rest_length: Some(l0), rate: None })
-                    .map_err(|e| NodeError::Ros(format!("holding {name}: {e}")))?;
-            }
+            hold_actuators(&mut sim)?;
         }
         let context = context(params.domain_id, params.localhost_only)?;
         let mut node = context
@@ -167,6 +206,34 @@ impl SimNode {
             tf_static: node.create_publisher(&t_tf_static, None).map_err(ros)?,
             diagnostics: node.create_publisher(&t_diag, None).map_err(ros)?,
         };
+        let mapping = match params.service_mapping.as_str() {
+            "cyclone" => ServiceMapping::Cyclone,
+            "basic" => ServiceMapping::Basic,
+            _ => ServiceMapping::Enhanced,
+        };
+        let service_qos = qos(10, false);
+        macro_rules! server {
+            ($name:expr, $pkg:expr, $ty:expr) => {
+                node.create_server(
+                    mapping,
+                    &Name::new(&private, $name).map_err(ros)?,
+                    &ServiceTypeName::new($pkg, $ty),
+                    service_qos.clone(),
+                    service_qos.clone(),
+                )
+                .map_err(ros)?
+            };
+        }
+        let services = Services {
+            step: server!("step_simulation", "simulation_interfaces", "StepSimulation"),
+            reset: server!("reset_simulation", "simulation_interfaces", "ResetSimulation"),
+            get_state: server!("get_simulation_state", "simulation_interfaces", "GetSimulationState"),
+            set_state: server!("set_simulation_state", "simulation_interfaces", "SetSimulationState"),
+            features: server!("get_simulator_features", "simulation_interfaces", "GetSimulatorFeatures"),
+            pause: server!("pause", "std_srvs", "Empty"),
+            unpause: server!("unpause", "std_srvs", "Empty"),
+            reset_empty: server!("reset", "std_srvs", "Empty"),
+        };
         let commands = node.create_subscription(&t_cmd, None).map_err(ros)?;
         let joint_commands = node.create_subscription(&t_joint_cmd, None).map_err(ros)?;
         let reference = report::all_pulley_coordinates(sim.model(), sim.state(), sim.workspace());
@@ -185,6 +252,8 @@ impl SimNode {
             publishers,
             commands,
             joint_commands,
+            services,
+            quit: false,
             _node: node,
             _context: context,
         };
@@ -212,6 +281,119 @@ impl SimNode {
     /// Pauses or resumes real-time stepping.
     pub fn set_paused(&mut self, paused: bool) {
         self.paused = paused;
+    }
+
+    /// Back to the initial state and time (actuators held again unless following the schedule),
+    /// and publishes that state.
+    pub fn reset(&mut self) -> Result<(), NodeError> {
+        self.sim.reset();
+        if !self.params.follow_schedule {
+            hold_actuators(&mut self.sim)?;
+        }
+        self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
+        self.rates.fill(0.0);
+        self.last_state_publish = None;
+        self.publish_state()?;
+        self.publishers
+            .clock
+            .publish(msg::Clock { clock: Time::from_seconds(self.sim.state().time) })
+            .map_err(ros)
+    }
+
+    /// True once SetSimulationState asked for QUITTING.
+    pub fn quit_requested(&self) -> bool {
+        self.quit
+    }
+
+    /// Answers every pending service request: StepSimulation (only while paused; steps, publishes,
+    /// then responds), ResetSimulation, Get/SetSimulationState, GetSimulatorFeatures, and the
+    /// std_srvs pause/unpause/reset.
+    pub fn serve(&mut self) -> Result<(), NodeError> {
+        let sv = &self.services;
+        let steps: Vec<_> = std::iter::from_fn(|| sv.step.receive_request().ok().flatten()).collect();
+        let resets: Vec<_> = std::iter::from_fn(|| sv.reset.receive_request().ok().flatten()).collect();
+        let gets: Vec<_> = std::iter::from_fn(|| sv.get_state.receive_request().ok().flatten()).collect();
+        let sets: Vec<_> = std::iter::from_fn(|| sv.set_state.receive_request().ok().flatten()).collect();
+        let feats: Vec<_> = std::iter::from_fn(|| sv.features.receive_request().ok().flatten()).collect();
+        let pauses: Vec<_> = std::iter::from_fn(|| sv.pause.receive_request().ok().flatten()).collect();
+        let unpauses: Vec<_> = std::iter::from_fn(|| sv.unpause.receive_request().ok().flatten()).collect();
+        let empties: Vec<_> =
+            std::iter::from_fn(|| sv.reset_empty.receive_request().ok().flatten()).collect();
+        for (id, req) in steps {
+            let result = if !self.paused {
+                msg::SimResult::err(INCORRECT_STATE, "StepSimulation needs the simulation paused")
+            } else {
+                let mut r = msg::SimResult::ok();
+                for _ in 0..req.steps {
+                    if let Err(e) = self.step_and_publish() {
+                        r = msg::SimResult::err(OPERATION_FAILED, e.to_string());
+                        break;
+                    }
+                }
+                r
+            };
+            let _ = self.services.step.send_response(id, msg::ResultResponse { result });
+        }
+        for (id, _) in resets {
+            let result = match self.reset() {
+                Ok(()) => msg::SimResult::ok(),
+                Err(e) => msg::SimResult::err(OPERATION_FAILED, e.to_string()),
+            };
+            let _ = self.services.reset.send_response(id, msg::ResultResponse { result });
+        }
+        for (id, _) in gets {
+            let state = msg::SimulationState { state: if self.paused { PAUSED } else { PLAYING } };
+            let response = msg::GetSimulationStateResponse { state, result: msg::SimResult::ok() };
+            let _ = self.services.get_state.send_response(id, response);
+        }
+        for (id, req) in sets {
+            let current = if self.paused { PAUSED } else { PLAYING };
+            let result = match req.state.state {
+                s if s == current => msg::SimResult::err(ALREADY_IN_TARGET_STATE, "already in that state"),
+                PLAYING => {
+                    self.paused = false;
+                    msg::SimResult::ok()
+                }
+                PAUSED => {
+                    self.paused = true;
+                    msg::SimResult::ok()
+                }
+                STOPPED => {
+                    self.paused = true;
+                    match self.reset() {
+                        Ok(()) => msg::SimResult::ok(),
+                        Err(e) => msg::SimResult::err(OPERATION_FAILED, e.to_string()),
+                    }
+                }
+                QUITTING => {
+                    self.quit = true;
+                    msg::SimResult::ok()
+                }
+                other => msg::SimResult::err(OPERATION_FAILED, format!("unknown state {other}")),
+            };
+            let _ = self.services.set_state.send_response(id, msg::ResultResponse { result });
+        }
+        for (id, _) in feats {
+            let features = msg::SimulatorFeatures {
+                features: vec![20, 21, 22, 24, 25, 26, 31, 32],
+                spawn_formats: vec![],
+                custom_info: "tensegrity: clustered tensegrity multibody simulator".into(),
+            };
+            let _ = self.services.features.send_response(id, msg::GetSimulatorFeaturesResponse { features });
+        }
+        for (id, _) in pauses {
+            self.paused = true;
+            let _ = self.services.pause.send_response(id, msg::Empty::default());
+        }
+        for (id, _) in unpauses {
+            self.paused = false;
+            let _ = self.services.unpause.send_response(id, msg::Empty::default());
+        }
+        for (id, _) in empties {
+            self.reset()?;
+            let _ = self.services.reset_empty.send_response(id, msg::Empty::default());
+        }
+        Ok(())
     }
 
     /// Takes every pending command message and applies the valid ones (at this step boundary).
@@ -339,8 +521,9 @@ impl SimNode {
         let mut anchor_wall = Instant::now();
         let mut anchor_sim = self.sim.state().time;
         let mut window = (Instant::now(), self.sim.state().time);
-        while !stop.load(Ordering::Relaxed) {
+        while !stop.load(Ordering::Relaxed) && !self.quit {
             self.take_commands();
+            self.serve()?;
             if self.paused {
                 std::thread::sleep(Duration::from_millis(2));
                 anchor_wall = Instant::now();
