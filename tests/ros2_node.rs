@@ -10,7 +10,6 @@
 
 #![cfg(feature = "ros2")]
 
-use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -20,52 +19,11 @@ use tensegrity::io::msg;
 use tensegrity::io::params::NodeParams;
 use tensegrity::io::ros2::{context, qos, SimNode};
 
-/// Interfaces of this process's network namespace (from /proc, which is per namespace).
-fn interfaces() -> Vec<String> {
-    std::fs::read_to_string("/proc/self/net/dev")
-        .unwrap_or_default()
-        .lines()
-        .skip(2)
-        .filter_map(|l| l.split(':').next().map(|s| s.trim().to_string()))
-        .collect()
-}
+#[path = "common/netns.rs"]
+mod netns;
 
-/// Returns true when already isolated; otherwise runs `test` again inside a loopback-only network
-/// namespace, asserts it passed, and returns false.
 fn isolated_or_rerun(test: &str) -> bool {
-    if interfaces().iter().all(|i| i == "lo") {
-        return true;
-    }
-    assert!(
-        std::env::var_os("TENSEGRITY_NETNS").is_none(),
-        "still not isolated inside the namespace: {:?}",
-        interfaces()
-    );
-    let exe = std::env::current_exe().unwrap();
-    let mut cmd = Command::new("unshare");
-    cmd.arg("--net");
-    if !std::process::Command::new("id")
-        .arg("-u")
-        .output()
-        .map(|o| o.stdout.starts_with(b"0"))
-        .unwrap_or(false)
-    {
-        cmd.arg("--map-root-user");
-    }
-    let status = cmd
-        .args([
-            "--",
-            "sh",
-            "-c",
-            "ip link set lo up && ip link set lo multicast on && (ip route add 224.0.0.0/4 dev lo 2>/dev/null || true) && exec \"$0\" \"$@\"",
-        ])
-        .arg(exe)
-        .args(["--exact", test, "--nocapture", "--test-threads=1"])
-        .env("TENSEGRITY_NETNS", "1")
-        .status()
-        .expect("unshare (util-linux) and ip (iproute2) are needed to isolate DDS tests");
-    assert!(status.success(), "{test} failed inside its network namespace");
-    false
+    netns::isolated_or_rerun(&["--exact", test, "--nocapture", "--test-threads=1"])
 }
 
 fn bundled(name: &str) -> tensegrity::Model {
