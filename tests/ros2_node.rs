@@ -285,3 +285,54 @@ fn lockstep_services_step_exactly_n_steps_and_reset_restores_the_start() {
     stop.store(true, Ordering::Relaxed);
     node.join().unwrap();
 }
+
+#[test]
+fn cyclone_dds_controller_reads_state_and_drives_the_node() {
+    if !isolated_or_rerun("cyclone_dds_controller_reads_state_and_drives_the_node") {
+        return;
+    }
+    let domain = 63;
+    let params = NodeParams {
+        domain_id: domain,
+        real_time_factor: 1.0,
+        state_publish_rate: 100.0,
+        ..Default::default()
+    };
+    let model = bundled("prism3.toml");
+    let ring = model.cable_id("ring").unwrap().0;
+    let target = 0.97 * model.initial_rest_lengths[ring];
+    let stop = Arc::new(AtomicBool::new(false));
+    let node_stop = stop.clone();
+    let node = std::thread::spawn(move || {
+        let mut node = SimNode::new(model, params).unwrap();
+        node.run(&node_stop).unwrap();
+        node.stats()
+    });
+    let script =
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/interop/cyclone_controller.py");
+    let out = std::process::Command::new("python3")
+        .arg(&script)
+        .args([domain.to_string(), "ring_winch".into(), ring.to_string(), format!("{target:.17}")])
+        .env(
+            "CYCLONEDDS_URI",
+            "<CycloneDDS><Domain id=\"any\"><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery></Domain></CycloneDDS>",
+        )
+        .output()
+        .expect("python3 runs (bash .ci/run installs the cyclonedds package)");
+    stop.store(true, Ordering::Relaxed);
+    let stats = node.join().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "Cyclone controller failed: {stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.starts_with("OK"), "{stdout}");
+    assert!(stdout.contains("bodies 3") && stdout.contains("'ring'"), "{stdout}");
+    let number = |key: &str| -> f64 {
+        let rest = &stdout[stdout.find(key).unwrap() + key.len()..];
+        rest.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    assert!(number("tension_after ") > number("tension_before "), "{stdout}");
+    assert!(stats.commands_received >= 1 && stats.commands_rejected == 0);
+}
