@@ -125,3 +125,45 @@ fn wire_conversions_carry_the_state_and_refuse_bad_commands_whole() {
     let unknown = ActuatorCommand { name: vec!["side0_winch".into(), "nope".into()], ..ok };
     assert!(unknown.commands(&model).is_err());
 }
+
+#[test]
+fn marker_layout_matches_visualization_msgs() {
+    // visualization_msgs/msg/Marker as published for Humble, Jazzy and Rolling (ros2/common_interfaces)
+    let official = "std_msgs/Header header; string ns; int32 id; int32 type; int32 action; geometry_msgs/Pose pose; \
+        geometry_msgs/Vector3 scale; std_msgs/ColorRGBA color; builtin_interfaces/Duration lifetime; bool frame_locked; \
+        geometry_msgs/Point[] points; std_msgs/ColorRGBA[] colors; string texture_resource; sensor_msgs/CompressedImage texture; \
+        UVCoordinate[] uv_coordinates; string text; string mesh_resource; MeshFile mesh_file; bool mesh_use_embedded_materials";
+    let expected: Vec<(String, Format)> = official
+        .split(';')
+        .map(|f| {
+            let mut it = f.split_whitespace();
+            let (ty, name) = (it.next().unwrap(), it.next().unwrap());
+            let base = ty.trim_end_matches("[]");
+            let leaf = match base {
+                "int32" => Format::I32,
+                "string" => Format::Str,
+                "bool" => Format::Bool,
+                "std_msgs/Header" => Format::TypeName("Header".into()),
+                "geometry_msgs/Pose" => Format::TypeName("Pose".into()),
+                "geometry_msgs/Vector3" => Format::TypeName("Vector3".into()),
+                "geometry_msgs/Point" => Format::TypeName("Point".into()),
+                "std_msgs/ColorRGBA" => Format::TypeName("ColorRgba".into()),
+                "builtin_interfaces/Duration" => Format::TypeName("Duration".into()),
+                "sensor_msgs/CompressedImage" => Format::TypeName("CompressedImage".into()),
+                "UVCoordinate" => Format::TypeName("UvCoordinate".into()),
+                "MeshFile" => Format::TypeName("MeshFile".into()),
+                other => panic!("{other}"),
+            };
+            let format = if ty.ends_with("[]") { Format::Seq(Box::new(leaf)) } else { leaf };
+            (name.to_string(), format)
+        })
+        .collect();
+    let mut tracer = Tracer::new(TracerConfig::default());
+    tracer.trace_simple_type::<tensegrity::io::msg::MarkerArray>().unwrap();
+    let registry = tracer.registry().unwrap();
+    assert_eq!(fields_of(&registry, "Marker"), expected);
+    assert_eq!(
+        fields_of(&registry, "ColorRgba"),
+        ["r", "g", "b", "a"].iter().map(|n| (n.to_string(), Format::F32)).collect::<Vec<_>>()
+    );
+}

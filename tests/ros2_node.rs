@@ -336,3 +336,90 @@ fn cyclone_dds_controller_reads_state_and_drives_the_node() {
     assert!(number("tension_after ") > number("tension_before "), "{stdout}");
     assert!(stats.commands_received >= 1 && stats.commands_rejected == 0);
 }
+
+#[test]
+fn command_timeout_stops_the_winch_and_markers_show_the_structure() {
+    if !isolated_or_rerun("command_timeout_stops_the_winch_and_markers_show_the_structure") {
+        return;
+    }
+    use ros2_client::{ServiceMapping, ServiceTypeName};
+    let domain = 64;
+    let params = NodeParams {
+        domain_id: domain,
+        start_paused: true,
+        state_publish_rate: 0.0,
+        command_timeout: 0.05,
+        command_timeout_action: "hold".into(),
+        ..Default::default()
+    };
+    let model = bundled("prism3.toml");
+    let ring = model.cable_id("ring").unwrap().0;
+    let l0 = model.initial_rest_lengths[ring];
+    let segments: usize = model.cables.iter().map(|c| c.segment_count()).sum();
+    let stop = Arc::new(AtomicBool::new(false));
+    let node_stop = stop.clone();
+    let node = std::thread::spawn(move || {
+        let mut node = SimNode::new(model, params).unwrap();
+        node.run(&node_stop).unwrap();
+        node.stats()
+    });
+    let ctx = context(domain, false).unwrap();
+    let mut ctl = ctx.new_node(NodeName::new("/", "controller").unwrap(), NodeOptions::new()).unwrap();
+    let ns = "/tensegrity_sim";
+    let step: ros2_client::Client<msg::StepSimulationRequest, msg::ResultResponse> = ctl
+        .create_client(
+            ServiceMapping::Enhanced,
+            &Name::new(ns, "step_simulation").unwrap(),
+            &ServiceTypeName::new("simulation_interfaces", "StepSimulation"),
+            qos(10, false),
+            qos(10, false),
+        )
+        .unwrap();
+    let topic = |name: &str, pkg: &str, ty: &str, depth| {
+        ctl.create_topic(&Name::new(ns, name).unwrap(), MessageTypeName::new(pkg, ty), &qos(depth, false))
+            .unwrap()
+    };
+    let t_cables = topic("cable_states", "tensegrity_msgs", "CableStates", 10);
+    let t_markers = topic("markers", "visualization_msgs", "MarkerArray", 1);
+    let t_cmd = topic("actuator_commands", "tensegrity_msgs", "ActuatorCommand", 1);
+    let cables = ctl.create_subscription::<msg::CableStates>(&t_cables, Some(qos(1000, false))).unwrap();
+    let markers = ctl.create_subscription::<msg::MarkerArray>(&t_markers, Some(qos(100, false))).unwrap();
+    let commands = ctl.create_publisher::<msg::ActuatorCommand>(&t_cmd, None).unwrap();
+    std::thread::sleep(Duration::from_millis(1500)); // discovery
+
+    // reel in at 0.1 m/s, then say nothing more: after 0.05 s of sim time the winch must stop
+    commands
+        .publish(msg::ActuatorCommand {
+            name: vec!["ring_winch".into()],
+            rate: vec![-0.1],
+            ..Default::default()
+        })
+        .unwrap();
+    std::thread::sleep(Duration::from_millis(500)); // taken while paused, at t = 0
+    assert_eq!(call(&step, msg::StepSimulationRequest { steps: 200 }).result.result, 1);
+    let mut rest = Vec::new();
+    while let Some(m) = wait_for(Duration::from_millis(300), || cables.take().ok().flatten()) {
+        rest.push((m.0.header.stamp.seconds(), m.0.rest_length[ring]));
+    }
+    let (t_end, l_end) = *rest.last().expect("cable states during the steps");
+    assert!((t_end - 0.2).abs() < 1e-9, "{t_end}");
+    assert!((l_end - (l0 - 0.1 * 0.05)).abs() < 1e-9, "winch stopped at {l_end}, expected {}", l0 - 0.005);
+    for (t, l) in &rest {
+        if *t > 0.0505 {
+            assert!((l - l_end).abs() < 1e-12, "moved after the timeout: {l} at {t}");
+        }
+    }
+
+    // the markers: struts, and cable segments coloured one colour per point
+    let m = wait_for(Duration::from_secs(5), || markers.take().ok().flatten()).expect("markers arrive").0;
+    let by_ns = |ns: &str| m.markers.iter().find(|k| k.ns == ns).unwrap_or_else(|| panic!("no {ns} marker"));
+    assert_eq!(by_ns("struts").points.len(), 2 * 3 * 2, "bar a-b as two half-lines from the centre");
+    let c = by_ns("cables");
+    assert_eq!(c.points.len(), 2 * segments);
+    assert_eq!(c.colors.len(), c.points.len());
+    assert_eq!(c.kind, 5);
+
+    stop.store(true, Ordering::Relaxed);
+    let stats = node.join().unwrap();
+    assert_eq!(stats.command_timeouts, 1);
+}

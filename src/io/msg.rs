@@ -524,3 +524,170 @@ pub struct GetSimulatorFeaturesResponse {
     /// Supported features.
     pub features: SimulatorFeatures,
 }
+
+/// `builtin_interfaces/msg/Duration`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub struct Duration {
+    /// Seconds.
+    pub sec: i32,
+    /// Nanoseconds.
+    pub nanosec: u32,
+}
+
+/// `std_msgs/msg/ColorRGBA`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct ColorRgba {
+    /// Red, 0-1.
+    pub r: f32,
+    /// Green, 0-1.
+    pub g: f32,
+    /// Blue, 0-1.
+    pub b: f32,
+    /// Alpha, 0-1.
+    pub a: f32,
+}
+
+/// `sensor_msgs/msg/CompressedImage` (unused by our markers, part of their layout).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct CompressedImage {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Image format.
+    pub format: String,
+    /// Bytes.
+    pub data: Vec<u8>,
+}
+
+/// `visualization_msgs/msg/UVCoordinate`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct UvCoordinate {
+    /// u.
+    pub u: f32,
+    /// v.
+    pub v: f32,
+}
+
+/// `visualization_msgs/msg/MeshFile`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct MeshFile {
+    /// File name.
+    pub filename: String,
+    /// Contents.
+    pub data: Vec<u8>,
+}
+
+/// `visualization_msgs/msg/Marker` (layout of Humble, Jazzy and Rolling).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Marker {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Namespace.
+    pub ns: String,
+    /// Id within the namespace.
+    pub id: i32,
+    /// `LINE_LIST = 5`, `SPHERE_LIST = 7`, ...
+    #[serde(rename = "type")]
+    pub kind: i32,
+    /// `ADD = 0`.
+    pub action: i32,
+    /// Pose of the marker frame.
+    pub pose: Pose,
+    /// Line width / sphere size, m.
+    pub scale: Vector3,
+    /// Colour when `colors` is empty.
+    pub color: ColorRgba,
+    /// Lifetime (0 = forever).
+    pub lifetime: Duration,
+    /// Follow the frame.
+    pub frame_locked: bool,
+    /// Points.
+    pub points: Vec<Point>,
+    /// Per-point colours.
+    pub colors: Vec<ColorRgba>,
+    /// Unused.
+    pub texture_resource: String,
+    /// Unused.
+    pub texture: CompressedImage,
+    /// Unused.
+    pub uv_coordinates: Vec<UvCoordinate>,
+    /// Unused.
+    pub text: String,
+    /// Unused.
+    pub mesh_resource: String,
+    /// Unused.
+    pub mesh_file: MeshFile,
+    /// Unused.
+    pub mesh_use_embedded_materials: bool,
+}
+
+/// `visualization_msgs/msg/MarkerArray`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct MarkerArray {
+    /// Markers.
+    pub markers: Vec<Marker>,
+}
+
+impl MarkerArray {
+    /// RViz view of an evaluated state: struts (bars, and rigid bodies' points joined to their
+    /// centre) as grey lines, nodes as spheres, and cable segments coloured from blue (no tension)
+    /// to red (the largest tension), slack cables pale grey.
+    pub fn from_state(model: &Model, state: &State, ws: &Workspace, frame: &str) -> Self {
+        use crate::model::BodyKind;
+        let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() };
+        let point = |p: &nalgebra::Vector3<f64>| Point { x: p.x, y: p.y, z: p.z };
+        let identity =
+            Pose { orientation: Quaternion { w: 1.0, ..Default::default() }, ..Default::default() };
+        let base = |ns: &str, kind: i32, width: f64, color: ColorRgba| Marker {
+            header: header.clone(),
+            ns: ns.into(),
+            kind,
+            pose: identity,
+            scale: Vector3 { x: width, y: width, z: width },
+            color,
+            ..Default::default()
+        };
+        let grey = ColorRgba { r: 0.35, g: 0.35, b: 0.38, a: 1.0 };
+        let mut struts = base("struts", 5, 0.03, grey);
+        let mut nodes = base("nodes", 7, 0.06, grey);
+        for (b, body) in model.bodies.iter().enumerate() {
+            let origin = state.poses[b].position;
+            if matches!(body.kind, BodyKind::Bar | BodyKind::Rigid) {
+                for (k, _) in
+                    model.points.iter().enumerate().filter(|(_, p)| p.body.0 == b && p.local.norm() > 0.0)
+                {
+                    struts.points.push(point(&origin));
+                    struts.points.push(point(&ws.points[k].position));
+                }
+            }
+            if body.kind == BodyKind::Node {
+                nodes.points.push(point(&origin));
+            }
+        }
+        let t_max = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max).max(1e-12);
+        let mut cables = base("cables", 5, 0.012, grey);
+        for c in 0..model.cables.len() {
+            let r = &ws.cables[c];
+            let s = (r.tension / t_max) as f32;
+            let color = if r.tension > 0.0 {
+                ColorRgba { r: s, g: 0.1, b: 1.0 - s, a: 1.0 }
+            } else {
+                ColorRgba { r: 0.8, g: 0.8, b: 0.8, a: 0.6 }
+            };
+            let route = model.route(crate::model::CableId(c));
+            for w in route.windows(2) {
+                cables.points.push(point(&ws.points[w[0].0].position));
+                cables.points.push(point(&ws.points[w[1].0].position));
+                cables.colors.push(color);
+                cables.colors.push(color);
+            }
+        }
+        let mut markers = vec![struts, cables];
+        if !nodes.points.is_empty() {
+            markers.push(nodes);
+        }
+        for (i, m) in markers.iter_mut().enumerate() {
+            m.id = i as i32;
+        }
+        Self { markers }
+    }
+}

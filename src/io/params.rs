@@ -36,6 +36,14 @@ pub struct NodeParams {
     /// Follow the scene's deployment schedule (`follow_schedule`, default false: actuators hold
     /// their initial rest lengths until commanded).
     pub follow_schedule: bool,
+    /// RViz markers per second of sim time (`markers_rate`, default 30, 0 = off).
+    pub markers_rate: f64,
+    /// Sim-time seconds without an accepted command after which `command_timeout_action` is
+    /// taken (`command_timeout`, default 0 = never).
+    pub command_timeout: f64,
+    /// `hold`: every winch stops where it is; `initial`: winches return to their initial rest
+    /// lengths (`command_timeout_action`, default hold).
+    pub command_timeout_action: String,
     /// Service request/reply mapping (`service_mapping`: enhanced, the default, suits Fast DDS
     /// and RustDDS clients; cyclone suits Cyclone DDS clients; basic).
     pub service_mapping: String,
@@ -59,6 +67,9 @@ impl Default for NodeParams {
             integrator: "generalized-alpha".into(),
             rho_inf: 0.8,
             follow_schedule: false,
+            markers_rate: 30.0,
+            command_timeout: 0.0,
+            command_timeout_action: "hold".into(),
             service_mapping: "enhanced".into(),
             domain_id: 0,
             localhost_only: false,
@@ -132,6 +143,26 @@ impl NodeParams {
                     return Err(err(format!("parameter rho_inf must be in [0, 1], got {r}")));
                 }
                 self.rho_inf = r;
+            }
+            "markers_rate" | "command_timeout" => {
+                let r = num(value)?;
+                if r < 0.0 {
+                    return Err(err(format!("parameter {name} must be >= 0, got {r}")));
+                }
+                if name == "markers_rate" {
+                    self.markers_rate = r;
+                } else {
+                    self.command_timeout = r;
+                }
+            }
+            "command_timeout_action" => {
+                let v = text(value).to_ascii_lowercase();
+                if !matches!(v.as_str(), "hold" | "initial") {
+                    return Err(err(format!(
+                        "parameter command_timeout_action: '{v}' is not hold or initial"
+                    )));
+                }
+                self.command_timeout_action = v;
             }
             "service_mapping" => {
                 let v = text(value).to_ascii_lowercase();

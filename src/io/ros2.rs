@@ -61,6 +61,8 @@ pub struct NodeStats {
     pub last_newton_iterations: usize,
     /// Rejected step attempts so far.
     pub rejected_attempts: usize,
+    /// Times the command timeout fired.
+    pub command_timeouts: u64,
 }
 
 struct Publishers {
@@ -72,6 +74,7 @@ struct Publishers {
     tf: Publisher<msg::TfMessage>,
     tf_static: Publisher<msg::TfMessage>,
     diagnostics: Publisher<msg::DiagnosticArray>,
+    markers: Publisher<msg::MarkerArray>,
 }
 
 impl Message for msg::Empty {}
@@ -120,6 +123,9 @@ pub struct SimNode {
     joint_commands: Subscription<msg::JointState>,
     services: Services,
     quit: bool,
+    last_markers: Option<f64>,
+    last_command: Option<f64>,
+    timed_out: bool,
     // keep the DDS entities alive as long as the node
     _node: Node,
     _context: Context,
@@ -192,6 +198,7 @@ impl SimNode {
         let t_cables = topic(&private, "cable_states", "tensegrity_msgs", "CableStates", &qos(10, false))?;
         let t_actuators = topic(&private, "actuator_states", "sensor_msgs", "JointState", &qos(10, false))?;
         let t_structure = topic(&private, "structure", "tensegrity_msgs", "Structure", &qos(1, true))?;
+        let t_markers = topic(&private, "markers", "visualization_msgs", "MarkerArray", &qos(1, false))?;
         let t_diag = topic("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray", &qos(10, false))?;
         let t_cmd =
             topic(&private, "actuator_commands", "tensegrity_msgs", "ActuatorCommand", &qos(1, false))?;
@@ -205,6 +212,7 @@ impl SimNode {
             tf: node.create_publisher(&t_tf, None).map_err(ros)?,
             tf_static: node.create_publisher(&t_tf_static, None).map_err(ros)?,
             diagnostics: node.create_publisher(&t_diag, None).map_err(ros)?,
+            markers: node.create_publisher(&t_markers, None).map_err(ros)?,
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,
@@ -254,6 +262,9 @@ impl SimNode {
             joint_commands,
             services,
             quit: false,
+            last_markers: None,
+            last_command: None,
+            timed_out: false,
             _node: node,
             _context: context,
         };
@@ -293,6 +304,9 @@ impl SimNode {
         self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
         self.rates.fill(0.0);
         self.last_state_publish = None;
+        self.last_markers = None;
+        self.last_command = None;
+        self.timed_out = false;
         self.publish_state()?;
         self.publishers
             .clock
@@ -409,6 +423,8 @@ impl SimNode {
             self.stats.commands_received += 1;
             match m.commands(self.sim.model()) {
                 Ok(cmds) => {
+                    self.last_command = Some(self.sim.state().time);
+                    self.timed_out = false;
                     for (name, cmd) in cmds {
                         // validated above against the same model: cannot fail
                         let _ = self.sim.command(&name, cmd);
@@ -464,7 +480,58 @@ impl SimNode {
         if due {
             self.publish_state()?;
         }
+        let markers_due = match (self.params.markers_rate, self.last_markers) {
+            (r, _) if r <= 0.0 => false,
+            (r, Some(last)) => t - last >= 1.0 / r - 1e-9 * dt,
+            (_, None) => true,
+        };
+        if markers_due {
+            let (model, state, ws) = (self.sim.model(), self.sim.state(), self.sim.workspace());
+            let markers = msg::MarkerArray::from_state(model, state, ws, &self.params.frame_id);
+            self.publishers.markers.publish(markers).map_err(ros)?;
+            self.last_markers = Some(t);
+        }
+        self.check_command_timeout()?;
         self.publishers.clock.publish(msg::Clock { clock: Time::from_seconds(t) }).map_err(ros)?;
+        Ok(())
+    }
+
+    /// Takes the configured action once no command has been accepted for `command_timeout`
+    /// seconds of sim time (after the first command): `hold` stops every winch where it is,
+    /// `initial` sends them back to their initial rest lengths. Counted and reported.
+    fn check_command_timeout(&mut self) -> Result<(), NodeError> {
+        let timeout = self.params.command_timeout;
+        let Some(last) = self.last_command else { return Ok(()) };
+        if timeout <= 0.0 || self.timed_out || self.sim.state().time - last < timeout {
+            return Ok(());
+        }
+        self.timed_out = true;
+        self.stats.command_timeouts += 1;
+        let initial = self.params.command_timeout_action == "initial";
+        let targets: Vec<(String, f64)> = (0..self.sim.model().actuators.len())
+            .map(|i| {
+                let m = self.sim.model();
+                let c = m.actuators[i].cable.0;
+                let l = if initial { m.initial_rest_lengths[c] } else { self.sim.state().rest_lengths[c] };
+                (m.actuator_names[i].clone(), l)
+            })
+            .collect();
+        for (name, l) in targets {
+            self.sim
+                .command(&name, Command { rest_length: Some(l), rate: None })
+                .map_err(|e| NodeError::Ros(format!("command timeout on {name}: {e}")))?;
+        }
+        let status = msg::DiagnosticStatus {
+            level: 1,
+            name: format!("{}: commands", self.params.node_name),
+            message: format!("command timeout after {timeout} s: {}", self.params.command_timeout_action),
+            hardware_id: self.params.node_name.clone(),
+            values: vec![],
+        };
+        let _ = self
+            .publishers
+            .diagnostics
+            .publish(msg::DiagnosticArray { header: self.header(), status: vec![status] });
         Ok(())
     }
 
@@ -505,6 +572,7 @@ impl SimNode {
                 kv("commands_rejected", s.commands_rejected.to_string()),
                 kv("newton_iterations_last_step", s.last_newton_iterations.to_string()),
                 kv("rejected_step_attempts", s.rejected_attempts.to_string()),
+                kv("command_timeouts", s.command_timeouts.to_string()),
             ],
         };
         self.publishers
