@@ -2,7 +2,10 @@
 //! controllers expect. A controller on a second `Context` receives body poses and cable states
 //! stamped with simulation time, a `/clock` that only moves forward, and (as a late joiner) the
 //! transient-local structure; shortening a cable by command raises its tension as statics
-//! predicts; a NaN command is rejected, reported in `/diagnostics`, and the node keeps publishing.
+//! predicts; a NaN or unknown-name command is rejected, reported in `/diagnostics`, and the node
+//! keeps publishing; StepSimulation while paused advances exactly N steps and reset restores the
+//! start; a command timeout stops the winches; and an Eclipse Cyclone DDS controller (Python)
+//! reads the state and drives the node.
 //!
 //! Network rule: every DDS socket must stay on this machine, so each test first re-executes
 //! itself inside a private network namespace that has only a loopback interface (with multicast
@@ -155,6 +158,21 @@ fn controller_sees_state_drives_a_cable_and_bad_commands_are_rejected() {
         clock.take().ok().flatten().map(|(c, _)| c.clock.seconds()).filter(|t| *t > before + 0.1)
     });
     assert!(after.is_some(), "the node keeps running after a bad command");
+    // so is a command for an actuator that does not exist
+    commands
+        .publish(msg::ActuatorCommand {
+            name: vec!["no_such_winch".into()],
+            rest_length: vec![1.0],
+            ..Default::default()
+        })
+        .unwrap();
+    let second =
+        wait_for(Duration::from_secs(5), || {
+            diagnostics.take().ok().flatten().filter(|(d, _)| {
+                d.status.iter().any(|s| s.message.contains("unknown actuator 'no_such_winch'"))
+            })
+        });
+    assert!(second.is_some(), "the unknown name is reported in /diagnostics");
 
     // a late subscriber still gets the structure (transient local)
     let structure = ctl.create_subscription::<msg::Structure>(&t_structure, Some(qos(1, true))).unwrap();
@@ -165,8 +183,8 @@ fn controller_sees_state_drives_a_cable_and_bad_commands_are_rejected() {
 
     stop.store(true, Ordering::Relaxed);
     let stats = node.join().unwrap();
-    assert_eq!(stats.commands_rejected, 1);
-    assert!(stats.commands_received >= 2);
+    assert_eq!(stats.commands_rejected, 2);
+    assert!(stats.commands_received >= 3);
 }
 
 /// Sends one request and waits up to 10 s for its response.
