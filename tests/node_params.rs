@@ -20,7 +20,7 @@ fn defaults_and_plain_arguments() {
     assert_eq!(rest, vec!["config/scenes/tbar.toml"]);
     assert_eq!(
         (p.node_name.as_str(), p.namespace.as_str(), p.physics_dt, p.domain_id),
-        ("tensegrity_sim", "/", 1e-3, 0)
+        ("tensegrity_sim", "/", None, 0)
     );
 }
 
@@ -32,7 +32,7 @@ fn ros_args_set_parameters_and_remap_name_and_namespace() {
     )
     .unwrap();
     assert_eq!(rest, vec!["scene.toml", "--verbose"]);
-    assert_eq!(p.physics_dt, 0.002);
+    assert_eq!(p.physics_dt, Some(0.002));
     assert!(p.start_paused);
     assert_eq!(p.real_time_factor, 0.0);
     assert_eq!((p.namespace.as_str(), p.node_name.as_str()), ("/lab", "sim2"));
@@ -52,7 +52,7 @@ fn params_file_in_ros_layout_is_read_and_overridden_by_p() {
     let (p, _) = NodeParams::from_args(&args(&line), no_env).unwrap();
     assert_eq!(p.frame_id, "map");
     assert_eq!(p.rho_inf, 0.5);
-    assert_eq!(p.physics_dt, 0.0005, "other nodes' entries are ignored");
+    assert_eq!(p.physics_dt, Some(0.0005), "other nodes' entries are ignored");
     assert!(p.start_paused);
     assert_eq!(p.state_publish_rate, 25.0, "-p overrides the file");
     std::fs::remove_dir_all(&dir).ok();

@@ -223,3 +223,12 @@ fn deployment_ramps_are_checked_against_actuator_limits() {
         "unknown actuator",
     );
 }
+
+#[test]
+fn physics_dt_is_read_and_checked() {
+    let model =
+        from_toml(&VALID.replace("gravity = ", "physics_dt = 0.002\ngravity = "), "scene.toml").unwrap();
+    assert_eq!(model.physics_dt, Some(0.002));
+    assert_eq!(from_toml(VALID, "scene.toml").unwrap().physics_dt, None);
+    expect(&VALID.replace("gravity = ", "physics_dt = -0.001\ngravity = "), "physics_dt", 2, "positive");
+}

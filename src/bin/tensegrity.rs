@@ -103,9 +103,9 @@ struct DynamicArgs {
     /// Integrator: generalized-alpha (ga) or symplectic-euler (euler).
     #[arg(long, default_value = "generalized-alpha")]
     integrator: IntegratorName,
-    /// Physics step, s.
-    #[arg(long, default_value_t = 1e-3)]
-    dt: f64,
+    /// Physics step, s (default: the scene's physics_dt, else 0.001).
+    #[arg(long)]
+    dt: Option<f64>,
     /// Spectral radius at infinity of generalized-alpha, in [0, 1].
     #[arg(long, default_value_t = 0.8)]
     rho_inf: f64,
@@ -120,18 +120,19 @@ enum IntegratorName {
 }
 
 impl DynamicArgs {
-    fn settings(&self) -> Result<SimSettings, String> {
+    fn settings(&self, model: &Model) -> Result<SimSettings, String> {
+        let dt = self.dt.or(model.physics_dt).unwrap_or(1e-3);
         if !(self.rho_inf.is_finite() && (0.0..=1.0).contains(&self.rho_inf)) {
             return Err(format!("--rho-inf must be in [0, 1], got {}", self.rho_inf));
         }
-        if !(self.dt.is_finite() && self.dt > 0.0) {
-            return Err(format!("--dt must be positive, got {}", self.dt));
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(format!("--dt must be positive, got {dt}"));
         }
         let integrator = match self.integrator {
             IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf: self.rho_inf },
             IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
         };
-        Ok(SimSettings { dt: self.dt, integrator, ..Default::default() })
+        Ok(SimSettings { dt, integrator, ..Default::default() })
     }
 }
 
@@ -349,7 +350,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Deploy { scene, quasi_static: _, dynamic, steps, dynamics, duration, out } => {
             let mut model = load(&scene)?;
             if dynamic {
-                return deploy_dynamic(&model, &scene, dynamics.settings()?, duration, &out);
+                return deploy_dynamic(&model, &scene, dynamics.settings(&model)?, duration, &out);
             }
             if let Some(n) = steps {
                 if n == 0 {
@@ -403,7 +404,7 @@ fn run(cli: Cli) -> Result<(), String> {
                 &model,
                 &ramp_times,
                 point.as_deref(),
-                dynamics.settings()?,
+                dynamics.settings(&model)?,
                 settle,
                 &out,
             )?;

@@ -49,7 +49,7 @@ fn run() -> Result<(), String> {
         params.node_name,
         params.domain_id,
         if params.localhost_only { " (localhost only)" } else { "" },
-        params.physics_dt,
+        params.physics_dt.or(model.physics_dt).unwrap_or(1e-3),
         params.real_time_factor
     );
     let mut node = SimNode::new(model, params).map_err(|e| e.to_string())?;

@@ -19,8 +19,8 @@ pub struct NodeParams {
     pub namespace: String,
     /// Scene file; the bundled default scene when absent.
     pub scene: Option<PathBuf>,
-    /// Physics step, s (parameter `physics_dt`, default 0.001).
-    pub physics_dt: f64,
+    /// Physics step, s (parameter `physics_dt`; default: the scene's `physics_dt`, else 0.001).
+    pub physics_dt: Option<f64>,
     /// Real-time factor: 1 = real time, 0 = as fast as possible (`real_time_factor`).
     pub real_time_factor: f64,
     /// Start paused; advance with StepSimulation or unpause (`start_paused`).
@@ -59,7 +59,7 @@ impl Default for NodeParams {
             node_name: "tensegrity_sim".into(),
             namespace: "/".into(),
             scene: None,
-            physics_dt: 1e-3,
+            physics_dt: None,
             real_time_factor: 1.0,
             start_paused: false,
             state_publish_rate: 100.0,
@@ -111,7 +111,7 @@ impl NodeParams {
                 if dt <= 0.0 {
                     return Err(err(format!("parameter physics_dt must be > 0, got {dt}")));
                 }
-                self.physics_dt = dt;
+                self.physics_dt = Some(dt);
             }
             "real_time_factor" => {
                 let r = num(value)?;

@@ -177,8 +177,8 @@ impl SimNode {
     pub fn new(model: Model, params: NodeParams) -> Result<Self, NodeError> {
         let integrator = Integrator::parse(&params.integrator, params.rho_inf)
             .ok_or_else(|| NodeError::Ros(format!("unknown integrator '{}'", params.integrator)))?;
-        let mut sim =
-            Simulator::new(model, SimSettings { dt: params.physics_dt, integrator, ..Default::default() })?;
+        let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
+        let mut sim = Simulator::new(model, SimSettings { dt, integrator, ..Default::default() })?;
         if !params.follow_schedule {
             hold_actuators(&mut sim)?;
         }
@@ -466,7 +466,7 @@ impl SimNode {
         self.stats.steps += 1;
         self.stats.last_newton_iterations = stats.newton_iterations;
         self.stats.rejected_attempts += stats.rejected;
-        let dt = self.params.physics_dt;
+        let dt = self.sim.settings().dt;
         for (r, (now, before)) in
             self.rates.iter_mut().zip(self.sim.state().rest_lengths.iter().zip(&self.previous_rest))
         {
@@ -585,7 +585,7 @@ impl SimNode {
     /// paces to `real_time_factor` (0 = as fast as possible), counts overruns without catching up,
     /// and publishes diagnostics at 1 Hz.
     pub fn run(&mut self, stop: &AtomicBool) -> Result<(), NodeError> {
-        let dt = self.params.physics_dt;
+        let dt = self.sim.settings().dt;
         let mut anchor_wall = Instant::now();
         let mut anchor_sim = self.sim.state().time;
         let mut window = (Instant::now(), self.sim.state().time);

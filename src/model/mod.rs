@@ -290,6 +290,8 @@ pub struct Model {
     pub initial_rest_lengths: Vec<f64>,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
+    /// Physics step the scene asks for, s (None: the tool's default).
+    pub physics_dt: Option<f64>,
 }
 
 impl Model {

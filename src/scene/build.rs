@@ -464,6 +464,11 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         constraint_count: spec.joints.len() * rows,
         initial_rest_lengths: vec![1.0; spec.cables.len()],
         solver,
+        physics_dt: match spec.physics_dt {
+            Some(dt) if dt.is_finite() && dt > 0.0 => Some(dt),
+            Some(dt) => return Err(cx.top("physics_dt", format!("must be positive and finite, got {dt}"))),
+            None => None,
+        },
     };
     check_mass_on_free_coordinates(&model, &cx)?;
 

@@ -36,6 +36,9 @@ pub struct SceneSpec {
     /// 2-D scene: everything moves in the world xy plane.
     #[serde(default, skip_serializing_if = "is_false")]
     pub planar: bool,
+    /// Physics step for dynamic runs and the node, s (> 0); tools fall back to 0.001.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub physics_dt: Option<f64>,
     /// Quasi-static solver settings.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub solver: Option<SolverSpec>,
