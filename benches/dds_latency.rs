@@ -8,15 +8,17 @@
 
 #[path = "../tests/common/netns.rs"]
 mod netns;
+#[path = "../tests/common/running_node.rs"]
+mod running_node;
 
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use running_node::RunningNode;
+
 use std::time::{Duration, Instant};
 
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
 use tensegrity::io::msg;
 use tensegrity::io::params::NodeParams;
-use tensegrity::io::ros2::{context, qos, SimNode};
+use tensegrity::io::ros2::{context, qos};
 
 const SAMPLES: usize = 500;
 
@@ -37,13 +39,7 @@ fn main() {
         state_publish_rate: 0.0,
         ..Default::default()
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    let node_stop = stop.clone();
-    let node = std::thread::spawn(move || {
-        let mut node = SimNode::new(model, params).unwrap();
-        node.run(&node_stop).unwrap();
-        node.stats()
-    });
+    let node = RunningNode::start(model, params);
 
     let ctx = context(domain, false).unwrap();
     let mut ctl = ctx.new_node(NodeName::new("/", "latency_probe").unwrap(), NodeOptions::new()).unwrap();
@@ -102,8 +98,7 @@ fn main() {
         }
         std::thread::sleep(Duration::from_millis(3));
     }
-    stop.store(true, Ordering::Relaxed);
-    let stats = node.join().unwrap();
+    let stats = node.stop();
     latencies.sort_by(f64::total_cmp);
     let q = |p: f64| latencies[((latencies.len() as f64 - 1.0) * p).round() as usize];
     println!("Command-to-effect latency over DDS (RustDDS, loopback namespace), node at 1 kHz real time, cable states every step, {} samples:\n", latencies.len());

@@ -13,17 +13,19 @@
 
 #![cfg(feature = "ros2")]
 
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
 use tensegrity::io::msg;
 use tensegrity::io::params::NodeParams;
-use tensegrity::io::ros2::{context, qos, SimNode};
+use tensegrity::io::ros2::{context, qos};
 
 #[path = "common/netns.rs"]
 mod netns;
+#[path = "common/running_node.rs"]
+mod running_node;
+
+use running_node::RunningNode;
 
 fn isolated_or_rerun(test: &str) -> bool {
     netns::isolated_or_rerun(&["--exact", test, "--nocapture", "--test-threads=1"])
@@ -61,13 +63,7 @@ fn controller_sees_state_drives_a_cable_and_bad_commands_are_rejected() {
     let model = bundled("prism3.toml");
     let ring = model.cable_id("ring").unwrap().0;
     let l0 = model.initial_rest_lengths[ring];
-    let stop = Arc::new(AtomicBool::new(false));
-    let node_stop = stop.clone();
-    let node = std::thread::spawn(move || {
-        let mut node = SimNode::new(model, params).unwrap();
-        node.run(&node_stop).unwrap();
-        node.stats()
-    });
+    let node = RunningNode::start(model, params);
 
     // the controller: a second Context on the same domain
     let ctx = context(domain, false).unwrap();
@@ -181,8 +177,7 @@ fn controller_sees_state_drives_a_cable_and_bad_commands_are_rejected() {
         .0;
     assert_eq!(s.cable_names, vec!["side0", "side1", "side2", "ring"]);
 
-    stop.store(true, Ordering::Relaxed);
-    let stats = node.join().unwrap();
+    let stats = node.stop();
     assert_eq!(stats.commands_rejected, 2);
     assert!(stats.commands_received >= 3);
 }
@@ -212,13 +207,7 @@ fn lockstep_services_step_exactly_n_steps_and_reset_restores_the_start() {
         NodeParams { domain_id: domain, start_paused: true, state_publish_rate: 0.0, ..Default::default() };
     let model = bundled("tbar.toml");
     let initial_rest = model.initial_rest_lengths.clone();
-    let stop = Arc::new(AtomicBool::new(false));
-    let node_stop = stop.clone();
-    let node = std::thread::spawn(move || {
-        let mut node = SimNode::new(model, params).unwrap();
-        node.run(&node_stop).unwrap();
-        node.stats()
-    });
+    let node = RunningNode::start(model, params);
     let ctx = context(domain, false).unwrap();
     let mut ctl = ctx.new_node(NodeName::new("/", "controller").unwrap(), NodeOptions::new()).unwrap();
     let ns = "/tensegrity_sim";
@@ -300,8 +289,7 @@ fn lockstep_services_step_exactly_n_steps_and_reset_restores_the_start() {
     .expect("the reset state is published at t = 0");
     assert_eq!(restored.rest_length, initial_rest);
 
-    stop.store(true, Ordering::Relaxed);
-    node.join().unwrap();
+    node.stop();
 }
 
 #[test]
@@ -319,13 +307,7 @@ fn cyclone_dds_controller_reads_state_and_drives_the_node() {
     let model = bundled("prism3.toml");
     let ring = model.cable_id("ring").unwrap().0;
     let target = 0.97 * model.initial_rest_lengths[ring];
-    let stop = Arc::new(AtomicBool::new(false));
-    let node_stop = stop.clone();
-    let node = std::thread::spawn(move || {
-        let mut node = SimNode::new(model, params).unwrap();
-        node.run(&node_stop).unwrap();
-        node.stats()
-    });
+    let node = RunningNode::start(model, params);
     let script =
         std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/interop/cyclone_controller.py");
     let out = std::process::Command::new("python3")
@@ -337,8 +319,7 @@ fn cyclone_dds_controller_reads_state_and_drives_the_node() {
         )
         .output()
         .expect("python3 runs (bash .ci/run installs the cyclonedds package)");
-    stop.store(true, Ordering::Relaxed);
-    let stats = node.join().unwrap();
+    let stats = node.stop();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
         out.status.success(),
@@ -374,13 +355,7 @@ fn command_timeout_stops_the_winch_and_markers_show_the_structure() {
     let ring = model.cable_id("ring").unwrap().0;
     let l0 = model.initial_rest_lengths[ring];
     let segments: usize = model.cables.iter().map(|c| c.segment_count()).sum();
-    let stop = Arc::new(AtomicBool::new(false));
-    let node_stop = stop.clone();
-    let node = std::thread::spawn(move || {
-        let mut node = SimNode::new(model, params).unwrap();
-        node.run(&node_stop).unwrap();
-        node.stats()
-    });
+    let node = RunningNode::start(model, params);
     let ctx = context(domain, false).unwrap();
     let mut ctl = ctx.new_node(NodeName::new("/", "controller").unwrap(), NodeOptions::new()).unwrap();
     let ns = "/tensegrity_sim";
@@ -437,7 +412,6 @@ fn command_timeout_stops_the_winch_and_markers_show_the_structure() {
     assert_eq!(c.colors.len(), c.points.len());
     assert_eq!(c.kind, 5);
 
-    stop.store(true, Ordering::Relaxed);
-    let stats = node.join().unwrap();
+    let stats = node.stop();
     assert_eq!(stats.command_timeouts, 1);
 }
