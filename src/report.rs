@@ -5,7 +5,7 @@
 use serde::Serialize;
 
 use crate::forces::Workspace;
-use crate::model::{CableId, Model};
+use crate::model::Model;
 use crate::state::State;
 
 /// What one cable is doing, for output.
@@ -107,11 +107,6 @@ pub fn body_reports(model: &Model, state: &State) -> Vec<BodyReport> {
 /// Named point positions (every point of every body), m.
 pub fn point_positions(model: &Model, ws: &Workspace) -> Vec<(String, [f64; 3])> {
     model.points.iter().zip(&ws.points).map(|(p, k)| (p.name.clone(), k.position.into())).collect()
-}
-
-/// The cable of `name`, if any.
-pub fn cable_index(model: &Model, name: &str) -> Option<CableId> {
-    model.cable_id(name)
 }
 
 /// CSV header of a deployment path: step, time, solver columns, every actuated cable's rest

@@ -296,6 +296,12 @@ pub fn deployment_study(
     let point = model.points[pid.0].name.as_str();
     let qs_peak_disp = qs_disp[pid.0];
 
+    // every time-scaled run starts from the model's initial state: one start position for all
+    let dynamic_start = {
+        let mut s0 = Workspace::new(model);
+        crate::forces::evaluate(model, &State::initial(model), &mut s0, crate::forces::Tangents::None);
+        s0.points[pid.0].position
+    };
     let mut rows = Vec::new();
     let mut histories = vec![Series { name: "quasi-static".into(), points: qs_tension, markers: false }];
     for &t_ramp in &times {
@@ -306,20 +312,13 @@ pub fn deployment_study(
         writeln!(file, "{}", dynamic_csv_header(&m)).map_err(|e| e.to_string())?;
         let mut peak_t: f64 = 0.0;
         let mut peak_d: f64 = 0.0;
-        let mut p0 = None;
         let mut history = Vec::new();
         let totals = run_dynamic(&m, settings, t_ramp + settle, |sim, stats| {
             writeln!(file, "{}", dynamic_csv_row(sim, stats)).map_err(|e| e.to_string())?;
             let w = sim.workspace();
             let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
             peak_t = peak_t.max(t_max);
-            let p = w.points[pid.0].position;
-            let start = *p0.get_or_insert_with(|| {
-                let mut s0 = Workspace::new(&m);
-                crate::forces::evaluate(&m, &State::initial(&m), &mut s0, crate::forces::Tangents::None);
-                s0.points[pid.0].position
-            });
-            peak_d = peak_d.max((p - start).norm());
+            peak_d = peak_d.max((w.points[pid.0].position - dynamic_start).norm());
             if sim.state().time <= 2.5 * t_ramp {
                 history.push((sim.state().time / t_ramp, t_max));
             }

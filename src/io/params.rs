@@ -132,7 +132,7 @@ impl NodeParams {
             "frame_id" => self.frame_id = text(value),
             "integrator" => {
                 let v = text(value);
-                if !matches!(v.as_str(), "generalized-alpha" | "ga" | "symplectic-euler" | "euler") {
+                if crate::solve::dynamics::Integrator::parse(&v, self.rho_inf).is_none() {
                     return Err(err(format!("parameter integrator: unknown '{v}'")));
                 }
                 self.integrator = v;

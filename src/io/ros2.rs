@@ -131,17 +131,20 @@ pub struct SimNode {
     _context: Context,
 }
 
-/// Commands every actuator to hold its current rest length (until a controller commands it).
-fn hold_actuators(sim: &mut Simulator) -> Result<(), NodeError> {
-    let holds: Vec<(String, f64)> = (0..sim.model().actuators.len())
+/// Commands every actuator to a rest-length target: its initial rest length when `to_initial`,
+/// else the rest length it has now (the winch holds where it is). `why` names the cause in errors.
+fn command_every_actuator(sim: &mut Simulator, to_initial: bool, why: &str) -> Result<(), NodeError> {
+    let targets: Vec<(String, f64)> = (0..sim.model().actuators.len())
         .map(|i| {
             let m = sim.model();
-            (m.actuator_names[i].clone(), sim.state().rest_lengths[m.actuators[i].cable.0])
+            let c = m.actuators[i].cable.0;
+            let l = if to_initial { m.initial_rest_lengths[c] } else { sim.state().rest_lengths[c] };
+            (m.actuator_names[i].clone(), l)
         })
         .collect();
-    for (name, l0) in holds {
-        sim.command(&name, Command { rest_length: Some(l0), rate: None })
-            .map_err(|e| NodeError::Ros(format!("holding {name}: {e}")))?;
+    for (name, l) in targets {
+        sim.command(&name, Command { rest_length: Some(l), rate: None })
+            .map_err(|e| NodeError::Ros(format!("{why} {name}: {e}")))?;
     }
     Ok(())
 }
@@ -180,7 +183,7 @@ impl SimNode {
         let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
         let mut sim = Simulator::new(model, SimSettings { dt, integrator, ..Default::default() })?;
         if !params.follow_schedule {
-            hold_actuators(&mut sim)?;
+            command_every_actuator(&mut sim, false, "holding")?;
         }
         let context = context(params.domain_id, params.localhost_only)?;
         let mut node = context
@@ -299,7 +302,7 @@ impl SimNode {
     pub fn reset(&mut self) -> Result<(), NodeError> {
         self.sim.reset();
         if !self.params.follow_schedule {
-            hold_actuators(&mut self.sim)?;
+            command_every_actuator(&mut self.sim, false, "holding")?;
         }
         self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
         self.rates.fill(0.0);
@@ -439,15 +442,21 @@ impl SimNode {
     }
 
     fn report_rejection(&mut self, reason: &str) {
+        let count = msg::KeyValue {
+            key: "commands_rejected".into(),
+            value: self.stats.commands_rejected.to_string(),
+        };
+        self.warn_commands(format!("rejected command: {reason}"), vec![count]);
+    }
+
+    /// Publishes a WARN `/diagnostics` status about commands at once (best effort).
+    fn warn_commands(&mut self, message: String, values: Vec<msg::KeyValue>) {
         let status = msg::DiagnosticStatus {
             level: 1,
             name: format!("{}: commands", self.params.node_name),
-            message: format!("rejected command: {reason}"),
+            message,
             hardware_id: self.params.node_name.clone(),
-            values: vec![msg::KeyValue {
-                key: "commands_rejected".into(),
-                value: self.stats.commands_rejected.to_string(),
-            }],
+            values,
         };
         let _ = self
             .publishers
@@ -508,30 +517,9 @@ impl SimNode {
         self.timed_out = true;
         self.stats.command_timeouts += 1;
         let initial = self.params.command_timeout_action == "initial";
-        let targets: Vec<(String, f64)> = (0..self.sim.model().actuators.len())
-            .map(|i| {
-                let m = self.sim.model();
-                let c = m.actuators[i].cable.0;
-                let l = if initial { m.initial_rest_lengths[c] } else { self.sim.state().rest_lengths[c] };
-                (m.actuator_names[i].clone(), l)
-            })
-            .collect();
-        for (name, l) in targets {
-            self.sim
-                .command(&name, Command { rest_length: Some(l), rate: None })
-                .map_err(|e| NodeError::Ros(format!("command timeout on {name}: {e}")))?;
-        }
-        let status = msg::DiagnosticStatus {
-            level: 1,
-            name: format!("{}: commands", self.params.node_name),
-            message: format!("command timeout after {timeout} s: {}", self.params.command_timeout_action),
-            hardware_id: self.params.node_name.clone(),
-            values: vec![],
-        };
-        let _ = self
-            .publishers
-            .diagnostics
-            .publish(msg::DiagnosticArray { header: self.header(), status: vec![status] });
+        command_every_actuator(&mut self.sim, initial, "command timeout on")?;
+        let message = format!("command timeout after {timeout} s: {}", self.params.command_timeout_action);
+        self.warn_commands(message, vec![]);
         Ok(())
     }
 
