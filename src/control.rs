@@ -89,13 +89,13 @@ impl Control {
         self.modes[id.0]
     }
 
-    /// Validates `cmd` for actuator `id` and, if valid, makes it the actuator's mode.
-    pub fn command(
-        &mut self,
+    /// Validates `cmd` for actuator `id` against its limits and returns the mode it asks for;
+    /// changes nothing.
+    pub fn validate(
         model: &Model,
         id: ActuatorId,
         cmd: ActuatorCommand,
-    ) -> Result<(), CommandError> {
+    ) -> Result<ActuatorMode, CommandError> {
         let act = &model.actuators[id.0];
         let name = || model.actuator_names[id.0].clone();
         let check = |field: &'static str, value: f64, min: f64, max: f64| {
@@ -107,19 +107,28 @@ impl Control {
                 Ok(value)
             }
         };
-        let mode = match (cmd.rest_length, cmd.rate) {
+        match (cmd.rest_length, cmd.rate) {
             (Some(l), r) => {
                 let rest_length = check("rest_length", l, act.min_rest_length, act.max_rest_length)?;
                 let rate = match r {
                     Some(r) => check("rate", r, f64::MIN_POSITIVE, act.max_rate)?,
                     None => act.max_rate,
                 };
-                ActuatorMode::Target { rest_length, rate }
+                Ok(ActuatorMode::Target { rest_length, rate })
             }
-            (None, Some(r)) => ActuatorMode::Rate(check("rate", r, -act.max_rate, act.max_rate)?),
-            (None, None) => return Err(CommandError::Empty(name())),
-        };
-        self.modes[id.0] = mode;
+            (None, Some(r)) => Ok(ActuatorMode::Rate(check("rate", r, -act.max_rate, act.max_rate)?)),
+            (None, None) => Err(CommandError::Empty(name())),
+        }
+    }
+
+    /// Validates `cmd` for actuator `id` and, if valid, makes it the actuator's mode.
+    pub fn command(
+        &mut self,
+        model: &Model,
+        id: ActuatorId,
+        cmd: ActuatorCommand,
+    ) -> Result<(), CommandError> {
+        self.modes[id.0] = Self::validate(model, id, cmd)?;
         Ok(())
     }
 

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use crate::control::{ActuatorCommand, CommandError, Control};
 use crate::forces::{evaluate, Tangents, Workspace};
-use crate::model::Model;
+use crate::model::{ActuatorId, Model};
 use crate::solve::dynamics::{cable_powers, stability_limit, Dynamics, Integrator, NewtonSettings};
 use crate::solve::linear::LinearBackend;
 use crate::state::State;
@@ -223,6 +223,19 @@ impl Simulator {
     /// next step. A rejected command is counted (`rejected_commands`) and changes nothing.
     pub fn command(&mut self, actuator: &str, cmd: ActuatorCommand) -> Result<(), CommandError> {
         let r = self.control.command_by_name(&self.model, actuator, cmd);
+        if r.is_err() {
+            self.rejected_commands += 1;
+        }
+        r
+    }
+
+    /// Like `command`, by actuator id.
+    pub fn command_actuator(
+        &mut self,
+        actuator: ActuatorId,
+        cmd: ActuatorCommand,
+    ) -> Result<(), CommandError> {
+        let r = self.control.command(&self.model, actuator, cmd);
         if r.is_err() {
             self.rejected_commands += 1;
         }

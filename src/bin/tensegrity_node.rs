@@ -53,7 +53,19 @@ fn run() -> Result<(), String> {
         params.real_time_factor
     );
     let mut node = SimNode::new(model, params).map_err(|e| e.to_string())?;
-    node.run(&stop).map_err(|e| e.to_string())?;
-    eprintln!("tensegrity_node: stopped after {} steps", node.stats().steps);
+    node.run(&stop);
+    let s = node.stats();
+    let failures: u64 = s.publish_failures.iter().sum();
+    eprintln!(
+        "tensegrity_node: stopped after {} steps; commands received {}, accepted {}, rejected {}; \
+         publish failures {failures}; malformed incoming {}; overruns {}; physics failures {}",
+        s.steps,
+        s.commands_received,
+        s.commands_accepted,
+        s.commands_rejected,
+        s.malformed_incoming,
+        s.overruns,
+        s.physics_failures
+    );
     Ok(())
 }

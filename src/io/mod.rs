@@ -3,6 +3,7 @@
 //! the transports. Nothing outside this module and the binaries imports a transport crate.
 
 pub mod msg;
+pub mod node;
 pub mod params;
 
 #[cfg(feature = "ros2")]

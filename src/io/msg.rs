@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::control;
 use crate::forces::Workspace;
-use crate::model::Model;
+use crate::model::{ActuatorId, Model};
 use crate::report;
 use crate::state::State;
 
@@ -123,6 +123,23 @@ pub struct ActuatorCommand {
     pub rate: Vec<f64>,
 }
 
+/// Longest actuator name (and command `frame_id`) a command may carry, bytes.
+pub const MAX_NAME_BYTES: usize = 256;
+/// Most entries (names, rest lengths or rates) one command message may carry.
+pub const MAX_COMMAND_ENTRIES: usize = 1024;
+/// Largest command message, bytes of strings plus 8 per number (checked before anything else).
+pub const MAX_COMMAND_BYTES: usize = 64 * 1024;
+/// Longest excerpt of received text that an error or a diagnostic repeats, characters.
+pub const EXCERPT_CHARS: usize = 48;
+
+/// At most `max` characters of `text`, with the full size said when it was cut.
+pub fn excerpt(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        None => text.to_string(),
+        Some((cut, _)) => format!("{}... ({} bytes)", &text[..cut], text.len()),
+    }
+}
+
 /// Why an `ActuatorCommand` message was refused as a whole.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum MessageError {
@@ -136,31 +153,102 @@ pub enum MessageError {
         /// Number of names.
         names: usize,
     },
+    /// A size limit is exceeded (checked before any other work).
+    #[error("{what} is {size}, over the limit of {limit}")]
+    TooLarge {
+        /// What was measured.
+        what: &'static str,
+        /// Its size.
+        size: usize,
+        /// The limit.
+        limit: usize,
+    },
+    /// The message names no actuator.
+    #[error("the command names no actuator")]
+    NoNames,
+    /// The same actuator appears twice in one message (which entry should win is ambiguous).
+    #[error("actuator '{0}' is named more than once")]
+    Duplicate(String),
     /// One of the commands is invalid.
     #[error(transparent)]
     Command(#[from] control::CommandError),
 }
 
+/// Checks one command message given as parallel arrays, sizes first (name count, name lengths,
+/// total bytes: no other work is done on an oversized message), then array lengths, names,
+/// duplicates and every value against its actuator's limits. Fills `out` (cleared first) with the
+/// per-actuator commands in message order; on error `out` holds nothing usable. Allocation-free
+/// for valid messages once `out` has capacity for the model's actuators.
+pub fn check_command(
+    model: &Model,
+    frame_id: &str,
+    names: &[String],
+    rest_length: &[f64],
+    rate: &[f64],
+    out: &mut Vec<(ActuatorId, control::ActuatorCommand)>,
+) -> Result<(), MessageError> {
+    out.clear();
+    for (what, size) in
+        [("name count", names.len()), ("rest_length count", rest_length.len()), ("rate count", rate.len())]
+    {
+        if size > MAX_COMMAND_ENTRIES {
+            return Err(MessageError::TooLarge { what, size, limit: MAX_COMMAND_ENTRIES });
+        }
+    }
+    let bytes =
+        frame_id.len() + names.iter().map(String::len).sum::<usize>() + 8 * (rest_length.len() + rate.len());
+    if bytes > MAX_COMMAND_BYTES {
+        return Err(MessageError::TooLarge {
+            what: "message size in bytes",
+            size: bytes,
+            limit: MAX_COMMAND_BYTES,
+        });
+    }
+    if frame_id.len() > MAX_NAME_BYTES {
+        return Err(MessageError::TooLarge {
+            what: "frame_id length in bytes",
+            size: frame_id.len(),
+            limit: MAX_NAME_BYTES,
+        });
+    }
+    if let Some(n) = names.iter().find(|n| n.len() > MAX_NAME_BYTES) {
+        return Err(MessageError::TooLarge {
+            what: "an actuator name's length in bytes",
+            size: n.len(),
+            limit: MAX_NAME_BYTES,
+        });
+    }
+    for (field, v) in [("rest_length", rest_length), ("rate", rate)] {
+        if !v.is_empty() && v.len() != names.len() {
+            return Err(MessageError::WrongLength { field, got: v.len(), names: names.len() });
+        }
+    }
+    if names.is_empty() {
+        return Err(MessageError::NoNames);
+    }
+    for (i, name) in names.iter().enumerate() {
+        let id = model
+            .actuator_id(name)
+            .ok_or_else(|| control::CommandError::UnknownActuator(excerpt(name, EXCERPT_CHARS)))?;
+        if out.iter().any(|(seen, _)| *seen == id) {
+            return Err(MessageError::Duplicate(name.clone()));
+        }
+        let cmd =
+            control::ActuatorCommand { rest_length: rest_length.get(i).copied(), rate: rate.get(i).copied() };
+        control::Control::validate(model, id, cmd)?;
+        out.push((id, cmd));
+    }
+    Ok(())
+}
+
 impl ActuatorCommand {
     /// The per-actuator commands of this message, validated against `model` as a whole (a
-    /// message with one bad entry is refused entirely, so that no partial update happens).
+    /// message with one bad entry is refused entirely, so that no partial update happens); see
+    /// `check_command` for the order of the checks.
     pub fn commands(&self, model: &Model) -> Result<Vec<(String, control::ActuatorCommand)>, MessageError> {
-        for (field, v) in [("rest_length", &self.rest_length), ("rate", &self.rate)] {
-            if !v.is_empty() && v.len() != self.name.len() {
-                return Err(MessageError::WrongLength { field, got: v.len(), names: self.name.len() });
-            }
-        }
-        let mut check = control::Control::new(model);
-        let mut out = Vec::with_capacity(self.name.len());
-        for (i, name) in self.name.iter().enumerate() {
-            let cmd = control::ActuatorCommand {
-                rest_length: self.rest_length.get(i).copied(),
-                rate: self.rate.get(i).copied(),
-            };
-            check.command_by_name(model, name, cmd)?;
-            out.push((name.clone(), cmd));
-        }
-        Ok(out)
+        let mut out = Vec::new();
+        check_command(model, &self.header.frame_id, &self.name, &self.rest_length, &self.rate, &mut out)?;
+        Ok(out.into_iter().map(|(id, c)| (model.actuator_names[id.0].clone(), c)).collect())
     }
 }
 
@@ -471,6 +559,60 @@ pub struct SimulationState {
 pub struct StepSimulationRequest {
     /// Steps to take (default 1).
     pub steps: u64,
+}
+
+/// A StepSimulation request as the server reads it off the wire: `steps`, and how many bytes
+/// followed it. A request in the layout the server was configured for carries at most 3 bytes of
+/// CDR padding after `steps`; a request in another service mapping's layout (e.g. the 16-byte
+/// rmw_cyclonedds header in front, read by an `enhanced` server) has more, or too few, and must be
+/// refused rather than obeyed: its `steps` would be a header field.
+///
+/// Deserializes as a CDR tuple of unbounded length (`u64`, then bytes until the input ends), so
+/// it is only meaningful with a CDR deserializer; it serializes as a plain `StepSimulationRequest`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct StepSimulationWire {
+    /// Steps asked for.
+    pub steps: u64,
+    /// Bytes after `steps` in the payload.
+    pub trailing_bytes: usize,
+}
+
+impl StepSimulationWire {
+    /// Most trailing bytes that are padding, not another layout.
+    pub const MAX_PADDING: usize = 3;
+    /// True when the payload had exactly the request's layout.
+    pub fn layout_matches(&self) -> bool {
+        self.trailing_bytes <= Self::MAX_PADDING
+    }
+}
+
+impl Serialize for StepSimulationWire {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        StepSimulationRequest { steps: self.steps }.serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for StepSimulationWire {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl<'de> serde::de::Visitor<'de> for Visitor {
+            type Value = StepSimulationWire;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a StepSimulation request (uint64 steps)")
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let steps: u64 =
+                    seq.next_element()?.ok_or_else(|| serde::de::Error::invalid_length(0, &self))?;
+                let mut trailing_bytes = 0;
+                // the end of the input shows up as an error or as the end of the sequence
+                while let Ok(Some(_)) = seq.next_element::<u8>() {
+                    trailing_bytes += 1;
+                }
+                Ok(StepSimulationWire { steps, trailing_bytes })
+            }
+        }
+        d.deserialize_tuple(usize::MAX, Visitor)
+    }
 }
 
 /// Response of the services that only return a `Result` (StepSimulation, ResetSimulation,

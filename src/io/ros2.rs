@@ -1,16 +1,18 @@
-//! The ROS 2 node (feature `ros2`): takes a `Model` and `NodeParams`, gives a node that steps the
-//! simulation in real time (or as fast as possible, or only on request while paused), applies
-//! actuator commands at step boundaries, and publishes the clock, body poses, transforms, cable
-//! and actuator states, the structure and diagnostics over DDS (ros2-client).
+//! The ROS 2 node (feature `ros2`): takes a `Model` and `NodeParams`, gives the transport-free
+//! `NodeCore` a DDS face (ros2-client): its publishers, subscriptions and services, the mapping of
+//! the core's outputs to ROS message types, and QoS. Everything the node *means* (pacing,
+//! pause/step/reset, command checks and keep-last intake, diagnostics, faults) lives in
+//! `io::node`; this file only moves samples.
 //!
-//! Every message of a step carries that step's simulation time, and state is published before the
-//! clock tick. Commands are validated as whole messages; a rejected one is counted, reported in
-//! `/diagnostics`, and changes nothing. Services (in the node's private namespace):
-//! simulation_interfaces 2.1 StepSimulation (only while paused; responds after the steps),
-//! ResetSimulation, GetSimulationState, SetSimulationState, GetSimulatorFeatures, and std_srvs
-//! Empty `pause`, `unpause`, `reset`. Overruns (steps that finish later than real time allows)
-//! are counted, never caught up in bursts. Nothing non-finite is ever published: the physics never
-//! lets a NaN into its state, and the cable message is checked again before it leaves.
+//! Writers are reliable with `WhenFull::Fail`: a reader that stops acknowledging (a frozen `ros2
+//! topic echo`, a stuck recorder) fills the writer's window and further samples on that topic are
+//! dropped and counted, never waited for, so the step loop keeps its pace. RustDDS shares one
+//! window among a writer's readers, so the other readers of *that* topic get nothing new until the
+//! stuck reader acknowledges again or its participant's lease expires (50 s for RustDDS peers,
+//! typically 10 s for Cyclone DDS); other topics are not affected. Incoming samples that cannot be
+//! read are counted (`malformed_incoming`); a StepSimulation request whose payload does not have the
+//! configured service mapping's layout is refused, not obeyed. At most `MAX_COMMANDS_PER_STEP`
+//! command messages are taken per step.
 
 use std::net::Ipv4Addr;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -18,51 +20,33 @@ use std::time::{Duration, Instant};
 
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
 use ros2_client::qos::{Durability, History, WhenFull};
+use ros2_client::service::RmwRequestId;
 use ros2_client::{
     Context, ContextOptions, Message, MessageTypeName, Name, Node, NodeName, NodeOptions, Publisher,
     QosProfile, Server, ServiceMapping, ServiceTypeName, Subscription,
 };
 
-use crate::control::ActuatorCommand as Command;
 use crate::io::msg::{self, Header, Time};
+use crate::io::node::{CoreError, NodeCore, NodeSink, NodeView, PublishError, Topic};
 use crate::io::params::NodeParams;
 use crate::model::Model;
-use crate::report;
-use crate::sim::{SimSettings, Simulator, StepError};
-use crate::solve::dynamics::Integrator;
+use crate::sim::Simulator;
 
-/// Why the node could not start or stopped.
+pub use crate::io::node::NodeStats;
+
+/// Why the node could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
     /// DDS or ROS entity creation failed.
     #[error("ROS 2: {0}")]
     Ros(String),
-    /// The simulation could not start or step.
+    /// The simulation could not start.
     #[error(transparent)]
-    Step(#[from] StepError),
+    Core(#[from] CoreError),
 }
 
 fn ros<E: std::fmt::Debug>(e: E) -> NodeError {
     NodeError::Ros(format!("{e:?}"))
-}
-
-/// Counters reported in `/diagnostics`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct NodeStats {
-    /// Physics steps taken.
-    pub steps: u64,
-    /// Steps that ended later than real-time pacing allowed.
-    pub overruns: u64,
-    /// Command messages received.
-    pub commands_received: u64,
-    /// Command messages rejected (non-finite, out of range, unknown name, wrong length).
-    pub commands_rejected: u64,
-    /// Newton iterations of the last step.
-    pub last_newton_iterations: usize,
-    /// Rejected step attempts so far.
-    pub rejected_attempts: usize,
-    /// Times the command timeout fired.
-    pub command_timeouts: u64,
 }
 
 struct Publishers {
@@ -79,24 +63,15 @@ struct Publishers {
 
 impl Message for msg::Empty {}
 impl Message for msg::StepSimulationRequest {}
+impl Message for msg::StepSimulationWire {}
 impl Message for msg::ResultResponse {}
 impl Message for msg::ResetSimulationRequest {}
 impl Message for msg::GetSimulationStateResponse {}
 impl Message for msg::SetSimulationStateRequest {}
 impl Message for msg::GetSimulatorFeaturesResponse {}
 
-/// `SimulationState` codes.
-const STOPPED: u8 = 0;
-const PLAYING: u8 = 1;
-const PAUSED: u8 = 2;
-const QUITTING: u8 = 3;
-/// `Result` codes.
-const INCORRECT_STATE: u8 = 3;
-const OPERATION_FAILED: u8 = 4;
-const ALREADY_IN_TARGET_STATE: u8 = 101;
-
 struct Services {
-    step: Server<msg::StepSimulationRequest, msg::ResultResponse>,
+    step: Server<msg::StepSimulationWire, msg::ResultResponse>,
     reset: Server<msg::ResetSimulationRequest, msg::ResultResponse>,
     get_state: Server<msg::Empty, msg::GetSimulationStateResponse>,
     set_state: Server<msg::SetSimulationStateRequest, msg::ResultResponse>,
@@ -106,47 +81,93 @@ struct Services {
     reset_empty: Server<msg::Empty, msg::Empty>,
 }
 
-/// The simulator as a ROS 2 node. Start it in-process with `SimNode::new` and drive it with
-/// `run` (paced loop) or `spin_once` / `step_and_publish` (tests, lockstep).
-pub struct SimNode {
-    sim: Simulator,
-    params: NodeParams,
-    reference: Vec<Vec<f64>>,
-    previous_rest: Vec<f64>,
-    rates: Vec<f64>,
-    paused: bool,
-    stats: NodeStats,
-    last_state_publish: Option<f64>,
-    last_diagnostics: Instant,
+/// Most requests taken from one service server per turn of the loop.
+const MAX_REQUESTS_PER_TURN: usize = 16;
+
+/// The DDS entities of a node.
+struct Dds {
     publishers: Publishers,
+    services: Services,
     commands: Subscription<msg::ActuatorCommand>,
     joint_commands: Subscription<msg::JointState>,
-    services: Services,
-    quit: bool,
-    last_markers: Option<f64>,
-    last_command: Option<f64>,
-    timed_out: bool,
-    // keep the DDS entities alive as long as the node
-    _node: Node,
-    _context: Context,
+    /// StepSimulation requests under way: the core's ticket and the DDS request id.
+    tickets: Vec<(u64, RmwRequestId)>,
 }
 
-/// Commands every actuator to a rest-length target: its initial rest length when `to_initial`,
-/// else the rest length it has now (the winch holds where it is). `why` names the cause in errors.
-fn command_every_actuator(sim: &mut Simulator, to_initial: bool, why: &str) -> Result<(), NodeError> {
-    let targets: Vec<(String, f64)> = (0..sim.model().actuators.len())
-        .map(|i| {
-            let m = sim.model();
-            let c = m.actuators[i].cable.0;
-            let l = if to_initial { m.initial_rest_lengths[c] } else { sim.state().rest_lengths[c] };
-            (m.actuator_names[i].clone(), l)
-        })
-        .collect();
-    for (name, l) in targets {
-        sim.command(&name, Command { rest_length: Some(l), rate: None })
-            .map_err(|e| NodeError::Ros(format!("{why} {name}: {e}")))?;
+/// The core's outputs on DDS.
+struct DdsSink<'a> {
+    publishers: &'a Publishers,
+    step: &'a Server<msg::StepSimulationWire, msg::ResultResponse>,
+    tickets: &'a mut Vec<(u64, RmwRequestId)>,
+}
+
+fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError> {
+    r.map_err(|e| match e {
+        ros2_client::error::WriteError::WouldBlock { .. } => PublishError::WouldBlock,
+        // Display names the failure without the sample itself
+        other => PublishError::Failed(other.to_string()),
+    })
+}
+
+impl NodeSink for DdsSink<'_> {
+    fn publish(&mut self, topic: Topic, v: &NodeView<'_>) -> Result<(), PublishError> {
+        let (p, frame) = (self.publishers, v.frame_id);
+        let (model, state, ws) = (v.model, v.state, v.workspace);
+        match topic {
+            Topic::Clock => sent(p.clock.publish(msg::Clock { clock: Time::from_seconds(state.time) })),
+            Topic::Tf => sent(p.tf.publish(msg::TfMessage::from_state(model, state, frame, false))),
+            Topic::TfStatic => {
+                sent(p.tf_static.publish(msg::TfMessage::from_state(model, state, frame, true)))
+            }
+            Topic::BodyPoses => sent(p.poses.publish(msg::PoseArray::from_state(state, frame))),
+            Topic::CableStates => {
+                let cables = msg::CableStates::from_state(model, state, ws, v.reference, frame);
+                if !cables.is_finite() {
+                    return Err(PublishError::Failed("refusing to publish non-finite cable states".into()));
+                }
+                sent(p.cables.publish(cables))
+            }
+            Topic::ActuatorStates => {
+                sent(p.actuators.publish(msg::JointState::actuators(model, state, ws, v.rates)))
+            }
+            Topic::Structure => sent(p.structure.publish(msg::Structure::from_model(model, frame))),
+            Topic::Diagnostics => {
+                let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.to_string() };
+                sent(p.diagnostics.publish(msg::DiagnosticArray { header, status: v.diagnostics.to_vec() }))
+            }
+            Topic::Markers => sent(p.markers.publish(msg::MarkerArray::from_state(model, state, ws, frame))),
+        }
     }
-    Ok(())
+
+    fn step_request_done(&mut self, ticket: u64, result: msg::SimResult) {
+        if let Some(k) = self.tickets.iter().position(|(t, _)| *t == ticket) {
+            let (_, id) = self.tickets.swap_remove(k);
+            // a client that went away cannot be answered; nothing to do about it
+            let _ = self.step.send_response(id, msg::ResultResponse { result });
+        }
+    }
+}
+
+impl Dds {
+    fn sink(&mut self) -> DdsSink<'_> {
+        DdsSink { publishers: &self.publishers, step: &self.services.step, tickets: &mut self.tickets }
+    }
+}
+
+/// Takes up to `MAX_REQUESTS_PER_TURN` requests from `server`, counting unreadable ones.
+fn requests<Req: Message + 'static, Resp: Message + 'static>(
+    server: &Server<Req, Resp>,
+    core: &mut NodeCore,
+) -> Vec<(RmwRequestId, Req)> {
+    let mut out = Vec::new();
+    for _ in 0..MAX_REQUESTS_PER_TURN {
+        match server.receive_request() {
+            Ok(Some(r)) => out.push(r),
+            Ok(None) => break,
+            Err(_) => core.incoming_malformed(),
+        }
+    }
+    out
 }
 
 /// A DDS context on `domain_id`, bound to 127.0.0.1 when `localhost_only`.
@@ -162,7 +183,8 @@ pub fn context(domain_id: u16, localhost_only: bool) -> Result<Context, NodeErro
     }
 }
 
-/// QoS: reliable, keep last `depth`, volatile or transient local.
+/// QoS: reliable, keep last `depth`, volatile or transient local (a writer with it waits up to
+/// 20 ms for a full window; the node's own writers use `writer_qos`).
 pub fn qos(depth: usize, transient_local: bool) -> QosProfile {
     QosProfile::publisher_default()
         .reliability_reliable(WhenFull::Wait(Duration::from_millis(20)))
@@ -170,21 +192,47 @@ pub fn qos(depth: usize, transient_local: bool) -> QosProfile {
         .history(History::KeepLast { depth })
 }
 
+/// Smallest writer history (and so reliable window) of the node's volatile topics: room for a
+/// healthy reader's acknowledgements to arrive a few steps late without a drop.
+pub const MIN_WRITER_DEPTH: usize = 16;
+
+/// The node's writers: like `qos`, but a full window fails at once (`WhenFull::Fail`) and volatile
+/// topics keep at least `MIN_WRITER_DEPTH` samples. Readers' own depths are unaffected.
+pub fn writer_qos(depth: usize, transient_local: bool) -> QosProfile {
+    let depth = if transient_local { depth } else { depth.max(MIN_WRITER_DEPTH) };
+    qos(depth, transient_local).reliability_reliable(WhenFull::Fail)
+}
+
 /// The namespace of the node's private (`~/`) topics: `<ns>/<node>`.
 pub fn private_namespace(params: &NodeParams) -> String {
     format!("{}/{}", params.namespace.trim_end_matches('/'), params.node_name)
 }
 
+/// The simulator as a ROS 2 node: a `NodeCore` and its DDS entities. Start it in-process with
+/// `SimNode::new` and drive it with `run` (the paced loop) or `turn` (one turn, for tests).
+pub struct SimNode {
+    core: NodeCore,
+    dds: Dds,
+    // keep the DDS entities alive as long as the node
+    _node: Node,
+    _context: Context,
+}
+
 impl SimNode {
-    /// Builds the simulator and the node, and publishes the structure and static transforms.
+    /// Builds the simulator and the node, and publishes the structure, static transforms and the
+    /// initial state.
     pub fn new(model: Model, params: NodeParams) -> Result<Self, NodeError> {
-        let integrator = Integrator::parse(&params.integrator, params.rho_inf)
-            .ok_or_else(|| NodeError::Ros(format!("unknown integrator '{}'", params.integrator)))?;
-        let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
-        let mut sim = Simulator::new(model, SimSettings { dt, integrator, ..Default::default() })?;
-        if !params.follow_schedule {
-            command_every_actuator(&mut sim, false, "holding")?;
-        }
+        let core = NodeCore::new(model, params)?;
+        Self::with_core(core)
+    }
+
+    /// A node around a simulator built by the caller (e.g. with other step settings).
+    pub fn with_simulator(sim: Simulator, params: NodeParams) -> Result<Self, NodeError> {
+        Self::with_core(NodeCore::with_simulator(sim, params))
+    }
+
+    fn with_core(mut core: NodeCore) -> Result<Self, NodeError> {
+        let params = core.params().clone();
         let context = context(params.domain_id, params.localhost_only)?;
         let mut node = context
             .new_node(NodeName::new(&params.namespace, &params.node_name).map_err(ros)?, NodeOptions::new())
@@ -206,23 +254,28 @@ impl SimNode {
         let t_cmd =
             topic(&private, "actuator_commands", "tensegrity_msgs", "ActuatorCommand", &qos(1, false))?;
         let t_joint_cmd = topic(&private, "joint_commands", "sensor_msgs", "JointState", &qos(1, false))?;
+        macro_rules! publisher {
+            ($t:expr, $depth:expr, $transient:expr) => {
+                node.create_publisher($t, Some(writer_qos($depth, $transient))).map_err(ros)?
+            };
+        }
         let publishers = Publishers {
-            clock: node.create_publisher(&t_clock, None).map_err(ros)?,
-            poses: node.create_publisher(&t_poses, None).map_err(ros)?,
-            cables: node.create_publisher(&t_cables, None).map_err(ros)?,
-            actuators: node.create_publisher(&t_actuators, None).map_err(ros)?,
-            structure: node.create_publisher(&t_structure, None).map_err(ros)?,
-            tf: node.create_publisher(&t_tf, None).map_err(ros)?,
-            tf_static: node.create_publisher(&t_tf_static, None).map_err(ros)?,
-            diagnostics: node.create_publisher(&t_diag, None).map_err(ros)?,
-            markers: node.create_publisher(&t_markers, None).map_err(ros)?,
+            clock: publisher!(&t_clock, 1, false),
+            poses: publisher!(&t_poses, 10, false),
+            cables: publisher!(&t_cables, 10, false),
+            actuators: publisher!(&t_actuators, 10, false),
+            structure: publisher!(&t_structure, 1, true),
+            tf: publisher!(&t_tf, 100, false),
+            tf_static: publisher!(&t_tf_static, 1, true),
+            diagnostics: publisher!(&t_diag, 10, false),
+            markers: publisher!(&t_markers, 1, false),
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,
             "basic" => ServiceMapping::Basic,
             _ => ServiceMapping::Enhanced,
         };
-        let service_qos = qos(10, false);
+        let service_qos = writer_qos(10, false);
         macro_rules! server {
             ($name:expr, $pkg:expr, $ty:expr) => {
                 node.create_server(
@@ -247,368 +300,137 @@ impl SimNode {
         };
         let commands = node.create_subscription(&t_cmd, None).map_err(ros)?;
         let joint_commands = node.create_subscription(&t_joint_cmd, None).map_err(ros)?;
-        let reference = report::all_pulley_coordinates(sim.model(), sim.state(), sim.workspace());
-        let previous_rest = sim.state().rest_lengths.clone();
-        let n_cables = previous_rest.len();
-        let mut this = Self {
-            paused: params.start_paused,
-            sim,
-            params,
-            reference,
-            previous_rest,
-            rates: vec![0.0; n_cables],
-            stats: NodeStats::default(),
-            last_state_publish: None,
-            last_diagnostics: Instant::now(),
-            publishers,
-            commands,
-            joint_commands,
-            services,
-            quit: false,
-            last_markers: None,
-            last_command: None,
-            timed_out: false,
-            _node: node,
-            _context: context,
-        };
-        let structure = msg::Structure::from_model(this.sim.model(), &this.params.frame_id);
-        this.publishers.structure.publish(structure).map_err(ros)?;
-        let fixed =
-            msg::TfMessage::from_state(this.sim.model(), this.sim.state(), &this.params.frame_id, true);
-        this.publishers.tf_static.publish(fixed).map_err(ros)?;
-        this.publish_state()?;
-        Ok(this)
+        let mut dds = Dds { publishers, services, commands, joint_commands, tickets: Vec::new() };
+        core.start(&mut dds.sink());
+        Ok(Self { core, dds, _node: node, _context: context })
     }
 
+    /// The node's core (read-only).
+    pub fn core(&self) -> &NodeCore {
+        &self.core
+    }
     /// The simulator (read-only).
     pub fn simulator(&self) -> &Simulator {
-        &self.sim
+        self.core.simulator()
     }
     /// Counters.
     pub fn stats(&self) -> NodeStats {
-        self.stats
-    }
-    /// True while paused.
-    pub fn paused(&self) -> bool {
-        self.paused
-    }
-    /// Pauses or resumes real-time stepping.
-    pub fn set_paused(&mut self, paused: bool) {
-        self.paused = paused;
+        self.core.stats()
     }
 
-    /// Back to the initial state and time (actuators held again unless following the schedule),
-    /// and publishes that state.
-    pub fn reset(&mut self) -> Result<(), NodeError> {
-        self.sim.reset();
-        if !self.params.follow_schedule {
-            command_every_actuator(&mut self.sim, false, "holding")?;
+    /// Takes pending command messages (at most the core's per-step budget) and answers pending
+    /// service requests (at most `MAX_REQUESTS_PER_TURN` per service).
+    pub fn take_inputs(&mut self) {
+        let core = &mut self.core;
+        let dds = &mut self.dds;
+        while core.wants_commands() {
+            match dds.commands.take() {
+                Ok(Some((m, _))) => core.offer_command(&m),
+                Ok(None) => break,
+                Err(_) => core.incoming_malformed(),
+            }
         }
-        self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
-        self.rates.fill(0.0);
-        self.last_state_publish = None;
-        self.last_markers = None;
-        self.last_command = None;
-        self.timed_out = false;
-        self.publish_state()?;
-        self.publishers
-            .clock
-            .publish(msg::Clock { clock: Time::from_seconds(self.sim.state().time) })
-            .map_err(ros)
+        while core.wants_commands() {
+            match dds.joint_commands.take() {
+                Ok(Some((m, _))) => core.offer_joint_command(&m),
+                Ok(None) => break,
+                Err(_) => core.incoming_malformed(),
+            }
+        }
+        self.serve();
     }
 
-    /// True once SetSimulationState asked for QUITTING.
-    pub fn quit_requested(&self) -> bool {
-        self.quit
-    }
-
-    /// Answers every pending service request: StepSimulation (only while paused; steps, publishes,
-    /// then responds), ResetSimulation, Get/SetSimulationState, GetSimulatorFeatures, and the
-    /// std_srvs pause/unpause/reset.
-    pub fn serve(&mut self) -> Result<(), NodeError> {
-        let sv = &self.services;
-        let steps: Vec<_> = std::iter::from_fn(|| sv.step.receive_request().ok().flatten()).collect();
-        let resets: Vec<_> = std::iter::from_fn(|| sv.reset.receive_request().ok().flatten()).collect();
-        let gets: Vec<_> = std::iter::from_fn(|| sv.get_state.receive_request().ok().flatten()).collect();
-        let sets: Vec<_> = std::iter::from_fn(|| sv.set_state.receive_request().ok().flatten()).collect();
-        let feats: Vec<_> = std::iter::from_fn(|| sv.features.receive_request().ok().flatten()).collect();
-        let pauses: Vec<_> = std::iter::from_fn(|| sv.pause.receive_request().ok().flatten()).collect();
-        let unpauses: Vec<_> = std::iter::from_fn(|| sv.unpause.receive_request().ok().flatten()).collect();
-        let empties: Vec<_> =
-            std::iter::from_fn(|| sv.reset_empty.receive_request().ok().flatten()).collect();
+    /// Answers pending service requests.
+    fn serve(&mut self) {
+        let core = &mut self.core;
+        let sv = &self.dds.services;
+        let steps = requests(&sv.step, core);
+        let resets = requests(&sv.reset, core);
+        let gets = requests(&sv.get_state, core);
+        let sets = requests(&sv.set_state, core);
+        let feats = requests(&sv.features, core);
+        let pauses = requests(&sv.pause, core);
+        let unpauses = requests(&sv.unpause, core);
+        let empties = requests(&sv.reset_empty, core);
         for (id, req) in steps {
-            let result = if !self.paused {
-                msg::SimResult::err(INCORRECT_STATE, "StepSimulation needs the simulation paused")
-            } else {
-                let mut r = msg::SimResult::ok();
-                for _ in 0..req.steps {
-                    if let Err(e) = self.step_and_publish() {
-                        r = msg::SimResult::err(OPERATION_FAILED, e.to_string());
-                        break;
+            if !req.layout_matches() {
+                // another mapping's layout: `steps` would be a header field. Not obeyed, and not
+                // answerable either (the request id is not where this mapping looks for it).
+                core.incoming_malformed();
+                continue;
+            }
+            match core.request_steps(req.steps, &mut self.dds.sink()) {
+                Ok(ticket) => {
+                    if core.steps_remaining() > 0 {
+                        self.dds.tickets.push((ticket, id));
+                    } else {
+                        let _ = self
+                            .dds
+                            .services
+                            .step
+                            .send_response(id, msg::ResultResponse { result: msg::SimResult::ok() });
                     }
                 }
-                r
-            };
-            let _ = self.services.step.send_response(id, msg::ResultResponse { result });
+                Err(result) => {
+                    let _ = self.dds.services.step.send_response(id, msg::ResultResponse { result });
+                }
+            }
         }
         for (id, _) in resets {
-            let result = match self.reset() {
-                Ok(()) => msg::SimResult::ok(),
-                Err(e) => msg::SimResult::err(OPERATION_FAILED, e.to_string()),
-            };
-            let _ = self.services.reset.send_response(id, msg::ResultResponse { result });
+            core.reset(&mut self.dds.sink());
+            let result = msg::SimResult::ok();
+            let _ = self.dds.services.reset.send_response(id, msg::ResultResponse { result });
         }
         for (id, _) in gets {
-            let state = msg::SimulationState { state: if self.paused { PAUSED } else { PLAYING } };
+            let state = msg::SimulationState { state: core.simulation_state() };
             let response = msg::GetSimulationStateResponse { state, result: msg::SimResult::ok() };
-            let _ = self.services.get_state.send_response(id, response);
+            let _ = self.dds.services.get_state.send_response(id, response);
         }
         for (id, req) in sets {
-            let current = if self.paused { PAUSED } else { PLAYING };
-            let result = match req.state.state {
-                s if s == current => msg::SimResult::err(ALREADY_IN_TARGET_STATE, "already in that state"),
-                PLAYING => {
-                    self.paused = false;
-                    msg::SimResult::ok()
-                }
-                PAUSED => {
-                    self.paused = true;
-                    msg::SimResult::ok()
-                }
-                STOPPED => {
-                    self.paused = true;
-                    match self.reset() {
-                        Ok(()) => msg::SimResult::ok(),
-                        Err(e) => msg::SimResult::err(OPERATION_FAILED, e.to_string()),
-                    }
-                }
-                QUITTING => {
-                    self.quit = true;
-                    msg::SimResult::ok()
-                }
-                other => msg::SimResult::err(OPERATION_FAILED, format!("unknown state {other}")),
-            };
-            let _ = self.services.set_state.send_response(id, msg::ResultResponse { result });
+            let result = core.set_simulation_state(req.state.state, &mut self.dds.sink());
+            let _ = self.dds.services.set_state.send_response(id, msg::ResultResponse { result });
         }
         for (id, _) in feats {
-            let features = msg::SimulatorFeatures {
-                features: vec![20, 21, 22, 24, 25, 26, 31, 32],
-                spawn_formats: vec![],
-                custom_info: "tensegrity: clustered tensegrity multibody simulator".into(),
-            };
-            let _ = self.services.features.send_response(id, msg::GetSimulatorFeaturesResponse { features });
+            let features = NodeCore::features();
+            let _ =
+                self.dds.services.features.send_response(id, msg::GetSimulatorFeaturesResponse { features });
         }
         for (id, _) in pauses {
-            self.paused = true;
-            let _ = self.services.pause.send_response(id, msg::Empty::default());
+            core.set_paused(true, &mut self.dds.sink());
+            let _ = self.dds.services.pause.send_response(id, msg::Empty::default());
         }
         for (id, _) in unpauses {
-            self.paused = false;
-            let _ = self.services.unpause.send_response(id, msg::Empty::default());
+            core.set_paused(false, &mut self.dds.sink());
+            let _ = self.dds.services.unpause.send_response(id, msg::Empty::default());
         }
         for (id, _) in empties {
-            self.reset()?;
-            let _ = self.services.reset_empty.send_response(id, msg::Empty::default());
-        }
-        Ok(())
-    }
-
-    /// Takes every pending command message and applies the valid ones (at this step boundary).
-    pub fn take_commands(&mut self) {
-        let mut messages = Vec::new();
-        while let Ok(Some((m, _))) = self.commands.take() {
-            messages.push(m);
-        }
-        while let Ok(Some((m, _))) = self.joint_commands.take() {
-            messages.push(m.as_command());
-        }
-        for m in messages {
-            self.stats.commands_received += 1;
-            match m.commands(self.sim.model()) {
-                Ok(cmds) => {
-                    self.last_command = Some(self.sim.state().time);
-                    self.timed_out = false;
-                    for (name, cmd) in cmds {
-                        // validated above against the same model: cannot fail
-                        let _ = self.sim.command(&name, cmd);
-                    }
-                }
-                Err(e) => {
-                    self.stats.commands_rejected += 1;
-                    self.report_rejection(&e.to_string());
-                }
-            }
+            core.reset(&mut self.dds.sink());
+            let _ = self.dds.services.reset_empty.send_response(id, msg::Empty::default());
         }
     }
 
-    fn report_rejection(&mut self, reason: &str) {
-        let count = msg::KeyValue {
-            key: "commands_rejected".into(),
-            value: self.stats.commands_rejected.to_string(),
-        };
-        self.warn_commands(format!("rejected command: {reason}"), vec![count]);
+    /// One turn of the loop at wall time `now` since the loop's epoch: the core's `tick`. Returns
+    /// when the core wants the next turn.
+    pub fn turn(&mut self, now: Duration) -> Option<Duration> {
+        self.core.tick(now, &mut self.dds.sink())
     }
 
-    /// Publishes a WARN `/diagnostics` status about commands at once (best effort).
-    fn warn_commands(&mut self, message: String, values: Vec<msg::KeyValue>) {
-        let status = msg::DiagnosticStatus {
-            level: 1,
-            name: format!("{}: commands", self.params.node_name),
-            message,
-            hardware_id: self.params.node_name.clone(),
-            values,
-        };
-        let _ = self
-            .publishers
-            .diagnostics
-            .publish(msg::DiagnosticArray { header: self.header(), status: vec![status] });
-    }
-
-    fn header(&self) -> Header {
-        Header { stamp: Time::from_seconds(self.sim.state().time), frame_id: self.params.frame_id.clone() }
-    }
-
-    /// One physics step, then (at the state publish rate) the state, then the clock.
-    pub fn step_and_publish(&mut self) -> Result<(), NodeError> {
-        self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
-        let stats = self.sim.step()?;
-        self.stats.steps += 1;
-        self.stats.last_newton_iterations = stats.newton_iterations;
-        self.stats.rejected_attempts += stats.rejected;
-        let dt = self.sim.settings().dt;
-        for (r, (now, before)) in
-            self.rates.iter_mut().zip(self.sim.state().rest_lengths.iter().zip(&self.previous_rest))
-        {
-            *r = (now - before) / dt;
-        }
-        let t = self.sim.state().time;
-        let due = match (self.params.state_publish_rate, self.last_state_publish) {
-            (r, Some(last)) if r > 0.0 => t - last >= 1.0 / r - 1e-9 * dt,
-            _ => true,
-        };
-        if due {
-            self.publish_state()?;
-        }
-        let markers_due = match (self.params.markers_rate, self.last_markers) {
-            (r, _) if r <= 0.0 => false,
-            (r, Some(last)) => t - last >= 1.0 / r - 1e-9 * dt,
-            (_, None) => true,
-        };
-        if markers_due {
-            let (model, state, ws) = (self.sim.model(), self.sim.state(), self.sim.workspace());
-            let markers = msg::MarkerArray::from_state(model, state, ws, &self.params.frame_id);
-            self.publishers.markers.publish(markers).map_err(ros)?;
-            self.last_markers = Some(t);
-        }
-        self.check_command_timeout()?;
-        self.publishers.clock.publish(msg::Clock { clock: Time::from_seconds(t) }).map_err(ros)?;
-        Ok(())
-    }
-
-    /// Takes the configured action once no command has been accepted for `command_timeout`
-    /// seconds of sim time (after the first command): `hold` stops every winch where it is,
-    /// `initial` sends them back to their initial rest lengths. Counted and reported.
-    fn check_command_timeout(&mut self) -> Result<(), NodeError> {
-        let timeout = self.params.command_timeout;
-        let Some(last) = self.last_command else { return Ok(()) };
-        if timeout <= 0.0 || self.timed_out || self.sim.state().time - last < timeout {
-            return Ok(());
-        }
-        self.timed_out = true;
-        self.stats.command_timeouts += 1;
-        let initial = self.params.command_timeout_action == "initial";
-        command_every_actuator(&mut self.sim, initial, "command timeout on")?;
-        let message = format!("command timeout after {timeout} s: {}", self.params.command_timeout_action);
-        self.warn_commands(message, vec![]);
-        Ok(())
-    }
-
-    /// Publishes poses, transforms, cable and actuator states for the current step.
-    pub fn publish_state(&mut self) -> Result<(), NodeError> {
-        let (model, state, ws) = (self.sim.model(), self.sim.state(), self.sim.workspace());
-        let frame = &self.params.frame_id;
-        let cables = msg::CableStates::from_state(model, state, ws, &self.reference, frame);
-        if !cables.is_finite() {
-            return Err(NodeError::Ros("refusing to publish non-finite cable states".into()));
-        }
-        self.publishers.poses.publish(msg::PoseArray::from_state(state, frame)).map_err(ros)?;
-        self.publishers.tf.publish(msg::TfMessage::from_state(model, state, frame, false)).map_err(ros)?;
-        self.publishers.cables.publish(cables).map_err(ros)?;
-        self.publishers
-            .actuators
-            .publish(msg::JointState::actuators(model, state, ws, &self.rates))
-            .map_err(ros)?;
-        self.last_state_publish = Some(state.time);
-        Ok(())
-    }
-
-    /// Publishes `/diagnostics` now: real-time factor over the last interval, counters, solver.
-    pub fn publish_diagnostics(&mut self, real_time_factor: f64) -> Result<(), NodeError> {
-        let s = self.stats;
-        let kv = |k: &str, v: String| msg::KeyValue { key: k.into(), value: v };
-        let status = msg::DiagnosticStatus {
-            level: if s.commands_rejected > 0 || s.overruns > 0 { 1 } else { 0 },
-            name: format!("{}: simulation", self.params.node_name),
-            message: if self.paused { "paused".into() } else { "running".into() },
-            hardware_id: self.params.node_name.clone(),
-            values: vec![
-                kv("sim_time", format!("{:.6}", self.sim.state().time)),
-                kv("real_time_factor", format!("{real_time_factor:.3}")),
-                kv("steps", s.steps.to_string()),
-                kv("overruns", s.overruns.to_string()),
-                kv("commands_received", s.commands_received.to_string()),
-                kv("commands_rejected", s.commands_rejected.to_string()),
-                kv("newton_iterations_last_step", s.last_newton_iterations.to_string()),
-                kv("rejected_step_attempts", s.rejected_attempts.to_string()),
-                kv("command_timeouts", s.command_timeouts.to_string()),
-            ],
-        };
-        self.publishers
-            .diagnostics
-            .publish(msg::DiagnosticArray { header: self.header(), status: vec![status] })
-            .map_err(ros)
-    }
-
-    /// Runs until `stop` is set: takes commands at every step boundary, steps (unless paused),
-    /// paces to `real_time_factor` (0 = as fast as possible), counts overruns without catching up,
-    /// and publishes diagnostics at 1 Hz.
-    pub fn run(&mut self, stop: &AtomicBool) -> Result<(), NodeError> {
-        let dt = self.sim.settings().dt;
-        let mut anchor_wall = Instant::now();
-        let mut anchor_sim = self.sim.state().time;
-        let mut window = (Instant::now(), self.sim.state().time);
-        while !stop.load(Ordering::Relaxed) && !self.quit {
-            self.take_commands();
-            self.serve()?;
-            if self.paused {
-                std::thread::sleep(Duration::from_millis(2));
-                anchor_wall = Instant::now();
-                anchor_sim = self.sim.state().time;
+    /// Runs until `stop` is set or SetSimulationState asks to quit: takes inputs, turns the core
+    /// when it is due and sleeps in between (in slices of at most 5 ms, taking inputs between
+    /// them). On the way out, a StepSimulation request under way is answered with a failure.
+    pub fn run(&mut self, stop: &AtomicBool) {
+        const SLICE: Duration = Duration::from_millis(5);
+        let epoch = Instant::now();
+        let mut wake_at = Duration::ZERO;
+        while !stop.load(Ordering::Relaxed) && !self.core.quit_requested() {
+            self.take_inputs();
+            let now = epoch.elapsed();
+            if now >= wake_at {
+                wake_at = self.turn(now).unwrap_or(now);
             } else {
-                self.step_and_publish()?;
-                let rtf = self.params.real_time_factor;
-                if rtf > 0.0 {
-                    let due =
-                        anchor_wall + Duration::from_secs_f64((self.sim.state().time - anchor_sim) / rtf);
-                    let now = Instant::now();
-                    if now > due + Duration::from_secs_f64(dt / rtf) {
-                        // late by more than a step: count it and re-anchor instead of bursting
-                        self.stats.overruns += 1;
-                        anchor_wall = now;
-                        anchor_sim = self.sim.state().time;
-                    } else if due > now {
-                        std::thread::sleep(due - now);
-                    }
-                }
-            }
-            if self.last_diagnostics.elapsed() >= Duration::from_secs(1) {
-                let wall = window.0.elapsed().as_secs_f64();
-                let rtf = if wall > 0.0 { (self.sim.state().time - window.1) / wall } else { 0.0 };
-                self.publish_diagnostics(rtf)?;
-                self.last_diagnostics = Instant::now();
-                window = (Instant::now(), self.sim.state().time);
+                std::thread::sleep((wake_at - now).min(SLICE));
             }
         }
-        Ok(())
+        self.core.shutdown(&mut self.dds.sink());
     }
 }

@@ -20,7 +20,7 @@ impl RunningNode {
         let flag = stop.clone();
         let handle = std::thread::spawn(move || {
             let mut node = SimNode::new(model, params).unwrap();
-            node.run(&flag).unwrap();
+            node.run(&flag);
             node.stats()
         });
         Self { stop, handle }

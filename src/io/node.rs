@@ -1,0 +1,792 @@
+//! The transport-free node core: takes a `Model`, `NodeParams`, incoming commands and service
+//! requests (from any transport) and the wall-clock time, gives paced physics steps and tells a
+//! `NodeSink` what to publish and which deferred requests to answer.
+//!
+//! It owns what the node *means*, so every transport (DDS, shared memory, a bag recorder) behaves
+//! the same:
+//! - **Pacing**: one step per `tick` while playing, due at `anchor + (t_sim - t_anchor) / rtf`;
+//!   a step that ends more than one step late counts as an overrun and re-anchors (no bursts).
+//!   `real_time_factor = 0` runs as fast as possible.
+//! - **Pause, step, reset**: `StepSimulation` only while paused; its steps are taken one per
+//!   `tick`, so a request of 10^12 steps never blocks pause, reset, other services or shutdown,
+//!   and a second request while one is under way is refused. Unpause, reset, quit and shutdown
+//!   answer a pending request with a failure that says why.
+//! - **Commands**: every message is checked (sizes first, then names, duplicates, values; see
+//!   `msg::check_command`) and counted (`received = accepted + rejected`); accepted entries are
+//!   kept per actuator, the newest wins, and applied together at the next step boundary.
+//!   Rejections are reported in `/diagnostics` at most `MAX_REJECTION_REPORTS_PER_SECOND` times a
+//!   second, with the count since the last report and a short excerpt of the latest reason.
+//! - **Faults**: no publish or receive failure stops the core; it is counted per topic and
+//!   reported at most once a second. A physics step that fails even at the smallest sub-step, or
+//!   a state that is not finite, pauses the simulation (`faulted`), publishes an ERROR diagnostic
+//!   naming the step and the cause, answers a pending step request with a failure, and keeps
+//!   serving: reset clears the fault. Nothing non-finite is ever handed to a sink.
+//!
+//! The core never reads a clock or sleeps: `tick(now)` takes the time since any fixed epoch and
+//! returns when it wants to be called again, so tests drive it with a fake clock.
+
+use std::time::Duration;
+
+use crate::control::ActuatorCommand;
+use crate::forces::Workspace;
+use crate::io::msg::{self, DiagnosticStatus, KeyValue, SimResult};
+use crate::io::params::NodeParams;
+use crate::model::{ActuatorId, Model};
+use crate::report;
+use crate::sim::{SimSettings, Simulator, StepError};
+use crate::solve::dynamics::Integrator;
+use crate::state::State;
+
+/// Most command messages the transports hand to the core per step (`tick`); the rest wait in the
+/// transport's own queue (keep-last QoS there), so a flood costs each step a bounded amount.
+pub const MAX_COMMANDS_PER_STEP: usize = 64;
+/// Most rejection reports in `/diagnostics` per second of wall time.
+pub const MAX_REJECTION_REPORTS_PER_SECOND: u32 = 10;
+/// Interval of the periodic `/diagnostics` status and of transport-failure reports.
+pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
+/// How long `tick` asks to sleep while there is nothing to step (paused or faulted).
+pub const IDLE_PERIOD: Duration = Duration::from_millis(2);
+
+/// `simulation_interfaces/msg/SimulationState` codes.
+pub mod sim_state {
+    /// Stopped (reset and paused).
+    pub const STOPPED: u8 = 0;
+    /// Playing.
+    pub const PLAYING: u8 = 1;
+    /// Paused.
+    pub const PAUSED: u8 = 2;
+    /// Quitting.
+    pub const QUITTING: u8 = 3;
+}
+
+/// `simulation_interfaces/msg/Result` codes.
+pub mod result_code {
+    /// Success.
+    pub const OK: u8 = 1;
+    /// The request is not valid in the current state.
+    pub const INCORRECT_STATE: u8 = 3;
+    /// The operation failed.
+    pub const OPERATION_FAILED: u8 = 4;
+    /// Already in the requested state.
+    pub const ALREADY_IN_TARGET_STATE: u8 = 101;
+}
+
+/// Every topic the node publishes, for per-topic failure counts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Topic {
+    /// `/clock`.
+    Clock,
+    /// `/tf`.
+    Tf,
+    /// `/tf_static`.
+    TfStatic,
+    /// `~/body_poses`.
+    BodyPoses,
+    /// `~/cable_states`.
+    CableStates,
+    /// `~/actuator_states`.
+    ActuatorStates,
+    /// `~/structure`.
+    Structure,
+    /// `/diagnostics`.
+    Diagnostics,
+    /// `~/markers`.
+    Markers,
+}
+
+impl Topic {
+    /// Every topic, in the order of `NodeStats::publish_failures`.
+    pub const ALL: [Topic; 9] = [
+        Topic::Clock,
+        Topic::Tf,
+        Topic::TfStatic,
+        Topic::BodyPoses,
+        Topic::CableStates,
+        Topic::ActuatorStates,
+        Topic::Structure,
+        Topic::Diagnostics,
+        Topic::Markers,
+    ];
+    /// The topic's name (`~/` is the node's private namespace).
+    pub fn name(self) -> &'static str {
+        match self {
+            Topic::Clock => "/clock",
+            Topic::Tf => "/tf",
+            Topic::TfStatic => "/tf_static",
+            Topic::BodyPoses => "~/body_poses",
+            Topic::CableStates => "~/cable_states",
+            Topic::ActuatorStates => "~/actuator_states",
+            Topic::Structure => "~/structure",
+            Topic::Diagnostics => "/diagnostics",
+            Topic::Markers => "~/markers",
+        }
+    }
+    fn index(self) -> usize {
+        Topic::ALL.iter().position(|t| *t == self).unwrap_or(0)
+    }
+}
+
+/// Why a sink could not publish. Never fatal: counted per topic and reported.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PublishError {
+    /// The writer's queue is full (a reliable reader is not keeping up).
+    #[error("writer full (a reliable reader is not keeping up)")]
+    WouldBlock,
+    /// Any other failure, with the transport's words.
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// What a sink may read when it publishes: the model, the evaluated state, and the node's derived
+/// outputs. Every number in it is finite when the core hands it over.
+pub struct NodeView<'a> {
+    /// The model.
+    pub model: &'a Model,
+    /// The current state.
+    pub state: &'a State,
+    /// The workspace evaluated at `state` (tensions, lengths, points).
+    pub workspace: &'a Workspace,
+    /// Each cable's rest-length rate over the last step, m/s.
+    pub rates: &'a [f64],
+    /// Pulley coordinates at the start, for pulley slips.
+    pub reference: &'a [Vec<f64>],
+    /// Fixed frame of poses and transforms.
+    pub frame_id: &'a str,
+    /// Node name (for diagnostics' names and hardware ids).
+    pub node_name: &'a str,
+    /// The statuses to publish on `/diagnostics` (when the topic is `Diagnostics`).
+    pub diagnostics: &'a [DiagnosticStatus],
+}
+
+/// A transport's outgoing side, as the core sees it.
+pub trait NodeSink {
+    /// Publishes `topic` from `view`.
+    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError>;
+    /// Answers the deferred StepSimulation request `ticket` (see `NodeCore::request_steps`).
+    fn step_request_done(&mut self, ticket: u64, result: SimResult);
+    /// The commands applied at the boundary before step `step` (sim time `time`), in the order
+    /// they were applied. For recorders; default: nothing.
+    fn commands_applied(&mut self, _time: f64, _step: u64, _commands: &[(ActuatorId, ActuatorCommand)]) {}
+}
+
+/// Counters reported in `/diagnostics`.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct NodeStats {
+    /// Physics steps taken.
+    pub steps: u64,
+    /// Steps that ended later than real-time pacing allowed.
+    pub overruns: u64,
+    /// Command messages received (`= commands_accepted + commands_rejected`).
+    pub commands_received: u64,
+    /// Command messages accepted (entries of a later accepted message for the same actuator
+    /// before the next step replace them).
+    pub commands_accepted: u64,
+    /// Command messages rejected (too large, non-finite, out of range, unknown or repeated name,
+    /// wrong length, empty).
+    pub commands_rejected: u64,
+    /// Newton iterations of the last step.
+    pub last_newton_iterations: usize,
+    /// Rejected step attempts so far.
+    pub rejected_attempts: usize,
+    /// Times the command timeout fired.
+    pub command_timeouts: u64,
+    /// Failed publishes per topic, in `Topic::ALL` order.
+    pub publish_failures: [u64; 9],
+    /// Incoming samples a transport could not read (malformed, wrong layout).
+    pub malformed_incoming: u64,
+    /// StepSimulation requests refused or interrupted.
+    pub step_requests_failed: u64,
+    /// Physics failures (each paused the simulation).
+    pub physics_failures: u64,
+}
+
+impl NodeStats {
+    /// Failed publishes on `topic`.
+    pub fn publish_failures_on(&self, topic: Topic) -> u64 {
+        self.publish_failures[topic.index()]
+    }
+}
+
+/// A StepSimulation request under way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StepRequest {
+    ticket: u64,
+    requested: u64,
+    remaining: u64,
+}
+
+/// The node's logic with no transport: see the module docs.
+pub struct NodeCore {
+    sim: Simulator,
+    params: NodeParams,
+    reference: Vec<Vec<f64>>,
+    previous_rest: Vec<f64>,
+    rates: Vec<f64>,
+    paused: bool,
+    fault: Option<String>,
+    quit: bool,
+    stats: NodeStats,
+    /// Accepted, not yet applied commands, keep-last per actuator.
+    pending: Vec<Option<ActuatorCommand>>,
+    /// Scratch for checking one message.
+    checked: Vec<(ActuatorId, ActuatorCommand)>,
+    /// Scratch for the applied commands of one boundary.
+    applied: Vec<(ActuatorId, ActuatorCommand)>,
+    step_request: Option<StepRequest>,
+    next_ticket: u64,
+    last_state_publish: Option<f64>,
+    last_markers: Option<f64>,
+    last_command: Option<f64>,
+    timed_out: bool,
+    /// Wall time and sim time the pacing is anchored at.
+    anchor: Option<(Duration, f64)>,
+    /// Start of the current real-time-factor window (wall, sim) and the last periodic report.
+    window: Option<(Duration, f64)>,
+    last_rejection_report: Option<Duration>,
+    rejections_unreported: u64,
+    latest_rejection: String,
+    commands_this_step: usize,
+    statuses: Vec<DiagnosticStatus>,
+}
+
+/// Why the core could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum CoreError {
+    /// A parameter does not fit the model.
+    #[error("{0}")]
+    Params(String),
+    /// The simulation could not start.
+    #[error(transparent)]
+    Step(#[from] StepError),
+}
+
+impl NodeCore {
+    /// Builds the simulator from `model` and `params` (`physics_dt`, else the scene's, else 1 ms;
+    /// the integrator; actuators held at their initial rest lengths unless `follow_schedule`).
+    pub fn new(model: Model, params: NodeParams) -> Result<Self, CoreError> {
+        let integrator = Integrator::parse(&params.integrator, params.rho_inf)
+            .ok_or_else(|| CoreError::Params(format!("unknown integrator '{}'", params.integrator)))?;
+        let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
+        let sim = Simulator::new(model, SimSettings { dt, integrator, ..Default::default() })?;
+        Ok(Self::with_simulator(sim, params))
+    }
+
+    /// A core around a simulator built by the caller (its settings are used as they are).
+    pub fn with_simulator(sim: Simulator, params: NodeParams) -> Self {
+        let reference = report::all_pulley_coordinates(sim.model(), sim.state(), sim.workspace());
+        let n_cables = sim.state().rest_lengths.len();
+        let n_actuators = sim.model().actuators.len();
+        let mut core = Self {
+            paused: params.start_paused,
+            previous_rest: sim.state().rest_lengths.clone(),
+            sim,
+            params,
+            reference,
+            rates: vec![0.0; n_cables],
+            fault: None,
+            quit: false,
+            stats: NodeStats::default(),
+            pending: vec![None; n_actuators],
+            checked: Vec::with_capacity(n_actuators),
+            applied: Vec::with_capacity(n_actuators),
+            step_request: None,
+            next_ticket: 1,
+            last_state_publish: None,
+            last_markers: None,
+            last_command: None,
+            timed_out: false,
+            anchor: None,
+            window: None,
+            last_rejection_report: None,
+            rejections_unreported: 0,
+            latest_rejection: String::new(),
+            commands_this_step: 0,
+            statuses: Vec::new(),
+        };
+        if !core.params.follow_schedule {
+            core.command_every_actuator(false);
+        }
+        core
+    }
+
+    /// The simulator (read-only).
+    pub fn simulator(&self) -> &Simulator {
+        &self.sim
+    }
+    /// The parameters.
+    pub fn params(&self) -> &NodeParams {
+        &self.params
+    }
+    /// Counters.
+    pub fn stats(&self) -> NodeStats {
+        self.stats
+    }
+    /// True while paused (also while faulted).
+    pub fn paused(&self) -> bool {
+        self.paused
+    }
+    /// The physics failure that paused the simulation, until reset.
+    pub fn fault(&self) -> Option<&str> {
+        self.fault.as_deref()
+    }
+    /// True once SetSimulationState asked for QUITTING.
+    pub fn quit_requested(&self) -> bool {
+        self.quit
+    }
+    /// Steps still to take for the StepSimulation request under way.
+    pub fn steps_remaining(&self) -> u64 {
+        self.step_request.map_or(0, |r| r.remaining)
+    }
+    /// Whether a transport may hand over another command message this step
+    /// (`MAX_COMMANDS_PER_STEP`).
+    pub fn wants_commands(&self) -> bool {
+        self.commands_this_step < MAX_COMMANDS_PER_STEP
+    }
+
+    /// The `SimulationState` code: PAUSED or PLAYING.
+    pub fn simulation_state(&self) -> u8 {
+        if self.paused {
+            sim_state::PAUSED
+        } else {
+            sim_state::PLAYING
+        }
+    }
+
+    /// Publishes what a late joiner needs once (structure, static transforms) and the initial state.
+    pub fn start(&mut self, sink: &mut dyn NodeSink) {
+        self.publish(sink, Topic::Structure);
+        self.publish(sink, Topic::TfStatic);
+        self.publish_state(sink);
+    }
+
+    // ----- inputs -------------------------------------------------------------------------------
+
+    /// Takes one `ActuatorCommand` message (see `msg::check_command`): counts it, and either keeps
+    /// its entries for the next step boundary or rejects it whole.
+    pub fn offer_command(&mut self, m: &msg::ActuatorCommand) {
+        self.offer_arrays(&m.header.frame_id, &m.name, &m.rest_length, &m.rate);
+    }
+
+    /// Takes one `sensor_msgs/JointState` command (position = target rest length, velocity =
+    /// rate; effort ignored), checked like an `ActuatorCommand`.
+    pub fn offer_joint_command(&mut self, m: &msg::JointState) {
+        self.offer_arrays(&m.header.frame_id, &m.name, &m.position, &m.velocity);
+    }
+
+    fn offer_arrays(&mut self, frame: &str, names: &[String], rest: &[f64], rate: &[f64]) {
+        self.stats.commands_received += 1;
+        self.commands_this_step += 1;
+        match msg::check_command(self.sim.model(), frame, names, rest, rate, &mut self.checked) {
+            Ok(()) => {
+                self.stats.commands_accepted += 1;
+                for (id, cmd) in &self.checked {
+                    self.pending[id.0] = Some(*cmd);
+                }
+            }
+            Err(e) => {
+                self.stats.commands_rejected += 1;
+                self.rejections_unreported += 1;
+                self.latest_rejection = msg::excerpt(&e.to_string(), 2 * msg::EXCERPT_CHARS);
+            }
+        }
+    }
+
+    /// Counts an incoming sample that a transport could not read (malformed, wrong layout).
+    pub fn incoming_malformed(&mut self) {
+        self.stats.malformed_incoming += 1;
+    }
+
+    /// StepSimulation: `Ok(ticket)` when `steps` steps are queued (answered later through
+    /// `NodeSink::step_request_done`, or at once if `steps` is 0), `Err(result)` to answer now
+    /// (not paused, a request under way, or faulted).
+    pub fn request_steps(&mut self, steps: u64, sink: &mut dyn NodeSink) -> Result<u64, SimResult> {
+        let refuse = |code, why: &str| Err(SimResult::err(code, why));
+        let r = if !self.paused {
+            refuse(result_code::INCORRECT_STATE, "StepSimulation needs the simulation paused")
+        } else if let Some(fault) = &self.fault {
+            refuse(result_code::OPERATION_FAILED, &format!("physics failure (reset first): {fault}"))
+        } else if self.step_request.is_some() {
+            refuse(result_code::INCORRECT_STATE, "a StepSimulation request is still under way")
+        } else {
+            let ticket = self.next_ticket;
+            self.next_ticket += 1;
+            if steps == 0 {
+                sink.step_request_done(ticket, SimResult::ok());
+            } else {
+                self.step_request = Some(StepRequest { ticket, requested: steps, remaining: steps });
+            }
+            Ok(ticket)
+        };
+        if r.is_err() {
+            self.stats.step_requests_failed += 1;
+        }
+        r
+    }
+
+    /// Answers the request under way with a failure saying `why`.
+    fn interrupt_step_request(&mut self, sink: &mut dyn NodeSink, why: &str) {
+        if let Some(r) = self.step_request.take() {
+            self.stats.step_requests_failed += 1;
+            let done =
+                format!("{why} after {} of {} requested steps", r.requested - r.remaining, r.requested);
+            sink.step_request_done(r.ticket, SimResult::err(result_code::OPERATION_FAILED, done));
+        }
+    }
+
+    /// Pauses or resumes. Resuming interrupts a StepSimulation request under way; resuming while
+    /// faulted tries to step again from the last good state.
+    pub fn set_paused(&mut self, paused: bool, sink: &mut dyn NodeSink) {
+        if !paused {
+            self.interrupt_step_request(sink, "unpaused");
+            self.fault = None;
+        }
+        self.paused = paused;
+    }
+
+    /// Back to the initial state and time (actuators held again unless following the schedule,
+    /// pending commands dropped, the fault cleared), and publishes that state and clock.
+    pub fn reset(&mut self, sink: &mut dyn NodeSink) {
+        self.interrupt_step_request(sink, "reset");
+        self.sim.reset();
+        self.fault = None;
+        if !self.params.follow_schedule {
+            self.command_every_actuator(false);
+        }
+        self.pending.fill(None);
+        self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
+        self.rates.fill(0.0);
+        self.last_state_publish = None;
+        self.last_markers = None;
+        self.last_command = None;
+        self.timed_out = false;
+        self.anchor = None;
+        self.publish_state(sink);
+        self.publish(sink, Topic::Clock);
+    }
+
+    /// SetSimulationState: PLAYING, PAUSED, STOPPED (reset and pause) or QUITTING.
+    pub fn set_simulation_state(&mut self, state: u8, sink: &mut dyn NodeSink) -> SimResult {
+        if state == self.simulation_state() {
+            return SimResult::err(result_code::ALREADY_IN_TARGET_STATE, "already in that state");
+        }
+        match state {
+            sim_state::PLAYING => self.set_paused(false, sink),
+            sim_state::PAUSED => self.set_paused(true, sink),
+            sim_state::STOPPED => {
+                self.paused = true;
+                self.reset(sink);
+            }
+            sim_state::QUITTING => {
+                self.interrupt_step_request(sink, "quitting");
+                self.quit = true;
+            }
+            other => return SimResult::err(result_code::OPERATION_FAILED, format!("unknown state {other}")),
+        }
+        SimResult::ok()
+    }
+
+    /// What GetSimulatorFeatures answers.
+    pub fn features() -> msg::SimulatorFeatures {
+        msg::SimulatorFeatures {
+            features: vec![20, 21, 22, 24, 25, 26, 31, 32],
+            spawn_formats: vec![],
+            custom_info: "tensegrity: clustered tensegrity multibody simulator".into(),
+        }
+    }
+
+    /// The node is stopping (SIGINT, SIGTERM): answers a pending StepSimulation request.
+    pub fn shutdown(&mut self, sink: &mut dyn NodeSink) {
+        self.interrupt_step_request(sink, "the node is shutting down");
+    }
+
+    // ----- the loop -----------------------------------------------------------------------------
+
+    /// One turn of the node's loop at wall time `now` (since any fixed epoch): applies the
+    /// commands taken since the last turn, takes one step if playing or a StepSimulation request
+    /// is under way, publishes what is due, and returns the wall time at which it wants the next
+    /// turn (`None`: at once).
+    pub fn tick(&mut self, now: Duration, sink: &mut dyn NodeSink) -> Option<Duration> {
+        self.commands_this_step = 0;
+        self.window.get_or_insert((now, self.sim.state().time));
+        self.apply_pending(sink);
+        let wake = if self.paused && self.step_request.is_none() {
+            self.anchor = None;
+            Some(now + IDLE_PERIOD)
+        } else if self.paused {
+            // lockstep: one requested step per turn, no pacing
+            if self.step(sink) {
+                if let Some(r) = &mut self.step_request {
+                    r.remaining -= 1;
+                    if r.remaining == 0 {
+                        let ticket = r.ticket;
+                        self.step_request = None;
+                        sink.step_request_done(ticket, SimResult::ok());
+                    }
+                }
+            }
+            None
+        } else if !self.step(sink) {
+            Some(now + IDLE_PERIOD)
+        } else {
+            self.pace(now)
+        };
+        self.report(now, sink);
+        wake
+    }
+
+    /// Real-time pacing after a step taken at wall time `now`.
+    fn pace(&mut self, now: Duration) -> Option<Duration> {
+        let rtf = self.params.real_time_factor;
+        if rtf <= 0.0 {
+            return None;
+        }
+        let dt = self.sim.settings().dt;
+        let t = self.sim.state().time;
+        let (wall0, sim0) = *self.anchor.get_or_insert((now, t - dt));
+        let due = wall0 + Duration::from_secs_f64(((t - sim0) / rtf).max(0.0));
+        if now > due + Duration::from_secs_f64(dt / rtf) {
+            // late by more than a step: count it and re-anchor instead of bursting
+            self.stats.overruns += 1;
+            self.anchor = Some((now, t));
+            None
+        } else {
+            Some(due)
+        }
+    }
+
+    fn apply_pending(&mut self, sink: &mut dyn NodeSink) {
+        self.applied.clear();
+        for (i, slot) in self.pending.iter_mut().enumerate() {
+            if let Some(cmd) = slot.take() {
+                self.applied.push((ActuatorId(i), cmd));
+            }
+        }
+        if self.applied.is_empty() {
+            return;
+        }
+        for &(id, cmd) in &self.applied {
+            // checked against the same model when it arrived: cannot fail
+            let applied = self.sim.command_actuator(id, cmd);
+            debug_assert!(applied.is_ok());
+        }
+        self.last_command = Some(self.sim.state().time);
+        self.timed_out = false;
+        sink.commands_applied(self.sim.state().time, self.stats.steps, &self.applied);
+    }
+
+    /// One physics step and what it publishes; false (and faulted) when it failed.
+    fn step(&mut self, sink: &mut dyn NodeSink) -> bool {
+        self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
+        match self.sim.step() {
+            Ok(stats) => {
+                self.stats.last_newton_iterations = stats.newton_iterations;
+                self.stats.rejected_attempts += stats.rejected;
+            }
+            Err(e) => {
+                self.physics_failure(sink, e.to_string());
+                return false;
+            }
+        }
+        if !self.outputs_finite() {
+            self.physics_failure(sink, "the state is not finite".into());
+            return false;
+        }
+        self.stats.steps += 1;
+        let dt = self.sim.settings().dt;
+        for (r, (now, before)) in
+            self.rates.iter_mut().zip(self.sim.state().rest_lengths.iter().zip(&self.previous_rest))
+        {
+            *r = (now - before) / dt;
+        }
+        let t = self.sim.state().time;
+        let due = |rate: f64, last: Option<f64>| match last {
+            Some(last) if rate > 0.0 => t - last >= 1.0 / rate - 1e-9 * dt,
+            _ => true,
+        };
+        if due(self.params.state_publish_rate, self.last_state_publish) {
+            self.publish_state(sink);
+        }
+        if self.params.markers_rate > 0.0 && due(self.params.markers_rate, self.last_markers) {
+            self.publish(sink, Topic::Markers);
+            self.last_markers = Some(t);
+        }
+        self.check_command_timeout();
+        self.publish(sink, Topic::Clock);
+        true
+    }
+
+    /// True when every number a sink may read is finite.
+    fn outputs_finite(&self) -> bool {
+        self.sim.state().is_finite()
+            && self.sim.workspace().cables.iter().all(|c| c.tension.is_finite() && c.length.is_finite())
+    }
+
+    fn physics_failure(&mut self, sink: &mut dyn NodeSink, cause: String) {
+        self.stats.physics_failures += 1;
+        let step = self.stats.steps + 1;
+        let message = format!(
+            "physics failure at step {step} (t = {:.6} s): {cause}; paused at the last good state, reset to recover",
+            self.sim.state().time
+        );
+        self.paused = true;
+        self.interrupt_step_request(sink, "physics failure");
+        self.fault = Some(message.clone());
+        let status = self.status(2, "simulation", message, vec![]);
+        self.statuses.push(status);
+        self.publish(sink, Topic::Diagnostics);
+        self.statuses.clear();
+    }
+
+    /// Once no command has been accepted for `command_timeout` s of sim time (after the first
+    /// one): `hold` stops every winch where it is, `initial` sends them back. Counted, reported.
+    fn check_command_timeout(&mut self) {
+        let timeout = self.params.command_timeout;
+        let Some(last) = self.last_command else { return };
+        if timeout <= 0.0 || self.timed_out || self.sim.state().time - last < timeout {
+            return;
+        }
+        self.timed_out = true;
+        self.stats.command_timeouts += 1;
+        let initial = self.params.command_timeout_action == "initial";
+        self.command_every_actuator(initial);
+        self.latest_rejection.clear();
+        let message = format!("command timeout after {timeout} s: {}", self.params.command_timeout_action);
+        let status = self.status(1, "commands", message, vec![]);
+        self.pending_status(status);
+    }
+
+    /// Commands every actuator to its initial rest length (`to_initial`) or to where it is now.
+    fn command_every_actuator(&mut self, to_initial: bool) {
+        for i in 0..self.sim.model().actuators.len() {
+            let m = self.sim.model();
+            let c = m.actuators[i].cable.0;
+            let l = if to_initial { m.initial_rest_lengths[c] } else { self.sim.state().rest_lengths[c] };
+            // a rest length inside the limits, at the default rate: always valid
+            let _ = self
+                .sim
+                .command_actuator(ActuatorId(i), ActuatorCommand { rest_length: Some(l), rate: None });
+        }
+    }
+
+    // ----- outputs ------------------------------------------------------------------------------
+
+    fn view(&self) -> NodeView<'_> {
+        NodeView {
+            model: self.sim.model(),
+            state: self.sim.state(),
+            workspace: self.sim.workspace(),
+            rates: &self.rates,
+            reference: &self.reference,
+            frame_id: &self.params.frame_id,
+            node_name: &self.params.node_name,
+            diagnostics: &self.statuses,
+        }
+    }
+
+    /// Publishes `topic`; a failure is counted, never fatal.
+    fn publish(&mut self, sink: &mut dyn NodeSink, topic: Topic) {
+        if sink.publish(topic, &self.view()).is_err() {
+            self.stats.publish_failures[topic.index()] += 1;
+        }
+    }
+
+    fn publish_state(&mut self, sink: &mut dyn NodeSink) {
+        for topic in [Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates] {
+            self.publish(sink, topic);
+        }
+        self.last_state_publish = Some(self.sim.state().time);
+    }
+
+    fn status(&self, level: u8, what: &str, message: String, values: Vec<KeyValue>) -> DiagnosticStatus {
+        DiagnosticStatus {
+            level,
+            name: format!("{}: {what}", self.params.node_name),
+            message,
+            hardware_id: self.params.node_name.clone(),
+            values,
+        }
+    }
+
+    fn pending_status(&mut self, status: DiagnosticStatus) {
+        self.statuses.push(status);
+    }
+
+    /// Rate-limited rejection reports, queued statuses, and the periodic status.
+    fn report(&mut self, now: Duration, sink: &mut dyn NodeSink) {
+        let min_gap = DIAGNOSTICS_PERIOD / MAX_REJECTION_REPORTS_PER_SECOND;
+        let rejection_due = self.rejections_unreported > 0
+            && self.last_rejection_report.is_none_or(|last| now >= last + min_gap);
+        if rejection_due {
+            let n = self.rejections_unreported;
+            let message = format!(
+                "{n} command{} rejected since the last report; latest: {}",
+                if n == 1 { "" } else { "s" },
+                self.latest_rejection
+            );
+            let values = vec![
+                KeyValue { key: "commands_rejected".into(), value: self.stats.commands_rejected.to_string() },
+                KeyValue { key: "rejected_since_last_report".into(), value: n.to_string() },
+            ];
+            let status = self.status(1, "commands", message, values);
+            self.pending_status(status);
+            self.rejections_unreported = 0;
+            self.last_rejection_report = Some(now);
+        }
+        let (wall0, sim0) = *self.window.get_or_insert((now, self.sim.state().time));
+        let periodic = now >= wall0 + DIAGNOSTICS_PERIOD;
+        if periodic {
+            let wall = (now - wall0).as_secs_f64();
+            let rtf = if wall > 0.0 { (self.sim.state().time - sim0) / wall } else { 0.0 };
+            let status = self.periodic_status(rtf);
+            self.pending_status(status);
+            self.window = Some((now, self.sim.state().time));
+        }
+        if !self.statuses.is_empty() {
+            self.publish(sink, Topic::Diagnostics);
+            self.statuses.clear();
+        }
+    }
+
+    /// The 1 Hz status: real-time factor over the last period, counters, solver effort, faults.
+    fn periodic_status(&self, real_time_factor: f64) -> DiagnosticStatus {
+        let s = &self.stats;
+        let kv = |k: &str, v: String| KeyValue { key: k.into(), value: v };
+        let mut values = vec![
+            kv("sim_time", format!("{:.6}", self.sim.state().time)),
+            kv("real_time_factor", format!("{real_time_factor:.3}")),
+            kv("steps", s.steps.to_string()),
+            kv("overruns", s.overruns.to_string()),
+            kv("commands_received", s.commands_received.to_string()),
+            kv("commands_accepted", s.commands_accepted.to_string()),
+            kv("commands_rejected", s.commands_rejected.to_string()),
+            kv("newton_iterations_last_step", s.last_newton_iterations.to_string()),
+            kv("rejected_step_attempts", s.rejected_attempts.to_string()),
+            kv("command_timeouts", s.command_timeouts.to_string()),
+            kv("malformed_incoming", s.malformed_incoming.to_string()),
+            kv("step_requests_failed", s.step_requests_failed.to_string()),
+            kv("physics_failures", s.physics_failures.to_string()),
+            kv("steps_remaining", self.steps_remaining().to_string()),
+        ];
+        for topic in Topic::ALL {
+            let n = s.publish_failures_on(topic);
+            if n > 0 {
+                values.push(kv(&format!("publish_failures {}", topic.name()), n.to_string()));
+            }
+        }
+        let transport_trouble = s.publish_failures.iter().any(|n| *n > 0) || s.malformed_incoming > 0;
+        let (level, message) = match &self.fault {
+            Some(f) => (2, f.clone()),
+            None => (
+                u8::from(s.commands_rejected > 0 || s.overruns > 0 || transport_trouble),
+                if self.step_request.is_some() {
+                    "stepping on request".into()
+                } else if self.paused {
+                    "paused".into()
+                } else {
+                    "running".into()
+                },
+            ),
+        };
+        self.status(level, "simulation", message, values)
+    }
+}
