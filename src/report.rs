@@ -194,3 +194,22 @@ pub fn summary(model: &Model) -> ModelSummary {
         planar: model.planar,
     }
 }
+
+/// A sentence naming the bodies nothing holds (`Model::unheld_bodies`, at most 5 by name), or
+/// `None` when every body with coordinates has a cable or joint on it.
+pub fn unheld_bodies_note(model: &Model) -> Option<String> {
+    let unheld = model.unheld_bodies();
+    if unheld.is_empty() {
+        return None;
+    }
+    let names: Vec<String> = unheld.iter().take(5).map(|b| format!("'{}'", model.bodies[b.0].name)).collect();
+    let more = if unheld.len() > 5 { format!(" and {} more", unheld.len() - 5) } else { String::new() };
+    Some(format!(
+        "{} bod{} {}{more} ha{} no cable, joint or support: free-floating, so there is no equilibrium for {}",
+        unheld.len(),
+        if unheld.len() == 1 { "y" } else { "ies" },
+        names.join(", "),
+        if unheld.len() == 1 { "s" } else { "ve" },
+        if unheld.len() == 1 { "it" } else { "them" },
+    ))
+}

@@ -77,6 +77,12 @@ fn environment_sets_domain_and_localhost_only() {
 fn bad_parameters_are_refused_with_a_reason() {
     for (line, needle) in [
         ("--ros-args -p physics_dt:=-1", "physics_dt"),
+        ("--ros-args -p physics_dt:=10", "physics_dt must be in [1e-6, 1e-1], got 1e1"),
+        ("--ros-args -p physics_dt:=1e-12", "physics_dt must be in"),
+        ("--ros-args -p real_time_factor:=1e9", "real_time_factor must be in"),
+        ("--ros-args -p markers_rate:=1e9", "markers_rate must be in"),
+        ("--ros-args -p command_timeout:=-3", "command_timeout must be in"),
+        ("--ros-args -p frame_id:=''", "frame_id must have"),
         ("--ros-args -p physics_dt:=nan", "not finite"),
         ("--ros-args -p rho_inf:=2", "rho_inf"),
         ("--ros-args -p warp_speed:=9", "unknown parameter"),

@@ -232,3 +232,117 @@ fn physics_dt_is_read_and_checked() {
     assert_eq!(from_toml(VALID, "scene.toml").unwrap().physics_dt, None);
     expect(&VALID.replace("gravity = ", "physics_dt = -0.001\ngravity = "), "physics_dt", 2, "positive");
 }
+
+/// The hostile inputs of the robustness issue: each once hung `check`, was accepted with values it
+/// did not read, or produced non-finite output. Now each is refused at load, naming line and field.
+#[test]
+fn hostile_numbers_and_shapes_are_refused_at_load() {
+    let pole_ends = "ends = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]]";
+    // (text, field, a string on the line the error must point at, reason)
+    let cases: Vec<(String, &str, &str, &str)> = vec![
+        (
+            VALID.replace(pole_ends, "ends = [[1e308, 0.0, 0.0], [0.0, 0.0, 1.0]]"),
+            "bodies[1].ends",
+            "1e308",
+            "within +-1e6 m",
+        ),
+        (
+            VALID.replace(pole_ends, "ends = [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]]"),
+            "bodies[1].ends",
+            "ends =",
+            "exactly 2 end points",
+        ),
+        (
+            VALID.replace(pole_ends, "ends = [[0.0, 0.0, 0.0, 7.0], [0.0, 0.0, 1.0]]"),
+            "bodies[1].ends",
+            "ends =",
+            "exactly 3 numbers",
+        ),
+        (
+            VALID.replace("gravity = [0.0, 0.0, -9.81]", "gravity = [0.0, 0.0, -9.81, 1.0]"),
+            "gravity",
+            "gravity",
+            "exactly 3 numbers",
+        ),
+        (
+            VALID.replace("gravity = [0.0, 0.0, -9.81]", "gravity = [1e308, 0.0, -9.81]"),
+            "gravity",
+            "gravity",
+            "within +-1000 m/s^2",
+        ),
+        (
+            VALID.replace(
+                "position = [0.5, 0.0, 0.5]",
+                "position = [0.5, 0.0, 0.5]\nrotation = [0.0, 0.0, 0.1, 0.2]",
+            ),
+            "bodies[2].rotation",
+            "rotation",
+            "exactly 3 numbers",
+        ),
+        (VALID.replacen("ea = 1000.0", "ea = 1e308", 1), "cables[0].ea", "1e308", "[1e-6, 1e12] N"),
+        (VALID.replacen("ea = 1000.0", "ea = 1e-308", 1), "cables[0].ea", "1e-308", "[1e-6, 1e12] N"),
+        (
+            VALID.replacen("rest_length = 0.9", "damping_ratio = 1e308\nrest_length = 0.9", 1),
+            "cables[0].damping_ratio",
+            "1e308",
+            "[0, 100]",
+        ),
+        (VALID.replace("mass = 2.0", "mass = 1e300"), "bodies[2].mass", "1e300", "[1e-9, 1e9] kg"),
+        (
+            VALID.replacen("rest_length = 0.9", "rest_length = 1e300", 1),
+            "cables[0].rest_length",
+            "1e300",
+            "[1e-9, 1e6] m",
+        ),
+    ];
+    for (text, field, marker, reason) in cases {
+        let line = 1 + text.lines().position(|l| l.contains(marker)).unwrap();
+        expect(&text, field, line, reason);
+    }
+}
+
+#[test]
+fn endless_deployments_and_steps_outside_the_node_range_are_refused() {
+    let with_deployment = |steps: &str, duration: &str| {
+        format!(
+            "{VALID}\n[[actuators]]\nname = \"w\"\ncable = \"stay\"\nmin_rest_length = 0.5\nmax_rest_length = 1.0\nmax_rate = 1.0\n\n[deployment]\nsteps = {steps}\n\n[[deployment.ramps]]\nactuator = \"w\"\nstart = 0.0\nduration = {duration}\nrest_length = 0.8\n"
+        )
+    };
+    let e = error_of(&with_deployment("4611686018427387904", "1.0"));
+    assert!(e.field == "deployment" && e.reason.contains("[1, 1000000]"), "{e}");
+    let e = error_of(&with_deployment("10", "1e308"));
+    assert!(e.field == "deployment.ramps[0].duration" && e.reason.contains("[0, 1e6] s"), "{e}");
+    let e = error_of(&VALID.replace("name = \"ok\"", "name = \"ok\"\nphysics_dt = 10.0"));
+    assert!(e.field == "physics_dt" && e.reason.contains("[1e-6, 0.1] s"), "{e}");
+}
+
+#[test]
+fn a_repeated_joint_is_refused_as_redundant() {
+    let twice = VALID.replace(
+        "[[joints]]\nkind = \"pin\"\na = \"pole.a\"\n",
+        "[[joints]]\nkind = \"pin\"\na = \"pole.a\"\n\n[[joints]]\nkind = \"pin\"\na = \"pole.a\"\n",
+    );
+    let e = error_of(&twice);
+    assert!(e.field == "joints[1].a" && e.reason.contains("joints[0] already holds these points"), "{e}");
+}
+
+#[test]
+fn a_route_of_more_than_a_thousand_points_is_refused() {
+    let long: Vec<&str> = std::iter::repeat_n(["\"ground.top\"", "\"pole.b\""], 501).flatten().collect();
+    let text =
+        VALID.replace("route = [\"ground.top\", \"pole.b\"]", &format!("route = [{}]", long.join(", ")));
+    let e = error_of(&text);
+    assert!(e.field == "cables[0].route" && e.reason.contains("at most 1000 points, got 1002"), "{e}");
+}
+
+#[test]
+fn bodies_that_nothing_holds_are_named() {
+    let model = from_toml(
+        &VALID.replace("[[joints]]", "[[bodies]]\nname = \"drifter\"\nkind = \"node\"\nmass = 1.0\nposition = [5.0, 5.0, 5.0]\n\n[[joints]]"),
+        "scene.toml",
+    )
+    .expect("a free-floating body is a valid scene for dynamics");
+    let note = tensegrity::report::unheld_bodies_note(&model).expect("named");
+    assert!(note.contains("1 body 'drifter' has no cable, joint or support"), "{note}");
+    assert!(tensegrity::report::unheld_bodies_note(&from_toml(VALID, "scene.toml").unwrap()).is_none());
+}

@@ -266,6 +266,15 @@ fn load(path: &Path) -> Result<Model, String> {
     scene::load(path).map_err(|e| e.to_string())
 }
 
+/// Like `load`, but refuses scenes with bodies that nothing holds (they have no equilibrium).
+fn load_for_statics(path: &Path) -> Result<Model, String> {
+    let model = load(path)?;
+    match report::unheld_bodies_note(&model) {
+        Some(note) => Err(format!("{}: {note}", path.display())),
+        None => Ok(model),
+    }
+}
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
@@ -311,10 +320,13 @@ fn run(cli: Cli) -> Result<(), String> {
             if s.planar {
                 println!("planar: yes (xy plane)");
             }
+            if let Some(note) = report::unheld_bodies_note(&model) {
+                println!("warning: {note} (dynamics lets them drift or fall)");
+            }
             Ok(())
         }
         Command::Statics { scene, json } => {
-            let model = load(&scene)?;
+            let model = load_for_statics(&scene)?;
             let mut state = State::initial(&model);
             let mut ws = Workspace::new(&model);
             evaluate(&model, &state, &mut ws, Tangents::None);
@@ -352,9 +364,13 @@ fn run(cli: Cli) -> Result<(), String> {
             if dynamic {
                 return deploy_dynamic(&model, &scene, dynamics.settings(&model)?, duration, &out);
             }
+            if let Some(note) = report::unheld_bodies_note(&model) {
+                return Err(format!("{}: {note}", scene.display()));
+            }
             if let Some(n) = steps {
-                if n == 0 {
-                    return Err("--steps must be >= 1".into());
+                let max = tensegrity::scene::limits::MAX_LOAD_STEPS;
+                if n == 0 || n > max {
+                    return Err(format!("--steps must be in [1, {max}], got {n}"));
                 }
                 model.schedule.steps = n;
             }

@@ -77,6 +77,18 @@ impl Default for NodeParams {
     }
 }
 
+/// Accepted `physics_dt`, s: below 1 us a real-time step cannot be kept, above 0.1 s no tensegrity
+/// dynamics is resolved.
+pub const PHYSICS_DT_RANGE: (f64, f64) = crate::scene::limits::PHYSICS_DT;
+/// Accepted `real_time_factor` (0 = as fast as possible).
+pub const REAL_TIME_FACTOR_RANGE: (f64, f64) = (0.0, 1e3);
+/// Accepted `state_publish_rate`, Hz of sim time (0 = every step).
+pub const PUBLISH_RATE_RANGE: (f64, f64) = (0.0, 1e6);
+/// Accepted `markers_rate`, Hz of sim time (0 = off).
+pub const MARKERS_RATE_RANGE: (f64, f64) = (0.0, 1e3);
+/// Accepted `command_timeout`, s of sim time (0 = never).
+pub const COMMAND_TIMEOUT_RANGE: (f64, f64) = (0.0, 1e6);
+
 /// A parameter or argument that could not be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]
@@ -98,6 +110,13 @@ impl NodeParams {
                 Err(err(format!("parameter {name}: {v} is not finite")))
             }
         };
+        let within = |x: f64, (lo, hi): (f64, f64)| {
+            if (lo..=hi).contains(&x) {
+                Ok(x)
+            } else {
+                Err(err(format!("parameter {name} must be in [{lo:e}, {hi:e}], got {x:e}")))
+            }
+        };
         let boolean = |v: &str| match v.trim().to_ascii_lowercase().as_str() {
             "true" | "1" | "yes" | "on" => Ok(true),
             "false" | "0" | "no" | "off" => Ok(false),
@@ -106,30 +125,18 @@ impl NodeParams {
         let text = |v: &str| v.trim().trim_matches('"').trim_matches('\'').to_string();
         match name {
             "scene" => self.scene = Some(PathBuf::from(text(value))),
-            "physics_dt" => {
-                let dt = num(value)?;
-                if dt <= 0.0 {
-                    return Err(err(format!("parameter physics_dt must be > 0, got {dt}")));
-                }
-                self.physics_dt = Some(dt);
-            }
-            "real_time_factor" => {
-                let r = num(value)?;
-                if r < 0.0 {
-                    return Err(err(format!("parameter real_time_factor must be >= 0, got {r}")));
-                }
-                self.real_time_factor = r;
-            }
+            "physics_dt" => self.physics_dt = Some(within(num(value)?, PHYSICS_DT_RANGE)?),
+            "real_time_factor" => self.real_time_factor = within(num(value)?, REAL_TIME_FACTOR_RANGE)?,
             "start_paused" => self.start_paused = boolean(value)?,
             "follow_schedule" => self.follow_schedule = boolean(value)?,
-            "state_publish_rate" => {
-                let r = num(value)?;
-                if r < 0.0 {
-                    return Err(err(format!("parameter state_publish_rate must be >= 0, got {r}")));
+            "state_publish_rate" => self.state_publish_rate = within(num(value)?, PUBLISH_RATE_RANGE)?,
+            "frame_id" => {
+                let v = text(value);
+                if v.is_empty() || v.len() > 256 {
+                    return Err(err(format!("parameter frame_id must have 1 to 256 bytes, got {}", v.len())));
                 }
-                self.state_publish_rate = r;
+                self.frame_id = v;
             }
-            "frame_id" => self.frame_id = text(value),
             "integrator" => {
                 let v = text(value);
                 if crate::solve::dynamics::Integrator::parse(&v, self.rho_inf).is_none() {
@@ -144,17 +151,8 @@ impl NodeParams {
                 }
                 self.rho_inf = r;
             }
-            "markers_rate" | "command_timeout" => {
-                let r = num(value)?;
-                if r < 0.0 {
-                    return Err(err(format!("parameter {name} must be >= 0, got {r}")));
-                }
-                if name == "markers_rate" {
-                    self.markers_rate = r;
-                } else {
-                    self.command_timeout = r;
-                }
-            }
+            "markers_rate" => self.markers_rate = within(num(value)?, MARKERS_RATE_RANGE)?,
+            "command_timeout" => self.command_timeout = within(num(value)?, COMMAND_TIMEOUT_RANGE)?,
             "command_timeout_action" => {
                 let v = text(value).to_ascii_lowercase();
                 if !matches!(v.as_str(), "hold" | "initial") {

@@ -431,6 +431,11 @@ impl SimNode {
                 std::thread::sleep((wake_at - now).min(SLICE));
             }
         }
+        let answering = !self.dds.tickets.is_empty();
         self.core.shutdown(&mut self.dds.sink());
+        if answering {
+            // give the reliable writer a moment to deliver the answer before the entities go
+            std::thread::sleep(Duration::from_millis(300));
+        }
     }
 }

@@ -301,6 +301,23 @@ impl Model {
         &self.route_points[cable.route_start..cable.route_start + cable.route_len]
     }
 
+    /// Bodies with coordinates that nothing acts on or holds: no cable route point and no joint
+    /// on them. Such a body floats free (or falls, under gravity): dynamics can follow it, but it
+    /// has no equilibrium. Linear in the scene size.
+    pub fn unheld_bodies(&self) -> Vec<BodyId> {
+        let mut held = vec![false; self.bodies.len()];
+        for p in &self.route_points {
+            held[self.points[p.0].body.0] = true;
+        }
+        for j in &self.joints {
+            held[self.points[j.point.0].body.0] = true;
+            if let JointTarget::Point(q) = j.target {
+                held[self.points[q.0].body.0] = true;
+            }
+        }
+        (0..self.bodies.len()).filter(|&b| !held[b] && self.bodies[b].dof_count > 0).map(BodyId).collect()
+    }
+
     /// Number of constraint rows a ball joint has in this model (3, or 2 when planar).
     pub fn joint_rows(&self) -> usize {
         if self.planar {

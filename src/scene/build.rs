@@ -5,7 +5,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 
-use super::{BodyKindSpec, JointKindSpec, PointSpec, SceneSpec};
+use super::{limits, BodyKindSpec, JointKindSpec, PointSpec, SceneSpec};
 use crate::error::SceneError;
 use crate::model::{
     ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, JointModel, JointTarget, Model, PointId,
@@ -36,16 +36,49 @@ impl Ctx<'_> {
     }
 }
 
-fn finite3(v: &[f64; 3]) -> bool {
-    v.iter().all(|x| x.is_finite())
+/// A number as a person writes it: plain between 1e-3 and 1e4, else in exponent form.
+fn num(x: f64) -> String {
+    if x == 0.0 || (1e-3..1e4).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }
 
-fn positive(x: Option<f64>) -> Result<f64, String> {
+/// `x` when it lies in `[lo, hi]`, else the reason (with the unit `unit`).
+fn in_range(x: f64, (lo, hi): (f64, f64), unit: &str) -> Result<f64, String> {
+    if !x.is_finite() {
+        Err(format!("must be finite, got {x}"))
+    } else if lo > 0.0 && x <= 0.0 {
+        Err(format!("must be positive, got {}", num(x)))
+    } else if lo == 0.0 && x < 0.0 {
+        Err(format!("must be >= 0, got {}", num(x)))
+    } else if x < lo || x > hi {
+        Err(format!(
+            "must be in [{}, {}]{}, got {}",
+            num(lo),
+            num(hi),
+            if unit.is_empty() { String::new() } else { format!(" {unit}") },
+            num(x)
+        ))
+    } else {
+        Ok(x)
+    }
+}
+
+/// `v` when every entry is finite and within `max` in magnitude.
+fn bounded3(v: &[f64; 3], max: f64, unit: &str) -> Result<(), String> {
+    match v.iter().find(|x| !(x.is_finite() && x.abs() <= max)) {
+        None => Ok(()),
+        Some(x) if !x.is_finite() => Err(format!("must be finite, got {v:?}")),
+        Some(x) => Err(format!("entries must be within +-{} {unit}, got {}", num(max), num(*x))),
+    }
+}
+
+fn mass(x: Option<f64>) -> Result<f64, String> {
     match x {
         None => Err("missing (required for this kind)".into()),
-        Some(m) if !m.is_finite() => Err(format!("must be finite, got {m}")),
-        Some(m) if m <= 0.0 => Err(format!("must be positive, got {m}")),
-        Some(m) => Ok(m),
+        Some(m) => in_range(m, limits::MASS, "kg"),
     }
 }
 
@@ -53,9 +86,7 @@ fn positive(x: Option<f64>) -> Result<f64, String> {
 /// source, when there is one) lets errors carry line numbers.
 pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<Model, SceneError> {
     let cx = Ctx { file, text };
-    if !finite3(&spec.gravity) {
-        return Err(cx.top("gravity", "must be finite"));
-    }
+    bounded3(&spec.gravity, limits::MAX_GRAVITY, "m/s^2").map_err(|r| cx.top("gravity", r))?;
     if spec.planar && spec.gravity[2] != 0.0 {
         return Err(cx.top("gravity", "a planar scene moves in the xy plane: gravity z must be 0"));
     }
@@ -79,19 +110,18 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         if bodies.iter().any(|o: &BodyModel| o.name == b.name) {
             return Err(e("name", format!("duplicate body name '{}'", b.name)));
         }
-        for (f, v) in [("position", b.position), ("rotation", b.rotation)] {
-            if let Some(v) = v {
-                if !finite3(&v) {
-                    return Err(e(f, "must be finite".into()));
-                }
-            }
+        if let Some(v) = &b.position {
+            bounded3(v, limits::MAX_COORDINATE, "m").map_err(|r| e("position", r))?;
+        }
+        if let Some(v) = &b.rotation {
+            bounded3(v, limits::MAX_ROTATION, "rad").map_err(|r| e("rotation", r))?;
         }
         let rotation = UnitQuaternion::from_scaled_axis(Vector3::from(b.rotation.unwrap_or([0.0; 3])));
         let position = b.position.map(Vector3::from);
         let mut local_points: Vec<(String, Vector3<f64>)> = Vec::new();
         let (kind, mass, inertia, pose, bar_len) = match b.kind {
             BodyKindSpec::Node => {
-                let mass = positive(b.mass).map_err(|r| e("mass", r))?;
+                let mass = mass(b.mass).map_err(|r| e("mass", r))?;
                 let x = position.ok_or_else(|| e("position", "missing (required for a node)".into()))?;
                 if b.rotation.is_some() || b.ends.is_some() || b.inertia.is_some() || !b.points.is_empty() {
                     return Err(e(
@@ -108,12 +138,12 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                 )
             }
             BodyKindSpec::Bar => {
-                let mass = positive(b.mass).map_err(|r| e("mass", r))?;
+                let mass = mass(b.mass).map_err(|r| e("mass", r))?;
                 let ends = b
                     .ends
                     .ok_or_else(|| e("ends", "missing (a bar is given by its two end positions)".into()))?;
-                if !finite3(&ends[0]) || !finite3(&ends[1]) {
-                    return Err(e("ends", "must be finite".into()));
+                for end in &ends {
+                    bounded3(end, limits::MAX_COORDINATE, "m").map_err(|r| e("ends", r))?;
                 }
                 if b.position.is_some() || b.rotation.is_some() {
                     return Err(e("position", "a bar is placed by `ends`, not by position/rotation".into()));
@@ -131,7 +161,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                     .unwrap_or_else(|| UnitQuaternion::from_scaled_axis(Vector3::x() * std::f64::consts::PI));
                 let it = match b.inertia.as_deref() {
                     None => mass * len * len / 12.0,
-                    Some([it]) if it.is_finite() && *it > 0.0 => *it,
+                    Some([it]) => in_range(*it, limits::INERTIA, "kg m^2").map_err(|r| e("inertia", r))?,
                     Some(v) => {
                         return Err(e(
                             "inertia",
@@ -150,7 +180,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                 )
             }
             BodyKindSpec::Rigid => {
-                let mass = positive(b.mass).map_err(|r| e("mass", r))?;
+                let mass = mass(b.mass).map_err(|r| e("mass", r))?;
                 let x =
                     position.ok_or_else(|| e("position", "missing (required for a rigid body)".into()))?;
                 let j = match b.inertia.as_deref() {
@@ -159,8 +189,14 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                     Some(v) => return Err(e("inertia", format!("expected 3 or 6 values, got {}", v.len()))),
                     None => return Err(e("inertia", "missing (required for a rigid body)".into())),
                 };
-                if j.iter().any(|x| !x.is_finite()) {
-                    return Err(e("inertia", "must be finite".into()));
+                if let Some(x) = j.iter().find(|x| !(x.is_finite() && x.abs() <= limits::INERTIA.1)) {
+                    return Err(e(
+                        "inertia",
+                        format!(
+                            "entries must be finite and within {:e} kg m^2, got {x:e}",
+                            limits::INERTIA.1
+                        ),
+                    ));
                 }
                 let eig = SymmetricEigen::new(j).eigenvalues;
                 let (mn, sum) = (eig.min(), eig.sum());
@@ -190,22 +226,28 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             if local_points.iter().any(|(n, _)| n == pname) {
                 return Err(e(&field, format!("duplicate point name '{pname}' (bars define 'a' and 'b')")));
             }
-            let local =
-                match (kind, p) {
-                    (BodyKind::Bar, PointSpec::Along(s)) if s.is_finite() => {
-                        Vector3::new(0.0, 0.0, (s - 0.5) * bar_len)
-                    }
-                    (BodyKind::Bar, PointSpec::Local(_)) => return Err(e(
+            let local = match (kind, p) {
+                (BodyKind::Bar, PointSpec::Along(s)) if s.is_finite() && s.abs() <= 1e3 => {
+                    Vector3::new(0.0, 0.0, (s - 0.5) * bar_len)
+                }
+                (BodyKind::Bar, PointSpec::Local(_)) => {
+                    return Err(e(
                         &field,
                         "a bar's points lie on its axis: give the fraction along the bar from a (0) to b (1)"
                             .into(),
-                    )),
-                    (_, PointSpec::Local(v)) if finite3(v) => Vector3::from(*v),
-                    (_, PointSpec::Along(_)) => {
-                        return Err(e(&field, "expected body coordinates [x, y, z]".into()))
-                    }
-                    _ => return Err(e(&field, "must be finite".into())),
-                };
+                    ))
+                }
+                (_, PointSpec::Local(v)) => {
+                    bounded3(v, limits::MAX_COORDINATE, "m").map_err(|r| e(&field, r))?;
+                    Vector3::from(*v)
+                }
+                (BodyKind::Bar, PointSpec::Along(_)) => {
+                    return Err(e(&field, "a fraction along the bar must be finite and within +-1000".into()))
+                }
+                (_, PointSpec::Along(_)) => {
+                    return Err(e(&field, "expected body coordinates [x, y, z]".into()))
+                }
+            };
             local_points.push((pname.clone(), local));
         }
         // basis
@@ -263,6 +305,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     // ---- joints
     let rows = if spec.planar { 2 } else { 3 };
     let mut joints = Vec::new();
+    let mut joint_keys: BTreeMap<(usize, usize), usize> = BTreeMap::new();
     for (i, j) in spec.joints.iter().enumerate() {
         let e = |field: &str, reason: String| cx.err("joints", i, field, reason);
         let a = lookup(&j.a).ok_or_else(|| e("a", format!("unknown point '{}'", j.a)))?;
@@ -295,8 +338,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                     return Err(e("a", "the point is on a fixed body: nothing to pin".into()));
                 }
                 let at = match j.at {
-                    Some(v) if finite3(&v) => Vector3::from(v),
-                    Some(_) => return Err(e("at", "must be finite".into())),
+                    Some(v) => {
+                        bounded3(&v, limits::MAX_COORDINATE, "m").map_err(|r| e("at", r))?;
+                        Vector3::from(v)
+                    }
                     None => point_pos(a),
                 };
                 JointTarget::World(at)
@@ -310,6 +355,18 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             return Err(e(
                 "a",
                 format!("the joint's points are {:.3e} m apart at the start; they must coincide", gap.norm()),
+            ));
+        }
+        // the same pin, or the same pair of points joined again, only repeats constraint rows: the
+        // equations become singular (and a long list of repeats makes every solve slow)
+        let key = match target {
+            JointTarget::Point(b) => (a.0.min(b.0), a.0.max(b.0)),
+            JointTarget::World(_) => (a.0, usize::MAX),
+        };
+        if let Some(first) = joint_keys.insert(key, i) {
+            return Err(e(
+                "a",
+                format!("joints[{first}] already holds these points: the constraint would be repeated (redundant)"),
             ));
         }
         joints.push(JointModel { point: a, target, row_offset: i * rows });
@@ -332,6 +389,12 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         if c.route.len() < 2 {
             return Err(e("route", format!("a cable needs at least two points, got {}", c.route.len())));
         }
+        if c.route.len() > limits::MAX_ROUTE_POINTS {
+            return Err(e(
+                "route",
+                format!("a route has at most {} points, got {}", limits::MAX_ROUTE_POINTS, c.route.len()),
+            ));
+        }
         let start = route_points.len();
         for (k, pname) in c.route.iter().enumerate() {
             let p = lookup(pname).ok_or_else(|| {
@@ -347,9 +410,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             }
             route_points.push(p);
         }
-        if !(c.ea.is_finite() && c.ea > 0.0) {
-            return Err(e("ea", format!("EA must be positive and finite, got {}", c.ea)));
-        }
+        in_range(c.ea, limits::EA, "N").map_err(|r| e("ea", format!("EA {r}")))?;
         let given = [c.rest_length.is_some(), c.prestress.is_some(), c.force_density.is_some()];
         if given.iter().filter(|g| **g).count() > 1 {
             let field = if c.force_density.is_some() { "force_density" } else { "prestress" };
@@ -359,8 +420,15 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             ));
         }
         let rest = match (c.rest_length, c.prestress, c.force_density) {
-            (Some(l), _, _) if l.is_finite() && l > 0.0 => RestLengthSpec::Given(l),
-            (Some(l), _, _) => return Err(e("rest_length", format!("must be positive and finite, got {l}"))),
+            (Some(l), _, _) => {
+                RestLengthSpec::Given(in_range(l, limits::LENGTH, "m").map_err(|r| e("rest_length", r))?)
+            }
+            (_, Some(t), _) if t.is_finite() && t > limits::PRESTRESS.1 => {
+                return Err(e("prestress", in_range(t, limits::PRESTRESS, "N").unwrap_err()))
+            }
+            (_, _, Some(q)) if q.is_finite() && q > limits::FORCE_DENSITY.1 => {
+                return Err(e("force_density", in_range(q, limits::FORCE_DENSITY, "N/m").unwrap_err()))
+            }
             (_, Some(t), _) if t.is_finite() && t >= 0.0 => RestLengthSpec::Prestress(t),
             (_, Some(t), _) => {
                 return Err(e("prestress", format!("a cable can only pull: prestress must be >= 0, got {t}")))
@@ -378,10 +446,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             (Some(_), Some(_)) => {
                 return Err(e("damping_ratio", "give damping or damping_ratio, not both".into()))
             }
-            (Some(d), None) if d.is_finite() && d >= 0.0 => (d, None),
-            (Some(d), None) => return Err(e("damping", format!("must be >= 0 and finite, got {d}"))),
-            (None, Some(z)) if z.is_finite() && z >= 0.0 => (0.0, Some(z)),
-            (None, Some(z)) => return Err(e("damping_ratio", format!("must be >= 0 and finite, got {z}"))),
+            (Some(d), None) => (in_range(d, limits::DAMPING, "N s/m").map_err(|r| e("damping", r))?, None),
+            (None, Some(z)) => {
+                (0.0, Some(in_range(z, limits::DAMPING_RATIO, "").map_err(|r| e("damping_ratio", r))?))
+            }
             (None, None) => (0.0, None),
         };
         rest_specs.push(rest);
@@ -410,18 +478,15 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         if actuators.iter().any(|o: &ActuatorModel| o.cable.0 == cable) {
             return Err(e("cable", format!("cable '{}' already has an actuator", a.cable)));
         }
-        if !(a.min_rest_length.is_finite() && a.min_rest_length > 0.0) {
-            return Err(e("min_rest_length", format!("must be positive, got {}", a.min_rest_length)));
-        }
-        if !(a.max_rest_length.is_finite() && a.max_rest_length >= a.min_rest_length) {
+        in_range(a.min_rest_length, limits::LENGTH, "m").map_err(|r| e("min_rest_length", r))?;
+        in_range(a.max_rest_length, limits::LENGTH, "m").map_err(|r| e("max_rest_length", r))?;
+        if a.max_rest_length < a.min_rest_length {
             return Err(e(
                 "max_rest_length",
                 format!("must be >= min_rest_length, got {}", a.max_rest_length),
             ));
         }
-        if !(a.max_rate.is_finite() && a.max_rate > 0.0) {
-            return Err(e("max_rate", format!("must be positive, got {}", a.max_rate)));
-        }
+        in_range(a.max_rate, limits::RATE, "m/s").map_err(|r| e("max_rate", r))?;
         actuators.push(ActuatorModel {
             cable: crate::model::CableId(cable),
             min_rest_length: a.min_rest_length,
@@ -440,8 +505,11 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             solver.tolerance = t;
         }
         if let Some(n) = s.max_iterations {
-            if n == 0 {
-                return Err(cx.top("solver", "max_iterations must be >= 1"));
+            if n == 0 || n > limits::MAX_SOLVER_ITERATIONS {
+                return Err(cx.top(
+                    "solver",
+                    format!("max_iterations must be in [1, {}], got {n}", limits::MAX_SOLVER_ITERATIONS),
+                ));
             }
             solver.max_iterations = n;
         }
@@ -465,8 +533,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         initial_rest_lengths: vec![1.0; spec.cables.len()],
         solver,
         physics_dt: match spec.physics_dt {
-            Some(dt) if dt.is_finite() && dt > 0.0 => Some(dt),
-            Some(dt) => return Err(cx.top("physics_dt", format!("must be positive and finite, got {dt}"))),
+            Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
             None => None,
         },
     };
@@ -512,8 +579,11 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
 
     // ---- deployment schedule
     if let Some(d) = &spec.deployment {
-        if d.steps == 0 {
-            return Err(cx.top("deployment", "steps must be >= 1"));
+        if d.steps == 0 || d.steps > limits::MAX_LOAD_STEPS {
+            return Err(cx.top(
+                "deployment",
+                format!("steps must be in [1, {}], got {}", limits::MAX_LOAD_STEPS, d.steps),
+            ));
         }
         let mut ramps = Vec::new();
         for (i, r) in d.ramps.iter().enumerate() {
@@ -521,11 +591,9 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             let id = model
                 .actuator_id(&r.actuator)
                 .ok_or_else(|| e("actuator", format!("unknown actuator '{}'", r.actuator)))?;
-            if !(r.start.is_finite() && r.start >= 0.0) {
-                return Err(e("start", format!("must be >= 0, got {}", r.start)));
-            }
-            if !(r.duration.is_finite() && r.duration > 0.0) {
-                return Err(e("duration", format!("must be positive, got {}", r.duration)));
+            in_range(r.start, limits::TIME, "s").map_err(|r| e("start", r))?;
+            if in_range(r.duration, limits::TIME, "s").map_err(|r| e("duration", r))? == 0.0 {
+                return Err(e("duration", "must be positive, got 0".into()));
             }
             let act = model.actuators[id.0];
             if !(r.rest_length >= act.min_rest_length && r.rest_length <= act.max_rest_length) {

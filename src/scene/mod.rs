@@ -20,6 +20,75 @@ use crate::model::Model;
 
 pub use build::build_model;
 
+/// The ranges a scene's numbers must lie in. They keep every product the solvers form finite in
+/// double precision (EA times a strain times a Jacobian, masses over step squared) and refuse
+/// numbers no structure has, so a typo (an exponent too many) is caught at load time.
+pub mod limits {
+    /// Physics step, s (shared with the node's `physics_dt` parameter).
+    pub const PHYSICS_DT: (f64, f64) = (1e-6, 0.1);
+    /// Largest |coordinate| of a position, bar end, point or pin, m.
+    pub const MAX_COORDINATE: f64 = 1e6;
+    /// Largest |rotation vector| component, rad.
+    pub const MAX_ROTATION: f64 = 1e3;
+    /// Masses, kg.
+    pub const MASS: (f64, f64) = (1e-9, 1e9);
+    /// Moments of inertia, kg m^2.
+    pub const INERTIA: (f64, f64) = (1e-15, 1e12);
+    /// Axial stiffness EA, N.
+    pub const EA: (f64, f64) = (1e-6, 1e12);
+    /// Damping coefficient, N s/m.
+    pub const DAMPING: (f64, f64) = (0.0, 1e9);
+    /// Damping ratio.
+    pub const DAMPING_RATIO: (f64, f64) = (0.0, 100.0);
+    /// Rest lengths and actuator limits, m.
+    pub const LENGTH: (f64, f64) = (1e-9, 1e6);
+    /// Prestress, N.
+    pub const PRESTRESS: (f64, f64) = (0.0, 1e12);
+    /// Force density, N/m.
+    pub const FORCE_DENSITY: (f64, f64) = (0.0, 1e12);
+    /// Actuator rates, m/s.
+    pub const RATE: (f64, f64) = (1e-12, 1e6);
+    /// Largest |gravity| component, m/s^2.
+    pub const MAX_GRAVITY: f64 = 1e3;
+    /// Ramp start and duration, s.
+    pub const TIME: (f64, f64) = (0.0, 1e6);
+    /// Quasi-static load steps of a deployment.
+    pub const MAX_LOAD_STEPS: usize = 1_000_000;
+    /// Points on one cable's route.
+    pub const MAX_ROUTE_POINTS: usize = 1000;
+    /// Newton iterations per quasi-static load step.
+    pub const MAX_SOLVER_ITERATIONS: usize = 10_000;
+}
+
+/// Deserializers that insist on the exact number of entries (serde's fixed-size arrays would
+/// silently drop extra ones).
+mod exact {
+    use serde::de::{Deserializer, Error};
+    use serde::Deserialize;
+
+    fn three<E: Error>(v: Vec<f64>) -> Result<[f64; 3], E> {
+        <[f64; 3]>::try_from(v.as_slice())
+            .map_err(|_| E::custom(format!("expected exactly 3 numbers [x, y, z], got {}", v.len())))
+    }
+    pub fn vec3<'de, D: Deserializer<'de>>(d: D) -> Result<[f64; 3], D::Error> {
+        three(Vec::<f64>::deserialize(d)?)
+    }
+    pub fn some_vec3<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 3]>, D::Error> {
+        vec3(d).map(Some)
+    }
+    pub fn some_ends<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[[f64; 3]; 2]>, D::Error> {
+        let v = Vec::<Vec<f64>>::deserialize(d)?;
+        if v.len() != 2 {
+            return Err(D::Error::custom(format!(
+                "expected exactly 2 end points [[x, y, z], [x, y, z]], got {}",
+                v.len()
+            )));
+        }
+        let mut ends = v.into_iter().map(three::<D::Error>);
+        Ok(Some([ends.next().expect("2")?, ends.next().expect("2")?]))
+    }
+}
+
 /// A whole scene file.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -31,12 +100,12 @@ pub struct SceneSpec {
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub description: String,
     /// Gravity acceleration, m/s^2, world frame (default none).
-    #[serde(default, skip_serializing_if = "is_zero3")]
+    #[serde(default, skip_serializing_if = "is_zero3", deserialize_with = "exact::vec3")]
     pub gravity: [f64; 3],
     /// 2-D scene: everything moves in the world xy plane.
     #[serde(default, skip_serializing_if = "is_false")]
     pub planar: bool,
-    /// Physics step for dynamic runs and the node, s (> 0); tools fall back to 0.001.
+    /// Physics step for dynamic runs and the node, s (1e-6 to 0.1); tools fall back to 0.001.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub physics_dt: Option<f64>,
     /// Quasi-static solver settings.
@@ -87,7 +156,7 @@ pub enum PointSpec {
     /// Fraction `s` along a bar: at `a + s (b - a)`.
     Along(f64),
     /// Body coordinates, m, origin at the centre of mass.
-    Local([f64; 3]),
+    Local(#[serde(deserialize_with = "exact::vec3")] [f64; 3]),
 }
 
 /// One body.
@@ -102,13 +171,13 @@ pub struct BodySpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass: Option<f64>,
     /// Centre of mass (node, rigid) or frame origin (fixed), m.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub position: Option<[f64; 3]>,
     /// Rotation vector body -> world, rad (rigid, fixed).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub rotation: Option<[f64; 3]>,
     /// End positions `a` and `b` of a bar, m.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_ends")]
     pub ends: Option<[[f64; 3]; 2]>,
     /// Inertia about the centre of mass in body axes, kg m^2: rigid `[Ixx, Iyy, Izz]` or
     /// `[Ixx, Iyy, Izz, Ixy, Ixz, Iyz]`; bar `[I_transverse]` (default `m l^2 / 12`).
@@ -157,7 +226,7 @@ pub struct JointSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub b: Option<String>,
     /// World position of a pin, m (default: where `a` starts).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub at: Option<[f64; 3]>,
 }
 

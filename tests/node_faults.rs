@@ -1,0 +1,250 @@
+//! Invariant: no peer can stop the node or make it lie. A subscriber frozen with SIGSTOP for 30 s
+//! neither stops nor stalls the steps, and the topics it does not read keep flowing; a
+//! StepSimulation request of 10^12 steps leaves get-state, reset and SIGTERM working, and SIGTERM
+//! still answers the caller and exits 0; a request in another service mapping's layout is refused,
+//! not obeyed; subscribers resume after the node restarts; a controller killed while flooding
+//! commands leaves the node running with counts that add up.
+//!
+//! Network rule: each test re-executes itself inside a private loopback-only network namespace
+//! (tests/common/netns.rs) and uses its own domain id (65-69). The tests of this file take a lock
+//! so that they do not compete for the two cores.
+
+#![cfg(feature = "ros2")]
+
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use ros2_client::ServiceMapping;
+use tensegrity::io::msg;
+use tensegrity::io::params::NodeParams;
+
+#[path = "common/netns.rs"]
+mod netns;
+#[path = "common/peer.rs"]
+mod peer;
+#[path = "common/roles.rs"]
+mod roles;
+#[path = "common/running_node.rs"]
+mod running_node;
+
+use peer::{call, closing_count, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
+use running_node::RunningNode;
+
+static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
+
+/// True inside the namespace; outside, re-runs `test` there (one test of this file at a time).
+fn isolated_or_rerun(test: &str) -> bool {
+    if netns::interfaces().iter().all(|i| i == "lo") {
+        return true;
+    }
+    let _lock = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
+    netns::isolated_or_rerun(&["--exact", test, "--nocapture", "--test-threads=1"])
+}
+
+fn bundled(name: &str) -> tensegrity::Model {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
+    tensegrity::scene::load(&path).unwrap()
+}
+
+const SEC: Duration = Duration::from_secs(1);
+
+#[test]
+fn a_frozen_subscriber_neither_stops_nor_stalls_the_node() {
+    const TEST: &str = "a_frozen_subscriber_neither_stops_nor_stalls_the_node";
+    let domain = 65;
+    if roles::play_role_if_asked(domain) || !isolated_or_rerun(TEST) {
+        return;
+    }
+    let params = NodeParams { domain_id: domain, state_publish_rate: 0.0, ..Default::default() };
+    let node = RunningNode::start(bundled("prism3.toml"), params);
+    let mut me = Peer::new(domain, "healthy");
+    let actuators = me.subscribe::<msg::JointState>(NS, "actuator_states", "sensor_msgs", "JointState", 1000);
+    let clock = me.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 1000);
+    let stop_file = scratch_file("frozen-stop");
+    let _ = std::fs::remove_file(&stop_file);
+    let mut frozen =
+        spawn_role(TEST, "frozen-subscriber", &[("TENSEGRITY_STOP_FILE", stop_file.display().to_string())]);
+    std::thread::sleep(3 * SEC); // discovery and matching
+    signal(frozen.id(), "STOP");
+
+    // 30 s frozen: the node keeps stepping at its pace, and a topic the frozen one does not read
+    // keeps reaching the healthy subscriber to the end
+    let start = Instant::now();
+    let (mut first, mut last, mut late) = (None, 0.0, 0usize);
+    while start.elapsed() < 30 * SEC {
+        while let Ok(Some((m, _))) = actuators.take() {
+            let t = m.header.stamp.seconds();
+            first.get_or_insert(t);
+            last = t;
+            if start.elapsed() > 25 * SEC {
+                late += 1;
+            }
+        }
+        while let Ok(Some(_)) = clock.take() {}
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let sim_advance = last - first.expect("actuator states while the subscriber is frozen");
+    println!("frozen 30 s: sim time advanced {sim_advance:.3} s, {late} actuator states in the last 5 s");
+    assert!(sim_advance > 15.0, "the node stalled: {sim_advance} s of sim time in 30 s");
+    assert!(late > 100, "a topic the frozen subscriber does not read stopped flowing");
+
+    // it resumes: /clock (which it reads) flows again to everyone. Measured here: about 19 s after
+    // SIGCONT (a RustDDS reader recovers from a long freeze slowly; at the latest its participant's
+    // 50 s lease ends the stall)
+    signal(frozen.id(), "CONT");
+    let resumed = wait_for(40 * SEC, || {
+        clock.take().ok().flatten().map(|(c, _)| c.clock.seconds()).filter(|t| *t > last - 1.0)
+    });
+    println!("after SIGCONT: /clock at {resumed:?} (last actuator state {last:.3} s)");
+    assert!(resumed.is_some(), "/clock flows again after the subscriber resumes");
+    std::fs::write(&stop_file, "stop").unwrap();
+    let _ = frozen.wait();
+    let stats = node.stop();
+    println!("publish failures per topic while frozen: {:?}", stats.publish_failures);
+    assert!(stats.steps as f64 > 0.5 * 33_000.0, "{} steps", stats.steps);
+    assert_eq!(stats.physics_failures, 0);
+}
+
+#[test]
+fn a_trillion_step_request_leaves_reset_and_sigterm_working() {
+    const TEST: &str = "a_trillion_step_request_leaves_reset_and_sigterm_working";
+    let domain = 66;
+    if !isolated_or_rerun(TEST) {
+        return;
+    }
+    let node = NodeProcess::start(domain, &["start_paused:=true", "state_publish_rate:=10"]);
+    let mut me = Peer::new(domain, "controller");
+    let step: ros2_client::Client<msg::StepSimulationRequest, msg::ResultResponse> =
+        me.client(ServiceMapping::Enhanced, "step_simulation", "simulation_interfaces", "StepSimulation");
+    let get_state: ros2_client::Client<msg::Empty, msg::GetSimulationStateResponse> = me.client(
+        ServiceMapping::Enhanced,
+        "get_simulation_state",
+        "simulation_interfaces",
+        "GetSimulationState",
+    );
+    let reset: ros2_client::Client<msg::ResetSimulationRequest, msg::ResultResponse> =
+        me.client(ServiceMapping::Enhanced, "reset_simulation", "simulation_interfaces", "ResetSimulation");
+    let clock = me.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 10);
+    std::thread::sleep(2 * SEC); // discovery of every service pair
+    assert_eq!(call(&get_state, msg::Empty::default(), 10 * SEC).expect("answer").state.state, 2);
+
+    let trillion = msg::StepSimulationRequest { steps: 1_000_000_000_000 };
+    let id = step.send_request(trillion).unwrap();
+    std::thread::sleep(SEC);
+    // stepping, yet answering: the state service and the clock
+    let t = wait_for(5 * SEC, || clock.take().ok().flatten().map(|(c, _)| c.clock.seconds()));
+    assert!(t.is_some_and(|t| t > 0.1), "steps are being taken: {t:?}");
+    let state =
+        call(&get_state, msg::Empty::default(), 5 * SEC).expect("get_state answers during the request");
+    assert_eq!(state.state.state, 2, "still paused");
+    // reset answers, and interrupts the request with an answer that says so
+    let r = call(&reset, msg::ResetSimulationRequest { scope: 0 }, 5 * SEC).expect("reset answers");
+    assert_eq!(r.result.result, 1);
+    let interrupted = wait_for(5 * SEC, || match step.receive_response() {
+        Ok(Some((rid, r))) if rid == id => Some(r),
+        _ => None,
+    })
+    .expect("the interrupted request is answered");
+    assert_eq!(interrupted.result.result, 4);
+    assert!(interrupted.result.error_message.contains("reset"), "{}", interrupted.result.error_message);
+
+    // SIGTERM during another such request: the caller gets an answer, the node exits 0
+    let id = step.send_request(trillion).unwrap();
+    std::thread::sleep(SEC);
+    signal(node.pid(), "TERM");
+    let answer = wait_for(5 * SEC, || match step.receive_response() {
+        Ok(Some((rid, r))) if rid == id => Some(r),
+        _ => None,
+    });
+    let (status, stderr) = node.wait();
+    assert!(status.success(), "exit status {status:?}: {stderr}");
+    let answer = answer
+        .unwrap_or_else(|| panic!("the request under way is answered on shutdown; node said: {stderr}"));
+    assert!(answer.result.error_message.contains("shutting down"), "{}", answer.result.error_message);
+}
+
+#[test]
+fn a_request_in_another_mappings_layout_is_refused_not_obeyed() {
+    const TEST: &str = "a_request_in_another_mappings_layout_is_refused_not_obeyed";
+    let domain = 67;
+    if !isolated_or_rerun(TEST) {
+        return;
+    }
+    let params = NodeParams { domain_id: domain, start_paused: true, ..Default::default() };
+    let node = RunningNode::start(bundled("prism3.toml"), params);
+    let mut me = Peer::new(domain, "controller");
+    // an rmw_cyclonedds-style client puts a 16-byte header before `steps`
+    let cyclone: ros2_client::Client<msg::StepSimulationRequest, msg::ResultResponse> =
+        me.client(ServiceMapping::Cyclone, "step_simulation", "simulation_interfaces", "StepSimulation");
+    let enhanced: ros2_client::Client<msg::StepSimulationRequest, msg::ResultResponse> =
+        me.client(ServiceMapping::Enhanced, "step_simulation", "simulation_interfaces", "StepSimulation");
+    let clock = me.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 100);
+    std::thread::sleep(2 * SEC);
+    let misread = call(&cyclone, msg::StepSimulationRequest { steps: 5 }, 2 * SEC);
+    assert!(misread.is_none(), "a request the server cannot read is not answered as if it were");
+    let r = call(&enhanced, msg::StepSimulationRequest { steps: 3 }, 10 * SEC).expect("answer");
+    assert_eq!(r.result.result, 1);
+    let mut ticks = 0;
+    while wait_for(SEC / 2, || clock.take().ok().flatten()).is_some() {
+        ticks += 1;
+    }
+    let stats = node.stop();
+    assert_eq!(stats.steps, 3, "only the well-formed request stepped");
+    assert_eq!(ticks, 3);
+    assert!(stats.malformed_incoming >= 1, "the misread request was counted");
+}
+
+#[test]
+fn subscribers_resume_after_the_node_restarts() {
+    const TEST: &str = "subscribers_resume_after_the_node_restarts";
+    let domain = 68;
+    if !isolated_or_rerun(TEST) {
+        return;
+    }
+    let mut me = Peer::new(domain, "listener");
+    let clock = me.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 10);
+    let cables = me.subscribe::<msg::CableStates>(NS, "cable_states", "tensegrity_msgs", "CableStates", 10);
+    for run in 0..2 {
+        let node = NodeProcess::start(domain, &[]);
+        let t = wait_for(15 * SEC, || clock.take().ok().flatten().map(|(c, _)| c.clock.seconds()));
+        assert!(t.is_some(), "run {run}: the clock reaches the subscriber that stayed up");
+        let c = wait_for(5 * SEC, || cables.take().ok().flatten());
+        assert!(c.is_some(), "run {run}: cable states too");
+        std::thread::sleep(SEC);
+        let (status, stderr) = node.stop("INT");
+        assert!(status.success(), "{stderr}");
+        while let Ok(Some(_)) = clock.take() {}
+    }
+}
+
+#[test]
+fn a_controller_killed_while_flooding_leaves_the_node_running() {
+    const TEST: &str = "a_controller_killed_while_flooding_leaves_the_node_running";
+    let domain = 69;
+    if roles::play_role_if_asked(domain) || !isolated_or_rerun(TEST) {
+        return;
+    }
+    let mut node = NodeProcess::start(domain, &[]);
+    let mut me = Peer::new(domain, "listener");
+    let clock = me.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 10);
+    let mut flooder = spawn_role(TEST, "flooder", &[]);
+    std::thread::sleep(5 * SEC);
+    signal(flooder.id(), "KILL");
+    let _ = flooder.wait();
+    std::thread::sleep(SEC);
+    assert!(node.alive(), "the node survived the flood and the killed controller");
+    while let Ok(Some(_)) = clock.take() {}
+    let t = wait_for(5 * SEC, || clock.take().ok().flatten().map(|(c, _)| c.clock.seconds()));
+    assert!(t.is_some(), "and keeps publishing");
+    let (status, stderr) = node.stop("INT");
+    assert!(status.success(), "{stderr}");
+    let (received, accepted, rejected) = (
+        closing_count(&stderr, "received"),
+        closing_count(&stderr, "accepted"),
+        closing_count(&stderr, "rejected"),
+    );
+    println!("{}", stderr.lines().last().unwrap_or(""));
+    assert!(received > 100, "the flood arrived: {received}");
+    assert_eq!(received, accepted + rejected);
+    assert!(rejected > 0 && accepted > 0);
+}

@@ -1,0 +1,196 @@
+//! Invariant: under a sustained hostile load the node stays up, bounded and truthful. For 60 s (or
+//! `TENSEGRITY_SOAK_SECS`) the node process is flooded by a controller publishing mixed valid and
+//! malformed commands as fast as its writer allows, a reliable subscriber is frozen with SIGSTOP
+//! for most of the run, and a checking subscriber is killed and restarted every 3 s. At the end
+//! the node is alive; its counts add up (`received = accepted + rejected`, no more received than
+//! sent, no more accepted than valid ones sent, no more rejected than malformed ones sent); its
+//! memory grew by less than 10 MB after the first 10 s; no subscriber saw a non-finite number;
+//! and a valid command sent after the flood takes effect within 2 steps. The real-time factor
+//! during the flood is printed, not asserted (machines are noisy).
+//!
+//! `cargo test --all-features --test node_soak -- --ignored` runs the 10-minute variant.
+
+#![cfg(feature = "ros2")]
+
+use std::time::{Duration, Instant};
+
+use ros2_client::ServiceMapping;
+use tensegrity::io::msg;
+
+#[path = "common/netns.rs"]
+mod netns;
+#[path = "common/peer.rs"]
+mod peer;
+#[path = "common/roles.rs"]
+mod roles;
+
+use peer::{call, closing_count, rss_kb, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
+
+const SEC: Duration = Duration::from_secs(1);
+
+fn soak(test: &str, domain: u16, default_secs: u64) {
+    if roles::play_role_if_asked(domain)
+        || !netns::isolated_or_rerun(&[
+            "--exact",
+            test,
+            "--nocapture",
+            "--test-threads=1",
+            "--include-ignored",
+        ])
+    {
+        return;
+    }
+    let secs: u64 =
+        std::env::var("TENSEGRITY_SOAK_SECS").ok().and_then(|s| s.parse().ok()).unwrap_or(default_secs);
+    let flood_secs = secs.saturating_sub(8).max(10);
+    let mut node = NodeProcess::start(domain, &["state_publish_rate:=0", "real_time_factor:=1"]);
+    let mut me = Peer::new(domain, "monitor");
+    let actuators = me.subscribe::<msg::JointState>(NS, "actuator_states", "sensor_msgs", "JointState", 100);
+    let diagnostics =
+        me.subscribe::<msg::DiagnosticArray>("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray", 100);
+
+    let counts = scratch_file("flood-counts");
+    let stop_frozen = scratch_file("frozen-stop");
+    let bad = scratch_file("nonfinite");
+    for f in [&counts, &stop_frozen, &bad] {
+        let _ = std::fs::remove_file(f);
+    }
+    let mut flooder = spawn_role(
+        test,
+        "flooder",
+        &[
+            ("TENSEGRITY_FLOOD_SECS", flood_secs.to_string()),
+            ("TENSEGRITY_COUNTS", counts.display().to_string()),
+        ],
+    );
+    let mut frozen =
+        spawn_role(test, "frozen-subscriber", &[("TENSEGRITY_STOP_FILE", stop_frozen.display().to_string())]);
+    let checker_env = [("TENSEGRITY_BAD_FILE", bad.display().to_string())];
+    let mut checker = spawn_role(test, "checking-subscriber", &checker_env);
+
+    let start = Instant::now();
+    let (mut frozen_now, mut rss_at_10s, mut last_restart) = (false, None, Instant::now());
+    let mut rtf = Vec::new();
+    let mut nonfinite = 0usize;
+    while start.elapsed() < Duration::from_secs(flood_secs + 1) {
+        let t = start.elapsed();
+        if !frozen_now && t > 4 * SEC && t < Duration::from_secs(flood_secs) - 10 * SEC {
+            signal(frozen.id(), "STOP");
+            frozen_now = true;
+        }
+        if frozen_now && t > Duration::from_secs(flood_secs) - 10 * SEC {
+            signal(frozen.id(), "CONT");
+            std::fs::write(&stop_frozen, "stop").unwrap();
+            frozen_now = false;
+        }
+        if last_restart.elapsed() > 3 * SEC {
+            signal(checker.id(), "KILL");
+            let _ = checker.wait();
+            checker = spawn_role(test, "checking-subscriber", &checker_env);
+            last_restart = Instant::now();
+        }
+        if rss_at_10s.is_none() && t > 10 * SEC {
+            rss_at_10s = Some(rss_kb(node.pid()));
+        }
+        assert!(node.alive(), "the node died {:.1} s into the soak", t.as_secs_f64());
+        while let Ok(Some((m, _))) = actuators.take() {
+            nonfinite += [&m.position, &m.velocity, &m.effort]
+                .iter()
+                .flat_map(|v| v.iter())
+                .filter(|x| !x.is_finite())
+                .count();
+        }
+        while let Ok(Some((m, _))) = diagnostics.take() {
+            for s in m.status.iter().filter(|s| s.name.ends_with("simulation")) {
+                if let Some(v) = s.values.iter().find(|kv| kv.key == "real_time_factor") {
+                    rtf.push(v.value.parse::<f64>().unwrap_or(f64::NAN));
+                }
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let flood_status = flooder.wait().unwrap();
+    assert!(flood_status.success());
+    let rss_end = rss_kb(node.pid());
+    signal(checker.id(), "KILL");
+    let _ = checker.wait();
+    let _ = frozen.wait();
+    let sent: Vec<u64> =
+        std::fs::read_to_string(&counts).unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
+    let (sent_valid, sent_malformed) = (sent[0], sent[1]);
+
+    // a valid command after the flood takes effect within 2 steps (lockstep, so load cannot blur it)
+    let pause: ros2_client::Client<msg::Empty, msg::Empty> =
+        me.client(ServiceMapping::Enhanced, "pause", "std_srvs", "Empty");
+    let step: ros2_client::Client<msg::StepSimulationRequest, msg::ResultResponse> =
+        me.client(ServiceMapping::Enhanced, "step_simulation", "simulation_interfaces", "StepSimulation");
+    let command = me.publisher::<msg::ActuatorCommand>(
+        NS,
+        "actuator_commands",
+        "tensegrity_msgs",
+        "ActuatorCommand",
+        tensegrity::io::ros2::qos(1, false),
+    );
+    std::thread::sleep(2 * SEC);
+    call(&pause, msg::Empty::default(), 10 * SEC).expect("pause answers after the soak");
+    let winch =
+        msg::ActuatorCommand { name: vec!["ring_winch".into()], rate: vec![-0.02], ..Default::default() };
+    command.publish(winch).unwrap();
+    std::thread::sleep(SEC);
+    while let Ok(Some(_)) = actuators.take() {}
+    let r = call(&step, msg::StepSimulationRequest { steps: 2 }, 10 * SEC).expect("step answers");
+    assert_eq!(r.result.result, 1);
+    let states: Vec<msg::JointState> =
+        std::iter::from_fn(|| wait_for(SEC, || actuators.take().ok().flatten().map(|(m, _)| m))).collect();
+    let k = states
+        .last()
+        .expect("the 2 steps are published")
+        .name
+        .iter()
+        .position(|n| n == "ring_winch")
+        .unwrap();
+    let rates: Vec<f64> = states.iter().map(|m| m.velocity[k]).collect();
+    assert!(
+        rates.iter().any(|r| (r + 0.02).abs() < 1e-9),
+        "the command shows within 2 steps: rates {rates:?}"
+    );
+
+    let (status, stderr) = node.stop("INT");
+    assert!(status.success(), "{stderr}");
+    let (received, accepted, rejected) = (
+        closing_count(&stderr, "received"),
+        closing_count(&stderr, "accepted"),
+        closing_count(&stderr, "rejected"),
+    );
+    rtf.retain(|x| x.is_finite());
+    rtf.sort_by(f64::total_cmp);
+    let median_rtf = rtf.get(rtf.len() / 2).copied().unwrap_or(f64::NAN);
+    let growth = rss_end as i64 - rss_at_10s.unwrap_or(rss_end) as i64;
+    println!(
+        "soak {secs} s: sent {sent_valid} valid + {sent_malformed} malformed; node received {received}, accepted {accepted}, rejected {rejected}; RSS {} kB at 10 s, {rss_end} kB at the end ({growth:+} kB); real-time factor median {median_rtf:.3} over {} reports",
+        rss_at_10s.unwrap_or(0),
+        rtf.len()
+    );
+    println!("{}", stderr.lines().last().unwrap_or(""));
+    assert_eq!(received, accepted + rejected, "counts add up");
+    assert!(
+        received <= sent_valid + sent_malformed + 1,
+        "never more received than sent (+1: the last command)"
+    );
+    assert!(accepted <= sent_valid + 1 && rejected <= sent_malformed);
+    assert!(rejected > 0 && accepted > 0, "the flood reached the node");
+    assert!(growth < 10 * 1024, "RSS grew by {growth} kB after the first 10 s");
+    assert_eq!(nonfinite, 0, "non-finite values in actuator states");
+    assert!(!bad.exists(), "a checking subscriber saw a non-finite value");
+}
+
+#[test]
+fn soak_flood_frozen_and_churning_subscribers() {
+    soak("soak_flood_frozen_and_churning_subscribers", 70, 60);
+}
+
+#[test]
+#[ignore = "10 minutes: cargo test --all-features --test node_soak -- --ignored"]
+fn soak_ten_minutes() {
+    soak("soak_ten_minutes", 72, 600);
+}
