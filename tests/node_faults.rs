@@ -3,10 +3,11 @@
 //! StepSimulation request of 10^12 steps leaves get-state, reset and SIGTERM working, and SIGTERM
 //! still answers the caller and exits 0; a request in another service mapping's layout is refused,
 //! not obeyed; subscribers resume after the node restarts; a controller killed while flooding
-//! commands leaves the node running with counts that add up.
+//! commands leaves the node running with counts that add up; 300 subscribers joining and leaving
+//! leave it serving the others.
 //!
 //! Network rule: each test re-executes itself inside a private loopback-only network namespace
-//! (tests/common/netns.rs) and uses its own domain id (65-69). The tests of this file take a lock
+//! (tests/common/netns.rs) and uses its own domain id (65-69, 74). The tests of this file take a lock
 //! so that they do not compete for the two cores.
 
 #![cfg(feature = "ros2")]
@@ -27,7 +28,7 @@ mod roles;
 #[path = "common/running_node.rs"]
 mod running_node;
 
-use peer::{call, closing_count, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
+use peer::{call, closing_counts, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
 use running_node::RunningNode;
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
@@ -238,13 +239,42 @@ fn a_controller_killed_while_flooding_leaves_the_node_running() {
     assert!(t.is_some(), "and keeps publishing");
     let (status, stderr) = node.stop("INT");
     assert!(status.success(), "{stderr}");
-    let (received, accepted, rejected) = (
-        closing_count(&stderr, "received"),
-        closing_count(&stderr, "accepted"),
-        closing_count(&stderr, "rejected"),
-    );
+    let (received, accepted, rejected) = closing_counts(&stderr);
     println!("{}", stderr.lines().last().unwrap_or(""));
     assert!(received > 100, "the flood arrived: {received}");
     assert_eq!(received, accepted + rejected);
     assert!(rejected > 0 && accepted > 0);
+}
+
+#[test]
+fn subscribers_joining_and_leaving_hundreds_of_times_leave_the_node_unharmed() {
+    const TEST: &str = "subscribers_joining_and_leaving_hundreds_of_times_leave_the_node_unharmed";
+    let domain = 74;
+    if !isolated_or_rerun(TEST) {
+        return;
+    }
+    let mut node = NodeProcess::start(domain, &[]);
+    let mut steady = Peer::new(domain, "steady");
+    let clock = steady.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 10);
+    assert!(wait_for(15 * SEC, || clock.take().ok().flatten()).is_some(), "the steady subscriber is served");
+    let rss_before = peer::rss_kb(node.pid());
+    for k in 0..300 {
+        // a participant with reliable readers on the busiest topics, gone again at once
+        let mut visitor = Peer::new(domain, &format!("visitor{k}"));
+        let _c =
+            visitor.subscribe::<msg::CableStates>(NS, "cable_states", "tensegrity_msgs", "CableStates", 10);
+        let _t = visitor.subscribe::<msg::Clock>("/", "clock", "rosgraph_msgs", "Clock", 1);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    std::thread::sleep(2 * SEC);
+    assert!(node.alive());
+    while let Ok(Some(_)) = clock.take() {}
+    assert!(
+        wait_for(10 * SEC, || clock.take().ok().flatten()).is_some(),
+        "the steady subscriber is still served"
+    );
+    let rss_after = peer::rss_kb(node.pid());
+    println!("300 visitors: node RSS {rss_before} kB -> {rss_after} kB");
+    let (status, stderr) = node.stop("INT");
+    assert!(status.success(), "{stderr}");
 }

@@ -24,7 +24,7 @@ mod peer;
 #[path = "common/roles.rs"]
 mod roles;
 
-use peer::{call, closing_count, rss_kb, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
+use peer::{call, closing_counts, rss_kb, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
 
 const SEC: Duration = Duration::from_secs(1);
 
@@ -157,11 +157,7 @@ fn soak(test: &str, domain: u16, default_secs: u64) {
 
     let (status, stderr) = node.stop("INT");
     assert!(status.success(), "{stderr}");
-    let (received, accepted, rejected) = (
-        closing_count(&stderr, "received"),
-        closing_count(&stderr, "accepted"),
-        closing_count(&stderr, "rejected"),
-    );
+    let (received, accepted, rejected) = closing_counts(&stderr);
     rtf.retain(|x| x.is_finite());
     rtf.sort_by(f64::total_cmp);
     let median_rtf = rtf.get(rtf.len() / 2).copied().unwrap_or(f64::NAN);

@@ -22,8 +22,12 @@ use tensegrity::io::ros2::{context, qos};
 
 #[path = "common/netns.rs"]
 mod netns;
+#[path = "common/peer.rs"]
+mod peer;
 #[path = "common/running_node.rs"]
 mod running_node;
+
+use peer::wait_for;
 
 use running_node::RunningNode;
 
@@ -34,18 +38,6 @@ fn isolated_or_rerun(test: &str) -> bool {
 fn bundled(name: &str) -> tensegrity::Model {
     let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
     tensegrity::scene::load(&path).unwrap()
-}
-
-/// Polls `f` every millisecond until it returns `Some` or `timeout` passes.
-fn wait_for<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Option<T> {
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        if let Some(v) = f() {
-            return Some(v);
-        }
-        std::thread::sleep(Duration::from_millis(1));
-    }
-    None
 }
 
 #[test]
@@ -188,12 +180,7 @@ where
     Req: ros2_client::Message + Clone + 'static,
     Resp: ros2_client::Message + 'static,
 {
-    let id = client.send_request(req).expect("request sent");
-    wait_for(Duration::from_secs(10), || match client.receive_response() {
-        Ok(Some((rid, r))) if rid == id => Some(r),
-        _ => None,
-    })
-    .expect("service answered")
+    peer::call(client, req, Duration::from_secs(10)).expect("service answered")
 }
 
 #[test]

@@ -106,6 +106,11 @@ pub fn closing_count(stderr: &str, key: &str) -> u64 {
     rest.trim_start().split(|c: char| !c.is_ascii_digit()).next().unwrap().parse().unwrap()
 }
 
+/// (received, accepted, rejected) commands from the node's closing line.
+pub fn closing_counts(stderr: &str) -> (u64, u64, u64) {
+    (closing_count(stderr, "received"), closing_count(stderr, "accepted"), closing_count(stderr, "rejected"))
+}
+
 /// A DDS participant on the test's side, with typed helpers for the node's topics and services.
 pub struct Peer {
     pub node: Node,
