@@ -12,6 +12,16 @@
 //! `|Phi|_inf <= tol * L_scale` (m), with `F_scale` the largest of the cable tensions and body
 //! weights and `L_scale` the largest cable length.
 //!
+//! Globalization (starts far from the equilibrium, as sketched by a user): the joint reactions
+//! start at their least-squares values (`least_squares_multipliers`), so the joints' geometric
+//! stiffness is right from the first iteration; where the reduced tangent has negative or zero
+//! curvature (a structure tilted past a maximum of its energy, a hanging mass, a slack cable),
+//! those eigen-directions are replaced by positive curvature (`convexity_correction`) and the step
+//! is a descent step of the potential energy, accepted when the energy falls after projecting back
+//! onto the joints (`project_onto_joints`); otherwise a Newton step is accepted when it lowers the
+//! residual norm or the energy. Translations are capped at half the structure's length scale (the
+//! largest cable length or body size) per iteration, rotations at 0.5 rad.
+//!
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
 //! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
 //! Neutral directions (free rigid motions, unstressed mechanisms) count as not stable.
@@ -49,6 +59,10 @@ pub struct StaticSolver {
     dq: DVector<f64>,
     trial_poses: Vec<Pose>,
     best_poses: Vec<Pose>,
+    /// Mass matrix in local coordinates (constant), the metric of the convexity shift.
+    mass: DMatrix<f64>,
+    /// `body_size(model)`, m.
+    size: f64,
 }
 
 struct Residual {
@@ -71,7 +85,20 @@ impl Residual {
 /// round-off floor of very stiff cables relaxes the tolerance up to this and no further.
 pub const ROUND_OFF_CEILING: f64 = 1e-6;
 
-fn residual_of(model: &Model, state: &State, ws: &mut Workspace, rhs: &mut DVector<f64>) -> Residual {
+/// The size of a model's bodies, m: twice the largest distance of an attachment point from its
+/// body's origin (a bar's length), at least 1 mm. With the cable lengths it sets the length scale,
+/// so that a structure with few or short cables still takes steps of its own size.
+pub fn body_size(model: &Model) -> f64 {
+    model.points.iter().map(|p| 2.0 * p.local.norm()).fold(1e-3, f64::max)
+}
+
+fn residual_of(
+    model: &Model,
+    state: &State,
+    ws: &mut Workspace,
+    rhs: &mut DVector<f64>,
+    size: f64,
+) -> Residual {
     let n = model.dof_count;
     let mut r = ws.force.clone_owned();
     if model.constraint_count > 0 {
@@ -95,7 +122,7 @@ fn residual_of(model: &Model, state: &State, ws: &mut Workspace, rhs: &mut DVect
         force: r.amax(),
         constraint: ws.constraint.amax(),
         force_scale: weight.max(tension).max(1e-12),
-        length_scale: length.max(1e-3),
+        length_scale: length.max(size),
     }
 }
 
@@ -110,6 +137,8 @@ impl StaticSolver {
             dq: DVector::zeros(model.dof_count),
             trial_poses: poses.clone(),
             best_poses: poses,
+            mass: crate::solve::dynamics::mass_matrix(model),
+            size: body_size(model),
         }
     }
 
@@ -127,11 +156,12 @@ impl StaticSolver {
         state.velocities.fill(0.0);
         let start_poses = state.poses.clone();
         let start_multipliers = state.multipliers.clone();
+        least_squares_multipliers(model, state, ws);
         let mut best = f64::INFINITY;
         let mut iterations = 0;
         loop {
             evaluate(model, state, ws, Tangents::Stiffness);
-            let res = residual_of(model, state, ws, &mut self.rhs);
+            let res = residual_of(model, state, ws, &mut self.rhs, self.size);
             if !res.force.is_finite() || !res.constraint.is_finite() {
                 break;
             }
@@ -168,6 +198,19 @@ impl StaticSolver {
                 self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
                 self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
             }
+            // where the reduced tangent is indefinite or singular (hanging masses, slack cables,
+            // a structure tilted past a maximum of its energy), shift it by mu M: the step then
+            // goes down the potential energy instead of towards the nearest stationary point
+            let tangent = self.kkt.view((0, 0), (n, n)).into_owned();
+            let residual_force = self.rhs.rows(0, n).into_owned();
+            let mut energy_mode = false;
+            if let Some((correction, descent)) =
+                convexity_correction(model, &tangent, ws, &self.mass, &res, &residual_force)
+            {
+                let mut top = self.kkt.view_mut((0, 0), (n, n));
+                top += &correction;
+                energy_mode = descent;
+            }
             let Some(step) = solve_regularized(&self.kkt, &self.rhs, n) else { break };
             self.dq.copy_from(&step.rows(0, n));
             // limit rotations to 0.5 rad and translations to half the length scale per iteration
@@ -184,7 +227,14 @@ impl StaticSolver {
             }
             let dlambda = step.rows(n, nc).into_owned();
 
-            // backtracking line search on the scaled residual norm
+            // backtracking line search: a Newton step is accepted when it lowers the residual norm
+            // or the potential energy (plus a joint-violation penalty); a modified (descent) step
+            // only when it lowers the energy on the joints' manifold
+            let penalty = 10.0 * ((&state.multipliers + &dlambda).amax() + res.force_scale);
+            let energy_merit = |ws: &Workspace| {
+                ws.energies.elastic + ws.energies.gravitational + penalty * ws.constraint.amax()
+            };
+            let energy0 = energy_merit(ws);
             let merit0 = res.merit(res.force_scale, res.length_scale);
             let base_multipliers = state.multipliers.clone();
             self.best_poses.copy_from_slice(&state.poses);
@@ -195,14 +245,30 @@ impl StaticSolver {
                 retract(model, &mut self.trial_poses, &self.dq, alpha);
                 std::mem::swap(&mut state.poses, &mut self.trial_poses);
                 state.multipliers = &base_multipliers + &dlambda * alpha;
+                if energy_mode {
+                    // compare energies on the joints' manifold: the shifted step is a descent
+                    // direction of the energy there, and a joint violation of second order in a
+                    // large rotation would otherwise hide a first-order energy decrease
+                    project_onto_joints(model, state, ws, res.length_scale);
+                }
                 evaluate(model, state, ws, Tangents::None);
-                let trial =
-                    residual_of(model, state, ws, &mut self.rhs).merit(res.force_scale, res.length_scale);
+                let residual_merit = residual_of(model, state, ws, &mut self.rhs, self.size)
+                    .merit(res.force_scale, res.length_scale);
+                let trial = if energy_mode { energy_merit(ws) } else { residual_merit };
                 std::mem::swap(&mut state.poses, &mut self.trial_poses);
                 if trial.is_finite() && trial < best_trial.0 {
                     best_trial = (trial, alpha);
                 }
-                if trial.is_finite() && trial <= (1.0 - 1e-4 * alpha) * merit0 {
+                // a Newton step on a positive-definite tangent is a descent step of the energy too:
+                // far from the solution the energy tells progress better than the residual (a
+                // cable swung about its anchor stretches on the tangent line), near it the
+                // residual does (the energy's decrease drowns in round-off)
+                let decreased = if energy_mode {
+                    trial < energy0
+                } else {
+                    trial <= (1.0 - 1e-4 * alpha) * merit0 || energy_merit(ws) < energy0
+                };
+                if trial.is_finite() && decreased {
                     break;
                 }
                 alpha *= 0.5;
@@ -213,6 +279,11 @@ impl StaticSolver {
             let alpha = best_trial.1;
             retract(model, &mut state.poses, &self.dq, alpha);
             state.multipliers = &base_multipliers + &dlambda * alpha;
+            if energy_mode {
+                // a descent step moves the poses, not towards the reactions: take them afresh
+                project_onto_joints(model, state, ws, res.length_scale);
+                least_squares_multipliers(model, state, ws);
+            }
         }
         state.poses.copy_from_slice(&start_poses);
         state.multipliers.copy_from(&start_multipliers);
@@ -239,6 +310,103 @@ impl StaticSolver {
         let min = eig.min();
         (min, min > 1e-9 * eig.amax().max(1e-300))
     }
+}
+
+/// The joint reactions that best balance the current forces: `lambda = argmin |Q - Phi_q^T lambda|`,
+/// i.e. `(Phi_q Phi_q^T) lambda = Phi_q Q`. Exact at an equilibrium; elsewhere it gives the joints'
+/// geometric stiffness `H_lambda` its right sign and size from the first iteration on (a hanging
+/// pendulum started with `lambda = 0` has no stiffness at all). Left unchanged when `Phi_q` is
+/// rank deficient.
+fn least_squares_multipliers(model: &Model, state: &mut State, ws: &mut Workspace) {
+    if model.constraint_count == 0 {
+        return;
+    }
+    evaluate(model, state, ws, Tangents::None);
+    let j = &ws.constraint_jacobian;
+    if let Some(lambda) = (j * j.transpose()).lu().solve(&(j * &ws.force)) {
+        if lambda.iter().all(|x| x.is_finite()) {
+            state.multipliers = lambda;
+        }
+    }
+}
+
+/// Moves the poses back onto the joints' manifold `Phi(q) = 0` by Gauss-Newton steps
+/// `dq = -Phi_q^T (Phi_q Phi_q^T)^-1 Phi` (the smallest correction), until `|Phi|_inf` is below
+/// `1e-12 length_scale` or after 8 steps. Leaves the workspace evaluated (no tangents).
+fn project_onto_joints(model: &Model, state: &mut State, ws: &mut Workspace, length_scale: f64) {
+    if model.constraint_count == 0 {
+        return;
+    }
+    for _ in 0..8 {
+        evaluate(model, state, ws, Tangents::None);
+        if ws.constraint.amax() <= 1e-12 * length_scale {
+            return;
+        }
+        let j = &ws.constraint_jacobian;
+        let Some(y) = (j * j.transpose()).lu().solve(&ws.constraint) else { return };
+        let dq = -(j.transpose() * y);
+        if !dq.iter().all(|x| x.is_finite()) {
+            return;
+        }
+        retract(model, &mut state.poses, &dq, 1.0);
+    }
+    evaluate(model, state, ws, Tangents::None);
+}
+
+/// Largest system (coordinates) for which the reduced tangent's definiteness is checked each
+/// iteration (a dense eigenproblem); larger systems take plain Newton steps.
+pub const MAX_CONVEXITY_CHECK: usize = 600;
+
+/// A positive-definite modification of the tangent on the joints' null space ("saddle-free"
+/// Newton). With `Z` spanning the null space of `Phi_q`, `Z^T M Z = L L^T` and the mass-normalized
+/// reduced tangent `S = L^-1 Z^T A Z L^-T = V diag(e) V^T` (`A` the symmetric part of `tangent`),
+/// each eigenvalue at or below `1e-8 max|e|` (negative: heading for a maximum or saddle; zero: a
+/// neutral or slack direction) becomes `max(|e|, delta)`, `delta = max(1e-2 max|e|, 1e-3 (|g| +
+/// F_scale / m_max) / L_scale)` (1/s^2); the others are kept, so Newton stays quadratic where the
+/// tangent is fine. Returns the correction `M Z L^-T V diag(e' - e) V^T L^-1 Z^T M` to add to the
+/// tangent, and whether the residual has a significant part along the modified directions (then
+/// the step is a descent step of the energy, and the line search measures the energy). `None`
+/// when nothing needs modifying or the system is too large to check.
+fn convexity_correction(
+    model: &Model,
+    tangent: &DMatrix<f64>,
+    ws: &Workspace,
+    mass: &DMatrix<f64>,
+    res: &Residual,
+    residual: &DVector<f64>,
+) -> Option<(DMatrix<f64>, bool)> {
+    let n = model.dof_count;
+    if n == 0 || n > MAX_CONVEXITY_CHECK {
+        return None;
+    }
+    let z = crate::constraints::null_space(&ws.constraint_jacobian, n)?;
+    let a = (tangent + tangent.transpose()) * 0.5;
+    let chol = (z.transpose() * mass * &z).cholesky()?;
+    let l_inv = chol.l().try_inverse()?;
+    let s = &l_inv * (z.transpose() * a * &z) * l_inv.transpose();
+    let eig = SymmetricEigen::new((&s + s.transpose()) * 0.5);
+    let e_max = eig.eigenvalues.amax();
+    let m_max = model.bodies.iter().map(|b| b.mass).fold(0.0, f64::max).max(1e-300);
+    let floor = (model.gravity.norm() + res.force_scale / m_max) / res.length_scale;
+    let delta = (1e-2 * e_max).max(1e-3 * floor);
+    let modified: Vec<usize> =
+        (0..eig.eigenvalues.len()).filter(|&i| eig.eigenvalues[i] <= 1e-8 * e_max).collect();
+    if modified.is_empty() {
+        return None;
+    }
+    // residual in the mass-normalized eigenbasis
+    let c = eig.eigenvectors.transpose() * (&l_inv * (z.transpose() * residual));
+    let along: f64 = modified.iter().map(|&i| c[i] * c[i]).sum();
+    let descent = along > 1e-12 * c.norm_squared().max(1e-300) && along.sqrt() > 1e-14 * res.force_scale;
+    let mut d = DVector::zeros(eig.eigenvalues.len());
+    for &i in &modified {
+        let e = eig.eigenvalues[i];
+        d[i] = e.abs().max(delta) - e;
+    }
+    let v = &eig.eigenvectors;
+    let ds = v * DMatrix::from_diagonal(&d) * v.transpose();
+    let b = mass * &z * l_inv.transpose();
+    Some((&b * ds * b.transpose(), descent))
 }
 
 /// Solves the KKT system with a Levenberg term `mu I` on the coordinate block, starting from
