@@ -278,3 +278,26 @@ fn subscribers_joining_and_leaving_hundreds_of_times_leave_the_node_unharmed() {
     let (status, stderr) = node.stop("INT");
     assert!(status.success(), "{stderr}");
 }
+
+#[test]
+fn the_node_binary_answers_help_and_version_and_refuses_unknown_options() {
+    // no DDS socket is opened: no namespace needed
+    let run = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_tensegrity_node")).args(args).output().unwrap()
+    };
+    let help = run(&["--help"]);
+    assert!(help.status.success());
+    let text = String::from_utf8(help.stdout).unwrap();
+    for (name, _, _) in tensegrity::io::params::PARAMETERS {
+        assert!(text.contains(name), "--help lists {name}");
+    }
+    assert!(text.contains("ROS_DOMAIN_ID") && text.contains("SIGTERM"));
+    let version = run(&["--version"]);
+    assert!(
+        version.status.success()
+            && String::from_utf8_lossy(&version.stdout).contains(env!("CARGO_PKG_VERSION"))
+    );
+    let unknown = run(&["--frobnicate"]);
+    assert_eq!(unknown.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&unknown.stderr).contains("unknown option '--frobnicate'"));
+}

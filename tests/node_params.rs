@@ -99,3 +99,18 @@ fn bad_parameters_are_refused_with_a_reason() {
         NodeParams::from_args(&[], |k: &str| (k == "ROS_DOMAIN_ID").then(|| "999".to_string())).unwrap_err();
     assert!(e.to_string().contains("ROS_DOMAIN_ID"));
 }
+
+#[test]
+fn every_parameter_in_the_help_table_is_understood_with_its_default() {
+    for (name, default, meaning) in tensegrity::io::params::PARAMETERS {
+        assert!(!meaning.is_empty());
+        let value = match *default {
+            "(bundled prism3)" => "scene.toml",
+            "(scene's, else 0.001)" => "0.001",
+            d => d,
+        };
+        let mut p = NodeParams::default();
+        p.set(name, value).unwrap_or_else(|e| panic!("{name} := {value}: {e}"));
+    }
+    assert!(NodeParams::default().set("no_such_parameter", "1").is_err());
+}

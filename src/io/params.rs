@@ -89,6 +89,25 @@ pub const MARKERS_RATE_RANGE: (f64, f64) = (0.0, 1e3);
 /// Accepted `command_timeout`, s of sim time (0 = never).
 pub const COMMAND_TIMEOUT_RANGE: (f64, f64) = (0.0, 1e6);
 
+/// Every node parameter: name, default (as `-p name:=value` takes it), meaning. `tensegrity_node
+/// --help` prints this table; a test sets each default through `NodeParams::set`.
+pub const PARAMETERS: &[(&str, &str, &str)] = &[
+    ("scene", "(bundled prism3)", "scene file; also the first plain argument"),
+    ("physics_dt", "(scene's, else 0.001)", "physics step, s, 1e-6 to 0.1"),
+    ("real_time_factor", "1.0", "1 = real time, 0 = as fast as possible, at most 1000"),
+    ("start_paused", "false", "start paused; advance with StepSimulation or unpause"),
+    ("state_publish_rate", "100.0", "state messages per second of sim time, 0 = every step"),
+    ("follow_schedule", "false", "follow the scene's deployment schedule instead of holding"),
+    ("frame_id", "world", "fixed frame of poses and transforms"),
+    ("integrator", "generalized-alpha", "generalized-alpha or symplectic-euler"),
+    ("rho_inf", "0.8", "generalized-alpha spectral radius, 0 to 1"),
+    ("markers_rate", "30.0", "RViz markers per second of sim time, 0 = off"),
+    ("command_timeout", "0.0", "sim-time s without a command before the action, 0 = never"),
+    ("command_timeout_action", "hold", "hold (winches stop) or initial (back to start)"),
+    ("service_mapping", "enhanced", "enhanced (Fast DDS, RustDDS), cyclone or basic"),
+    ("use_sim_time", "false", "accepted and ignored (the node is the clock)"),
+];
+
 /// A parameter or argument that could not be used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]

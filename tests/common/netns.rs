@@ -1,6 +1,6 @@
 //! Network isolation for everything that opens DDS sockets: re-runs the current executable inside
 //! a private network namespace whose only interface is loopback (multicast on, for discovery),
-//! like `loopback-net`, so no packet can leave the machine.
+//! through the project's `.ci/loopback-net`, so no packet can leave the machine.
 
 use std::process::Command;
 
@@ -26,24 +26,14 @@ pub fn isolated_or_rerun(args: &[&str]) -> bool {
         interfaces()
     );
     let exe = std::env::current_exe().unwrap();
-    let mut cmd = Command::new("unshare");
-    cmd.arg("--net");
-    let root = Command::new("id").arg("-u").output().map(|o| o.stdout.starts_with(b"0")).unwrap_or(false);
-    if !root {
-        cmd.arg("--map-root-user");
-    }
-    let status = cmd
-        .args([
-            "--",
-            "sh",
-            "-c",
-            "ip link set lo up && ip link set lo multicast on && (ip route add 224.0.0.0/4 dev lo 2>/dev/null || true) && exec \"$0\" \"$@\"",
-        ])
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(".ci/loopback-net");
+    let status = Command::new("sh")
+        .arg(script)
         .arg(exe)
         .args(args)
         .env("TENSEGRITY_NETNS", "1")
         .status()
-        .expect("unshare (util-linux) and ip (iproute2) are needed to isolate DDS processes");
+        .expect("sh, unshare (util-linux) and ip (iproute2) are needed to isolate DDS processes");
     assert!(status.success(), "{args:?} failed inside its network namespace");
     false
 }
