@@ -292,6 +292,8 @@ struct StaticsJson {
     residual_n: f64,
     force_scale_n: f64,
     stable: bool,
+    negative_stiffness_modes: usize,
+    zero_stiffness_modes: usize,
     min_stiffness_eigenvalue: f64,
     bodies: Vec<report::BodyReport>,
     points: Vec<(String, [f64; 3])>,
@@ -348,6 +350,8 @@ fn run(cli: Cli) -> Result<(), String> {
                     residual_n: r.residual,
                     force_scale_n: r.force_scale,
                     stable: r.stable,
+                    negative_stiffness_modes: r.negative_modes,
+                    zero_stiffness_modes: r.zero_modes,
                     min_stiffness_eigenvalue: r.min_stiffness_eigenvalue,
                     bodies: report::body_reports(&model, &state),
                     points: report::point_positions(&model, &ws),
@@ -502,7 +506,7 @@ fn format_statics(
         r.residual,
         r.residual / r.force_scale,
         r.force_scale,
-        if r.stable { "stable" } else { "NOT stable" },
+        r.stability_words(),
         r.min_stiffness_eigenvalue
     );
     let _ = writeln!(

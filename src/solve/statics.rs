@@ -49,6 +49,32 @@ pub struct EquilibriumReport {
     pub min_stiffness_eigenvalue: f64,
     /// True when the reduced tangent stiffness is positive definite.
     pub stable: bool,
+    /// Directions of the reduced tangent stiffness with negative curvature (the point is a
+    /// saddle or a maximum of the energy when there are any).
+    pub negative_modes: usize,
+    /// Directions with zero stiffness (within `1e-9` of the largest): neutral motions such as a
+    /// body spinning about the line it hangs on, free rigid-body motions, unstressed mechanisms.
+    pub zero_modes: usize,
+}
+
+impl EquilibriumReport {
+    /// "stable", "neutrally stable (N zero-stiffness modes)" or "UNSTABLE (M negative-stiffness
+    /// modes)": what the reduced tangent stiffness says of this equilibrium.
+    pub fn stability_words(&self) -> String {
+        let plural = |n: usize| if n == 1 { "" } else { "s" };
+        match (self.negative_modes, self.zero_modes) {
+            (0, 0) => "stable".into(),
+            (0, z) => format!("neutrally stable ({z} zero-stiffness mode{})", plural(z)),
+            (m, _) => format!("UNSTABLE ({m} negative-stiffness mode{})", plural(m)),
+        }
+    }
+}
+
+/// What the reduced tangent stiffness's eigenvalues say.
+struct Modes {
+    min_eigenvalue: f64,
+    negative: usize,
+    zero: usize,
 }
 
 /// Buffers for the Newton iteration, sized once per model.
@@ -172,14 +198,16 @@ impl StaticSolver {
                 && res.force <= ROUND_OFF_CEILING * res.force_scale
                 && res.constraint <= settings.tolerance * res.length_scale
             {
-                let (min_eig, stable) = self.stability(model, state, ws);
+                let modes = self.stability(model, state, ws);
                 return Ok(EquilibriumReport {
                     iterations,
                     residual: res.force,
                     force_scale: res.force_scale,
                     constraint_residual: res.constraint,
-                    min_stiffness_eigenvalue: min_eig,
-                    stable,
+                    min_stiffness_eigenvalue: modes.min_eigenvalue,
+                    stable: modes.negative == 0 && modes.zero == 0,
+                    negative_modes: modes.negative,
+                    zero_modes: modes.zero,
                 });
             }
             if iterations >= settings.max_iterations {
@@ -290,12 +318,13 @@ impl StaticSolver {
         Err((iterations, best))
     }
 
-    /// Smallest eigenvalue of the symmetric reduced tangent stiffness, and whether it is positive
-    /// (relative to the largest). Uses the tangents last evaluated into `ws`.
-    fn stability(&self, model: &Model, state: &State, ws: &Workspace) -> (f64, bool) {
+    /// The symmetric reduced tangent stiffness's smallest eigenvalue and its counts of negative
+    /// and zero eigenvalues (relative to the largest, `1e-9`). Uses the tangents last evaluated
+    /// into `ws`.
+    fn stability(&self, model: &Model, state: &State, ws: &Workspace) -> Modes {
         let n = model.dof_count;
         if n == 0 {
-            return (0.0, true);
+            return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0 };
         }
         let mut k = ws.stiffness.clone();
         if model.constraint_count > 0 {
@@ -303,12 +332,16 @@ impl StaticSolver {
         }
         let k_sym = (&k + k.transpose()) * 0.5;
         let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
-            return (f64::INFINITY, true);
+            return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0 };
         };
         let reduced = z.transpose() * k_sym * z;
         let eig = SymmetricEigen::new(reduced).eigenvalues;
-        let min = eig.min();
-        (min, min > 1e-9 * eig.amax().max(1e-300))
+        let tol = 1e-9 * eig.amax().max(1e-300);
+        Modes {
+            min_eigenvalue: eig.min(),
+            negative: eig.iter().filter(|e| **e < -tol).count(),
+            zero: eig.iter().filter(|e| e.abs() <= tol).count(),
+        }
     }
 }
 
