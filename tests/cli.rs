@@ -115,3 +115,21 @@ fn malformed_scene_fails_with_file_line_and_field() {
     assert!(err.contains("bad.toml:") && err.contains("bodies[1].mass: must be positive, got -2"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn generators_refuse_arguments_that_make_invalid_scenes() {
+    for (args, says) in [
+        (vec!["generate", "prism", "--prestress=-5"], "cables[0].prestress: a cable can only pull"),
+        (vec!["generate", "prism", "--prestress", "-5"], "cables[0].prestress: a cable can only pull"),
+        (vec!["generate", "atwood", "--m1=0"], "bodies[1].mass: must be positive, got 0"),
+        (vec!["generate", "atwood", "--m1", "-1"], "bodies[1].mass: must be positive, got -1"),
+    ] {
+        let out = tensegrity(&args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        assert!(out.stdout.is_empty(), "{args:?} wrote a scene");
+        let err = String::from_utf8(out.stderr).unwrap();
+        assert!(err.contains("cannot generate") && err.contains(says), "{args:?}: {err}");
+    }
+    let ok = tensegrity(&["generate", "atwood", "--m1", "3"]);
+    assert!(ok.status.success());
+}
