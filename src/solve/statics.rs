@@ -55,19 +55,142 @@ pub struct EquilibriumReport {
     /// Directions with zero stiffness (within `1e-9` of the largest): neutral motions such as a
     /// body spinning about the line it hangs on, free rigid-body motions, unstressed mechanisms.
     pub zero_modes: usize,
+    /// Free rigid-body motions of the whole structure (`rigid_body_motions`) that cost no energy:
+    /// 6 for a structure held by nothing, 3 in a planar scene, fewer with partial supports or
+    /// under gravity. Counted among `zero_modes`.
+    pub rigid_modes: usize,
 }
 
 impl EquilibriumReport {
-    /// "stable", "neutrally stable (N zero-stiffness modes)" or "UNSTABLE (M negative-stiffness
-    /// modes)": what the reduced tangent stiffness says of this equilibrium.
+    /// "stable", "stable (N rigid-body modes)", "neutrally stable (N zero-stiffness modes ...)" or
+    /// "UNSTABLE (M negative-stiffness modes)": what the reduced tangent stiffness says of this
+    /// equilibrium, with the structure's free rigid-body motions told apart.
     pub fn stability_words(&self) -> String {
         let plural = |n: usize| if n == 1 { "" } else { "s" };
-        match (self.negative_modes, self.zero_modes) {
-            (0, 0) => "stable".into(),
-            (0, z) => format!("neutrally stable ({z} zero-stiffness mode{})", plural(z)),
-            (m, _) => format!("UNSTABLE ({m} negative-stiffness mode{})", plural(m)),
+        let rigid = self.rigid_modes.min(self.zero_modes);
+        let other = self.zero_modes - rigid;
+        let rigid_words = format!("{rigid} rigid-body mode{}", plural(rigid));
+        match (self.negative_modes, other, rigid) {
+            (0, 0, 0) => "stable".into(),
+            (0, 0, _) => format!("stable ({rigid_words})"),
+            (0, z, 0) => format!("neutrally stable ({z} zero-stiffness mode{})", plural(z)),
+            (0, z, _) => {
+                format!("neutrally stable ({z} zero-stiffness mode{} besides {rigid_words})", plural(z))
+            }
+            (m, _, _) => format!("UNSTABLE ({m} negative-stiffness mode{})", plural(m)),
         }
     }
+}
+
+/// The free rigid-body motions of the whole structure at the evaluated configuration
+/// (`ws.points`, `state.poses`), as columns of generalized velocities (local coordinates): among
+/// the world motions `v(r) = t + w x (r - c)` (3 translations and 3 rotations about the centroid
+/// `c` of the moving points; in a planar scene `t` in the plane and `w` about z), those that leave
+/// every anchor still (`v(F) = 0` for each fixed point a cable segment or joint ties the structure
+/// to: only then are lengths to it kept at every order, not just the first), and that move some
+/// body. 6 columns for a structure held by nothing, 3 in a planar scene, fewer
+/// with partial supports. Linear in the scene size (6 x 6 Gram matrices).
+pub fn rigid_body_motions(model: &Model, state: &State, ws: &Workspace) -> DMatrix<f64> {
+    use nalgebra::{Matrix6, Vector3};
+    let n = model.dof_count;
+    let moving = |p: usize| model.bodies[model.points[p].body.0].dof_count > 0;
+    let moving_points: Vec<usize> = (0..model.points.len()).filter(|&p| moving(p)).collect();
+    if moving_points.is_empty() {
+        return DMatrix::zeros(n, 0);
+    }
+    let c = moving_points.iter().map(|&p| ws.points[p].position).sum::<Vector3<f64>>()
+        / moving_points.len() as f64;
+    let generators: Vec<(Vector3<f64>, Vector3<f64>)> = if model.planar {
+        vec![
+            (Vector3::x(), Vector3::zeros()),
+            (Vector3::y(), Vector3::zeros()),
+            (Vector3::zeros(), Vector3::z()),
+        ]
+    } else {
+        (0..6)
+            .map(|k| {
+                if k < 3 {
+                    (Vector3::ith(k, 1.0), Vector3::zeros())
+                } else {
+                    (Vector3::zeros(), Vector3::ith(k - 3, 1.0))
+                }
+            })
+            .collect()
+    };
+    // Gram matrix of the generators' velocities at the anchors (must vanish)
+    let g = generators.len();
+    let mut broken = Matrix6::<f64>::zeros();
+    let add = |m: &mut Matrix6<f64>, row: &[f64]| {
+        for i in 0..g {
+            for j in 0..g {
+                m[(i, j)] += row[i] * row[j];
+            }
+        }
+    };
+    // a rigid motion of the moving bodies keeps every length between them; it keeps a length to a
+    // fixed point at every order only if that point would not move (it lies on the motion's axis)
+    let mut anchors: Vec<Vector3<f64>> = Vec::new();
+    for cable in 0..model.cables.len() {
+        let route = model.route(crate::model::CableId(cable));
+        for k in 1..route.len() {
+            let (a, b) = (route[k - 1].0, route[k].0);
+            if moving(a) != moving(b) {
+                anchors.push(ws.points[if moving(a) { b } else { a }].position);
+            }
+        }
+    }
+    for joint in &model.joints {
+        match joint.target {
+            crate::model::JointTarget::World(x) => anchors.push(x),
+            crate::model::JointTarget::Point(q) if !moving(q.0) => anchors.push(ws.points[q.0].position),
+            crate::model::JointTarget::Point(_) => {}
+        }
+    }
+    let mut row = [0.0; 6];
+    for anchor in &anchors {
+        for axis in 0..3 {
+            for (i, (t, w)) in generators.iter().enumerate() {
+                row[i] = (t + w.cross(&(anchor - c)))[axis];
+            }
+            add(&mut broken, &row[..g]);
+        }
+    }
+    // each generator as generalized velocities: per body `(dx_world, dtheta_body)` through the
+    // body's orthonormal basis columns (a spin that moves no point still turns a rigid body)
+    let mut local = DMatrix::zeros(n, g);
+    for (i, (t, w)) in generators.iter().enumerate() {
+        for (b, body) in model.bodies.iter().enumerate() {
+            let pose = &state.poses[b];
+            let dx = t + w.cross(&(pose.position - c));
+            let dtheta = pose.rotation.inverse() * w;
+            let motion = nalgebra::Vector6::new(dx.x, dx.y, dx.z, dtheta.x, dtheta.y, dtheta.z);
+            for k in 0..body.dof_count {
+                local[(body.dof_offset + k, i)] = body.basis.column(k).dot(&motion);
+            }
+        }
+    }
+    let gram = local.transpose() * &local;
+    let mut moved = Matrix6::<f64>::zeros();
+    moved.view_mut((0, 0), (g, g)).copy_from(&gram);
+    // free combinations: the null space of `broken`, restricted to those that move something
+    let broken = broken.view((0, 0), (g, g)).into_owned();
+    let moved = moved.view((0, 0), (g, g)).into_owned();
+    let scale = moved.amax().max(1e-300);
+    let eig = SymmetricEigen::new(broken);
+    let free: Vec<DVector<f64>> = (0..g)
+        .filter(|&i| eig.eigenvalues[i] <= 1e-10 * scale)
+        .map(|i| eig.eigenvectors.column(i).into_owned())
+        .collect();
+    if free.is_empty() {
+        return DMatrix::zeros(n, 0);
+    }
+    let basis = DMatrix::from_columns(&free);
+    let effect = SymmetricEigen::new(basis.transpose() * moved * &basis);
+    let combos: Vec<DVector<f64>> = (0..free.len())
+        .filter(|&i| effect.eigenvalues[i] > 1e-10 * scale)
+        .map(|i| &basis * effect.eigenvectors.column(i))
+        .collect();
+    DMatrix::from_columns(&combos.iter().map(|a| &local * a).collect::<Vec<_>>())
 }
 
 /// What the reduced tangent stiffness's eigenvalues say.
@@ -75,6 +198,8 @@ struct Modes {
     min_eigenvalue: f64,
     negative: usize,
     zero: usize,
+    /// Free rigid-body motions (`rigid_body_motions`) that also have zero stiffness.
+    rigid: usize,
 }
 
 /// Buffers for the Newton iteration, sized once per model.
@@ -205,9 +330,10 @@ impl StaticSolver {
                     force_scale: res.force_scale,
                     constraint_residual: res.constraint,
                     min_stiffness_eigenvalue: modes.min_eigenvalue,
-                    stable: modes.negative == 0 && modes.zero == 0,
+                    stable: modes.negative == 0 && modes.zero <= modes.rigid,
                     negative_modes: modes.negative,
                     zero_modes: modes.zero,
+                    rigid_modes: modes.rigid,
                 });
             }
             if iterations >= settings.max_iterations {
@@ -324,7 +450,7 @@ impl StaticSolver {
     fn stability(&self, model: &Model, state: &State, ws: &Workspace) -> Modes {
         let n = model.dof_count;
         if n == 0 {
-            return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0 };
+            return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0, rigid: 0 };
         }
         let mut k = ws.stiffness.clone();
         if model.constraint_count > 0 {
@@ -332,15 +458,25 @@ impl StaticSolver {
         }
         let k_sym = (&k + k.transpose()) * 0.5;
         let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
-            return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0 };
+            return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0, rigid: 0 };
         };
-        let reduced = z.transpose() * k_sym * z;
+        let reduced = z.transpose() * &k_sym * z;
         let eig = SymmetricEigen::new(reduced).eigenvalues;
         let tol = 1e-9 * eig.amax().max(1e-300);
+        // the free rigid motions, orthonormalized, and how many of them cost no energy
+        let motions = rigid_body_motions(model, state, ws);
+        let rigid = if motions.ncols() == 0 {
+            0
+        } else {
+            let q = motions.qr().q();
+            let on_rigid = SymmetricEigen::new(q.transpose() * &k_sym * &q).eigenvalues;
+            on_rigid.iter().filter(|e| e.abs() <= tol).count()
+        };
         Modes {
             min_eigenvalue: eig.min(),
             negative: eig.iter().filter(|e| **e < -tol).count(),
             zero: eig.iter().filter(|e| e.abs() <= tol).count(),
+            rigid,
         }
     }
 }
