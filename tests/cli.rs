@@ -133,3 +133,16 @@ fn generators_refuse_arguments_that_make_invalid_scenes() {
     let ok = tensegrity(&["generate", "atwood", "--m1", "3"]);
     assert!(ok.status.success());
 }
+
+#[test]
+fn modes_lists_frequencies_and_the_sliding_of_the_clustered_ring() {
+    let out = tensegrity(&["modes", "config/scenes/prism3.toml", "--count", "3"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.starts_with("prism3: 6 modes at the equilibrium (stable); 0 zero-frequency"), "{text}");
+    assert!(text.contains("1.1603") && text.contains("ring 0.000 (slides: segments"), "{text}");
+    let json = tensegrity(&["modes", "config/scenes/prism3.toml", "--json"]);
+    let modes: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    assert_eq!(modes.as_array().unwrap().len(), 6);
+    assert!(modes[0]["frequency_hz"].as_f64().unwrap() > 1.0);
+}

@@ -4,4 +4,5 @@
 pub mod dynamics;
 pub mod formfind;
 pub mod linear;
+pub mod modes;
 pub mod statics;

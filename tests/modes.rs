@@ -1,0 +1,104 @@
+//! Invariant: `natural_modes` gives the small free oscillations about an equilibrium. The
+//! equal-mass elastic Atwood machine has its stretch mode at `sqrt(k (1/m1 + 1/m2))`, its four
+//! pendulum modes at `sqrt(T / (m l))`, and one zero-frequency sliding mode in which the cable's
+//! segments change while its length does not; a free prism has 6 zero-frequency modes; and the
+//! period of the bundled prism's lowest mode matches an undamped dynamic run started along it.
+
+use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::scene::generate::{atwood, AtwoodParams};
+use tensegrity::sim::{SimSettings, Simulator};
+use tensegrity::solve::dynamics::{mass_matrix, Integrator};
+use tensegrity::solve::modes::natural_modes;
+use tensegrity::solve::statics::StaticSolver;
+use tensegrity::{Model, State};
+
+fn equilibrium(model: &Model) -> State {
+    let mut state = State::initial(model);
+    let mut ws = Workspace::new(model);
+    StaticSolver::new(model).equilibrate(model, &mut state, &mut ws, &model.solver).expect("equilibrium");
+    state
+}
+
+#[test]
+fn the_atwood_machine_has_its_closed_form_frequencies_and_a_sliding_zero_mode() {
+    for (m, k) in [(1.0, 1000.0), (5.0, 1e2), (0.3, 1e6)] {
+        let spec = atwood(&AtwoodParams { m1: m, m2: m, stiffness: k, ..Default::default() });
+        let model = tensegrity::scene::build_model(&spec, "<atwood>", None).unwrap();
+        let state = equilibrium(&model);
+        let modes = natural_modes(&model, &state).expect("modes");
+        let two_pi = 2.0 * std::f64::consts::PI;
+        let stretch = (k * (1.0 / m + 1.0 / m)).sqrt() / two_pi;
+        let top = modes.last().unwrap();
+        assert!((top.frequency_hz - stretch).abs() <= 1e-6 * stretch, "{} Hz vs {stretch}", top.frequency_hz);
+        assert!(top.cable_stretch[0].abs() > 0.1, "the stretch mode stretches the rope");
+        // pendulums: each mass on its segment, T = m g
+        let mut ws = Workspace::new(&model);
+        evaluate(&model, &state, &mut ws, Tangents::None);
+        let segment = ws.cables[0].length - 0.2; // the 0.2 m between the two pulleys
+        let pendulum = (9.81 / (segment / 2.0)).sqrt() / two_pi;
+        let pendulums: Vec<f64> =
+            modes.iter().filter(|md| !md.zero).map(|md| md.frequency_hz).take(4).collect();
+        for f in &pendulums {
+            assert!((f - pendulum).abs() <= 1e-6 * pendulum, "pendulum {f} Hz vs {pendulum}");
+        }
+        let zero: Vec<_> = modes.iter().filter(|md| md.zero).collect();
+        assert_eq!(zero.len(), 1, "one sliding mode");
+        assert!(zero[0].cable_stretch[0].abs() < 1e-6 && zero[0].segment_change[0] > 0.1, "it slides");
+    }
+}
+
+#[test]
+fn the_prisms_lowest_mode_has_the_period_of_an_undamped_dynamic_run() {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/prism3.toml");
+    let mut model = tensegrity::scene::load(&path).unwrap();
+    for c in &mut model.cables {
+        c.damping = 0.0;
+    }
+    model.schedule.ramps.clear(); // no actuation: a free oscillation
+    let mut state = equilibrium(&model);
+    let modes = natural_modes(&model, &state).unwrap();
+    let lowest = modes.iter().find(|m| !m.zero).unwrap();
+    let period = 1.0 / lowest.frequency_hz;
+    // start at the equilibrium with a small velocity along the mode and watch its coordinate
+    let amplitude = 1e-4;
+    state.velocities = &lowest.shape * amplitude;
+    let dt = period / 400.0;
+    let settings =
+        SimSettings { dt, integrator: Integrator::GeneralizedAlpha { rho_inf: 1.0 }, ..Default::default() };
+    let mut sim = Simulator::from_state(model.clone(), state, settings).unwrap();
+    let m = mass_matrix(&model);
+    let modal = |s: &Simulator| (lowest.shape.transpose() * &m * &s.state().velocities)[(0, 0)];
+    let (mut crossings, mut previous) = (Vec::new(), modal(&sim));
+    while crossings.len() < 5 {
+        let t0 = sim.state().time;
+        sim.step().unwrap();
+        let now = modal(&sim);
+        if previous > 0.0 && now <= 0.0 || previous < 0.0 && now >= 0.0 {
+            crossings.push(t0 + dt * previous / (previous - now));
+        }
+        previous = now;
+        assert!(sim.state().time < 10.0 * period, "no oscillation");
+    }
+    let measured = (crossings[4] - crossings[0]) / 2.0;
+    println!("lowest mode: dynamic period {measured:.6} s, modal {period:.6} s");
+    assert!((measured - period).abs() <= 1e-3 * period, "dynamic period {measured} s, modal {period} s");
+}
+
+#[test]
+fn a_free_prism_has_six_zero_frequency_modes() {
+    let mut spec = tensegrity::scene::generate::prism(&Default::default());
+    spec.joints.clear();
+    let template = spec.cables[0].clone();
+    for i in 0..3 {
+        spec.cables.push(tensegrity::scene::CableSpec {
+            name: format!("bottom{i}"),
+            route: vec![format!("bar0_{i}.a"), format!("bar0_{}.a", (i + 1) % 3)],
+            prestress: None,
+            ..template.clone()
+        });
+    }
+    let model = tensegrity::scene::build_model(&spec, "<free prism>", None).unwrap();
+    let modes = natural_modes(&model, &equilibrium(&model)).unwrap();
+    assert_eq!(modes.iter().filter(|m| m.zero).count(), 6);
+    assert!(modes.iter().all(|m| m.zero || m.frequency_hz > 0.5));
+}
