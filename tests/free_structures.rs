@@ -103,3 +103,31 @@ fn a_body_on_a_ball_joint_has_one_rigid_body_mode_its_spin() {
     let r = solve(&model, &mut State::initial(&model));
     assert_eq!(r.stability_words(), "stable (1 rigid-body mode)");
 }
+
+#[test]
+fn rigid_alignment_removes_any_rotation_and_translation() {
+    let start: Vec<nalgebra::Vector3<f64>> = (0..7)
+        .map(|i| nalgebra::Vector3::new((i as f64).sin(), (2.0 * i as f64).cos(), 0.3 * i as f64))
+        .collect();
+    let turn = nalgebra::Rotation3::from_scaled_axis(nalgebra::Vector3::new(0.4, -1.1, 2.0));
+    let moved: Vec<_> = start.iter().map(|p| turn * p + nalgebra::Vector3::new(5.0, -2.0, 0.7)).collect();
+    let aligned = tensegrity::study::rigidly_aligned(&moved, &start);
+    for (a, s) in aligned.iter().zip(&start) {
+        assert!((a - s).norm() < 1e-12, "{a:?} vs {s:?}");
+    }
+}
+
+#[test]
+fn a_free_prism_deployment_study_compares_shapes_and_converges_as_actuation_slows() {
+    let model = free_prism();
+    assert!(model.is_free_floating());
+    let out = std::env::temp_dir().join(format!("tensegrity-free-study-{}", std::process::id()));
+    let settings = tensegrity::sim::SimSettings::default();
+    let r = tensegrity::study::deployment_study(&model, &[0.2, 1.0, 5.0], None, settings, 0.5, &out).unwrap();
+    assert!(r.rigid_motion_removed && r.markdown().contains("optimal rigid alignment"));
+    let dev: Vec<f64> =
+        r.rows.iter().map(|row| row.displacement_deviation.abs().max(row.tension_deviation.abs())).collect();
+    assert!(dev[0] > dev[1] && dev[1] > dev[2], "deviations shrink as actuation slows: {dev:?}");
+    assert!(dev[2] < 1e-3, "a 5 s actuation is quasi-static: {dev:?}");
+    std::fs::remove_dir_all(&out).ok();
+}

@@ -318,6 +318,18 @@ impl Model {
         (0..self.bodies.len()).filter(|&b| !held[b] && self.bodies[b].dof_count > 0).map(BodyId).collect()
     }
 
+    /// True when nothing ties the structure to the ground: no pin, no joint to a fixed body, no
+    /// cable point on a fixed body. Such a structure (in orbit, in a drop test) has 6 free
+    /// rigid-body motions (3 planar); its shape, not its position, is what a deployment changes.
+    pub fn is_free_floating(&self) -> bool {
+        let fixed = |p: PointId| self.bodies[self.points[p.0].body.0].dof_count == 0;
+        !self.route_points.iter().any(|p| fixed(*p))
+            && self.joints.iter().all(|j| match j.target {
+                JointTarget::World(_) => false,
+                JointTarget::Point(q) => !fixed(q) && !fixed(j.point),
+            })
+    }
+
     /// Number of constraint rows a ball joint has in this model (3, or 2 when planar).
     pub fn joint_rows(&self) -> usize {
         if self.planar {
