@@ -368,3 +368,15 @@ fn the_command_timeout_holds_the_winches_and_says_so() {
     let status = sink.statuses.iter().find(|s| s.message.contains("command timeout")).expect("reported");
     assert_eq!(status.level, 1);
 }
+
+#[test]
+fn the_lowest_natural_frequencies_are_reported_once_at_start_up() {
+    let mut node = core(NodeParams::default());
+    let mut sink = MemorySink::default();
+    node.start(&mut sink);
+    let modes = sink.statuses.iter().find(|s| s.name.ends_with("modes")).expect("a modes status");
+    assert_eq!(modes.level, 0, "{}", modes.message);
+    let f1: f64 = MemorySink::value(modes, "mode_1_hz").unwrap().parse().unwrap();
+    assert!((f1 - 1.1603).abs() < 1e-3, "prism3's lowest mode is 1.1603 Hz (tensegrity modes): {f1}");
+    assert_eq!(MemorySink::value(modes, "zero_frequency_modes").as_deref(), Some("0"));
+}

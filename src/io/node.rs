@@ -357,6 +357,48 @@ impl NodeCore {
         self.publish(sink, Topic::Structure);
         self.publish(sink, Topic::TfStatic);
         self.publish_state(sink);
+        let status = self.modes_status();
+        self.statuses.push(status);
+        self.publish(sink, Topic::Diagnostics);
+        self.statuses.clear();
+    }
+
+    /// The lowest natural frequencies at the equilibrium of the initial rest lengths, once, as an
+    /// OK status `<node>: modes` (`mode_1_hz` ... up to 5, `zero_frequency_modes`); a WARN status
+    /// saying why when there is no equilibrium, nothing holds some body, or the scene is larger
+    /// than `statics::MAX_CONVEXITY_CHECK` coordinates (not computed at start-up).
+    fn modes_status(&self) -> DiagnosticStatus {
+        use crate::solve::{modes::natural_modes, statics::StaticSolver};
+        let model = self.sim.model();
+        let warn = |why: String| self.status(1, "modes", why, vec![]);
+        if model.dof_count > crate::solve::statics::MAX_CONVEXITY_CHECK {
+            return warn(format!(
+                "natural frequencies not computed at start-up: {} coordinates",
+                model.dof_count
+            ));
+        }
+        if let Some(note) = report::unheld_bodies_note(model) {
+            return warn(format!("natural frequencies not computed: {note}"));
+        }
+        let mut state = crate::state::State::initial(model);
+        let mut ws = Workspace::new(model);
+        let Ok(eq) = StaticSolver::new(model).equilibrate(model, &mut state, &mut ws, &model.solver) else {
+            return warn(
+                "natural frequencies not computed: no equilibrium at the initial rest lengths".into(),
+            );
+        };
+        let Some(modes) = natural_modes(model, &state) else {
+            return warn("natural frequencies not computed: singular mass matrix".into());
+        };
+        let kv = |k: String, v: String| KeyValue { key: k, value: v };
+        let zero = modes.iter().filter(|m| m.zero).count();
+        let mut values = vec![kv("zero_frequency_modes".into(), zero.to_string())];
+        for (i, m) in modes.iter().filter(|m| !m.zero).take(5).enumerate() {
+            values.push(kv(format!("mode_{}_hz", i + 1), format!("{:.6}", m.frequency_hz)));
+        }
+        let message =
+            format!("lowest natural frequencies at the initial equilibrium ({})", eq.stability_words());
+        self.status(0, "modes", message, values)
     }
 
     // ----- inputs -------------------------------------------------------------------------------
