@@ -297,7 +297,9 @@ fn cyclone_dds_controller_reads_state_and_drives_the_node() {
     let node = RunningNode::start(model, params);
     let script =
         std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/interop/cyclone_controller.py");
-    let out = std::process::Command::new("python3")
+    // .ci/test puts the Cyclone DDS binding in a virtual environment and names its interpreter
+    let python = std::env::var("TENSEGRITY_PYTHON").unwrap_or_else(|_| "python3".into());
+    let out = std::process::Command::new(&python)
         .arg(&script)
         .args([domain.to_string(), "ring_winch".into(), ring.to_string(), format!("{target:.17}")])
         .env(
@@ -305,7 +307,7 @@ fn cyclone_dds_controller_reads_state_and_drives_the_node() {
             "<CycloneDDS><Domain id=\"any\"><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery></Domain></CycloneDDS>",
         )
         .output()
-        .expect("python3 runs (bash .ci/run installs the cyclonedds package)");
+        .expect("python runs (bash .ci/test installs the cyclonedds package in target/pyenv)");
     let stats = node.stop();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
