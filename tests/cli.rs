@@ -146,3 +146,19 @@ fn modes_lists_frequencies_and_the_sliding_of_the_clustered_ring() {
     assert_eq!(modes.as_array().unwrap().len(), 6);
     assert!(modes[0]["frequency_hz"].as_f64().unwrap() > 1.0);
 }
+
+#[test]
+fn deploy_writes_a_row_for_t_zero_and_can_write_to_standard_output() {
+    let out =
+        tensegrity(&["deploy", "config/scenes/prism3.toml", "--dynamic", "--duration", "0.01", "--out", "-"]);
+    assert!(out.status.success());
+    let csv = String::from_utf8(out.stdout).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert!(rows[0].starts_with("time_s,"));
+    assert!(rows[1].starts_with("0.000000000,"), "the first row is t = 0: {}", rows[1]);
+    assert_eq!(rows.len(), 1 + 1 + 10, "header, t = 0 and one row per step");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("10 steps of 0.001 s"),
+        "the summary goes to stderr"
+    );
+}

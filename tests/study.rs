@@ -49,7 +49,8 @@ fn deploy_dynamic_writes_a_time_history() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let text = std::fs::read_to_string(&csv).unwrap();
     let lines: Vec<&str> = text.lines().collect();
-    assert_eq!(lines.len(), 1 + 100);
+    assert_eq!(lines.len(), 1 + 1 + 100, "header, the start at t = 0, one row per step");
+    assert!(lines[1].starts_with("0.000000000,"));
     let header: Vec<&str> = lines[0].split(',').collect();
     for col in [
         "time_s",
@@ -65,7 +66,7 @@ fn deploy_dynamic_writes_a_time_history() {
     ] {
         assert!(header.contains(&col), "missing column {col}");
     }
-    let last: Vec<f64> = lines[100].split(',').map(|v| v.parse().unwrap()).collect();
+    let last: Vec<f64> = lines[101].split(',').map(|v| v.parse().unwrap()).collect();
     assert!((last[0] - 0.2).abs() < 1e-9);
     assert!(last.iter().all(|v| v.is_finite()));
     // symplectic Euler above its limit is refused with the limit in the message

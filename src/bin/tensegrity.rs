@@ -360,20 +360,24 @@ fn deploy_dynamic(
     if !(duration.is_finite() && duration > 0.0) {
         return Err(format!("--duration must be positive, got {duration}"));
     }
-    let mut file =
-        std::io::BufWriter::new(std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?);
+    let mut file = csv_output(out)?;
     writeln!(file, "{}", study::dynamic_csv_header(model)).map_err(|e| e.to_string())?;
+    // the row of t = 0: the start, before any step
+    let start = tensegrity::sim::Simulator::new(model.clone(), settings)
+        .map_err(|e| format!("{}: {e}", scene.display()))?;
+    writeln!(file, "{}", study::dynamic_csv_row(&start, &Default::default())).map_err(|e| e.to_string())?;
     let steps = (duration / settings.dt).round().max(1.0) as u64;
     let bar = progress(steps, "steps");
     let totals = study::run_dynamic(model, settings, duration, |sim, stats| {
         bar.inc(1);
-        writeln!(file, "{}", study::dynamic_csv_row(sim, stats))
-            .map_err(|e| format!("{}: {e}", out.display()))
+        writeln!(file, "{}", study::dynamic_csv_row(sim, stats)).map_err(|e| write_error(out, e))
     })
-    .map_err(|e| format!("{}: {e}", scene.display()))?;
+    .map_err(|e| if e == CLOSED_PIPE { e } else { format!("{}: {e}", scene.display()) })?;
     bar.finish_and_clear();
-    file.flush().map_err(|e| e.to_string())?;
-    println!(
+    file.flush().map_err(|e| write_error(out, e))?;
+    say(
+        out,
+        format!(
         "{}: {} steps of {} s with {} written to {} ({} Newton iterations, {} rejected attempts, {:.3} s wall)",
         model.name,
         totals.steps,
@@ -383,8 +387,28 @@ fn deploy_dynamic(
         totals.newton_iterations,
         totals.rejected,
         totals.wall_time.as_secs_f64()
+        ),
     );
     Ok(())
+}
+
+/// Where a CSV goes: the file `out`, or standard output for `-`.
+fn csv_output(out: &Path) -> Result<Box<dyn Write>, String> {
+    if out == Path::new("-") {
+        Ok(Box::new(std::io::BufWriter::new(std::io::stdout())))
+    } else {
+        let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
+        Ok(Box::new(std::io::BufWriter::new(file)))
+    }
+}
+
+/// A closing summary: on standard output, or on standard error when the CSV went there (`-`).
+fn say(out: &Path, text: String) {
+    if out == Path::new("-") {
+        eprintln!("{text}");
+    } else {
+        println!("{text}");
+    }
 }
 
 fn load(path: &Path) -> Result<Model, String> {
@@ -400,9 +424,22 @@ fn load_for_statics(path: &Path) -> Result<Model, String> {
     }
 }
 
+/// What `run` returns when its standard output was closed by the reader (`| head`): not an error.
+const CLOSED_PIPE: &str = "standard output closed";
+
+/// A write error on `out`, or `CLOSED_PIPE` when the reader of standard output went away.
+fn write_error(out: &Path, e: std::io::Error) -> String {
+    if out == Path::new("-") && e.kind() == std::io::ErrorKind::BrokenPipe {
+        CLOSED_PIPE.into()
+    } else {
+        format!("{}: {e}", out.display())
+    }
+}
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e == CLOSED_PIPE => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
             ExitCode::FAILURE
@@ -522,9 +559,7 @@ fn run(cli: Cli) -> Result<(), String> {
                 }
                 model.schedule.steps = n;
             }
-            let mut file = std::io::BufWriter::new(
-                std::fs::File::create(&out).map_err(|e| format!("{}: {e}", out.display()))?,
-            );
+            let mut file = csv_output(&out)?;
             writeln!(file, "{}", report::path_csv_header(&model)).map_err(|e| e.to_string())?;
             let bar = progress(model.schedule.steps as u64 + 1, "steps");
             let mut state = State::initial(&model);
@@ -548,17 +583,20 @@ fn run(cli: Cli) -> Result<(), String> {
             .map_err(|e| format!("{}: {e}", scene.display()))?;
             bar.finish_and_clear();
             if let Some(e) = io_error {
-                return Err(format!("{}: {e}", out.display()));
+                return Err(write_error(&out, e));
             }
             file.flush().map_err(|e| e.to_string())?;
             let unstable = path.iter().filter(|p| !p.report.stable).count();
             let worst = path.iter().map(|p| p.report.residual / p.report.force_scale).fold(0.0, f64::max);
-            println!(
+            say(
+                &out,
+                format!(
                 "{}: {} equilibria written to {} (worst relative residual {worst:.2e}, {} Newton iterations, {unstable} not stable)",
                 model.name,
                 path.len(),
                 out.display(),
                 path.iter().map(|p| p.report.iterations).sum::<usize>()
+                ),
             );
             Ok(())
         }
