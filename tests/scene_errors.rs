@@ -346,3 +346,33 @@ fn bodies_that_nothing_holds_are_named() {
     assert!(note.contains("1 body 'drifter' has no cable, joint or support"), "{note}");
     assert!(tensegrity::report::unheld_bodies_note(&from_toml(VALID, "scene.toml").unwrap()).is_none());
 }
+
+/// The labels the newcomer issue found wrong: a missing field is named in its own table (not the
+/// previous one), the table header's line is given, messages use the format's words, not type
+/// names, and a file that is not UTF-8 gets a line and column.
+#[test]
+fn errors_point_at_the_right_table_and_use_the_formats_words() {
+    // 1-based line of the `k`-th (0-based) occurrence of `header`
+    let header_line = |header: &str, k: usize| {
+        VALID.lines().enumerate().filter(|(_, l)| l.trim() == header).nth(k).map(|(i, _)| i + 1)
+    };
+    let e = error_of(&VALID.replacen("ea = 1000.0\n", "", 1));
+    assert_eq!((e.field.as_str(), e.line), ("cables[0].ea", header_line("[[cables]]", 0)), "{e}");
+    assert!(e.reason.contains("missing field `ea`"), "{e}");
+    let e = error_of(&VALID.replacen("name = \"pole\"\n", "", 1));
+    assert_eq!((e.field.as_str(), e.line), ("bodies[1].name", header_line("[[bodies]]", 1)), "{e}");
+    let e = error_of(&VALID.replace("name = \"ok\"", "name = \"ok\"\nsolver = 3"));
+    assert_eq!(e.field, "solver", "{e}");
+    assert!(e.reason.contains("expected a [solver] table") && !e.reason.contains("Spec"), "{e}");
+    let e = error_of(&VALID.replace("points = { hook = [0.0, 0.0, 0.2] }", "points = { hook = \"x\" }"));
+    assert!(!e.reason.contains("PointSpec") && e.reason.contains("a point"), "{e}");
+
+    let dir = std::env::temp_dir().join(format!("tensegrity-utf8-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("latin1.toml");
+    std::fs::write(&path, b"name = \"ok\"\ndescription = \"caf\xe9\"\n").unwrap();
+    let e = tensegrity::scene::load(&path).unwrap_err();
+    assert_eq!(e.line, Some(2), "{e}");
+    assert!(e.reason.contains("not UTF-8") && e.reason.contains("column 19"), "{e}");
+    std::fs::remove_dir_all(&dir).ok();
+}

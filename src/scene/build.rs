@@ -30,8 +30,14 @@ impl Ctx<'_> {
         }
     }
     fn top(&self, field: &str, reason: impl Into<String>) -> SceneError {
-        let line =
-            self.text.and_then(|t| t.lines().position(|l| l.trim_start().starts_with(field)).map(|i| i + 1));
+        // the key itself, else the table it names (`[deployment]`, `[solver]`)
+        let line = self.text.and_then(|t| {
+            let top = field.split('.').next().unwrap_or(field);
+            t.lines()
+                .position(|l| l.trim_start().starts_with(field))
+                .or_else(|| t.lines().position(|l| l.trim() == format!("[{top}]")))
+                .map(|i| i + 1)
+        });
         SceneError { file: self.file.into(), line, field: field.into(), reason: reason.into() }
     }
 }
@@ -245,7 +251,12 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
                     return Err(e(&field, "a fraction along the bar must be finite and within +-1000".into()))
                 }
                 (_, PointSpec::Along(_)) => {
-                    return Err(e(&field, "expected body coordinates [x, y, z]".into()))
+                    return Err(e(
+                        &field,
+                        "expected body coordinates [x, y, z] (every key after a [bodies.points] header \
+                         belongs to that table: write top-level keys before the first table)"
+                            .into(),
+                    ))
                 }
             };
             local_points.push((pname.clone(), local));

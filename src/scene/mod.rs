@@ -322,11 +322,23 @@ pub struct SolverSpec {
 /// Reads and validates a scene file.
 pub fn load(path: &Path) -> Result<Model, SceneError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+    let bytes = std::fs::read(path).map_err(|e| SceneError {
         file: file.clone(),
         line: None,
         field: String::new(),
         reason: format!("cannot read: {e}"),
+    })?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let at = e.utf8_error().valid_up_to();
+        let before = &e.as_bytes()[..at];
+        let line = before.iter().filter(|b| **b == b'\n').count() + 1;
+        let column = at - before.iter().rposition(|b| *b == b'\n').map_or(0, |i| i + 1) + 1;
+        SceneError {
+            file: file.clone(),
+            line: Some(line),
+            field: String::new(),
+            reason: format!("not UTF-8 text: invalid byte 0x{:02x} at column {column}", e.as_bytes()[at]),
+        }
     })?;
     from_toml(&text, &file)
 }
@@ -341,13 +353,34 @@ pub fn from_toml(text: &str, file: &str) -> Result<Model, SceneError> {
 pub fn parse(text: &str, file: &str) -> Result<SceneSpec, SceneError> {
     toml::from_str::<SceneSpec>(text).map_err(|e| {
         let line = e.span().map(|s| line_of_offset(text, s.start));
-        SceneError {
-            file: file.to_string(),
-            line,
-            field: line.map(|l| field_at_line(text, l)).unwrap_or_default(),
-            reason: e.message().trim().to_string(),
+        let message = e.message().trim();
+        let field = line.map(|l| field_at_line(text, l, message)).unwrap_or_default();
+        let mut reason = plain_words(message);
+        if field.starts_with("bodies") && field.contains(".points") {
+            reason += " (every key after a [bodies.points] header belongs to that table: write \
+                       top-level keys before the first table, points inline as points = { ... })";
         }
+        SceneError { file: file.to_string(), line, field, reason }
     })
+}
+
+/// A parser message in the words of the scene format, not of our Rust types.
+fn plain_words(message: &str) -> String {
+    [
+        ("untagged enum PointSpec", "a point: a fraction along a bar, or body coordinates [x, y, z]"),
+        ("struct SceneSpec", "a scene"),
+        ("struct BodySpec", "a [[bodies]] table"),
+        ("struct JointSpec", "a [[joints]] table"),
+        ("struct CableSpec", "a [[cables]] table"),
+        ("struct ActuatorSpec", "an [[actuators]] table"),
+        ("struct DeploymentSpec", "a [deployment] table"),
+        ("struct RampSpec", "a [[deployment.ramps]] table"),
+        ("struct SolverSpec", "a [solver] table"),
+        ("enum BodyKindSpec", "a body kind (node, bar, rigid or fixed)"),
+        ("enum JointKindSpec", "a joint kind (ball or pin)"),
+    ]
+    .iter()
+    .fold(message.to_string(), |m, (from, to)| m.replace(from, to))
 }
 
 /// Serializes a spec as TOML (used by the generators and `tensegrity generate`).
@@ -360,10 +393,12 @@ fn line_of_offset(text: &str, offset: usize) -> usize {
 }
 
 /// Field path (`cables[2].ea`) of the key on 1-based `line`, from the array-of-tables headers above.
-fn field_at_line(text: &str, line: usize) -> String {
+/// The field path (`cables[0].ea`) of an error on 1-based `line`: the table the line is in (or
+/// heads), the key written on it, or the missing field named in `message`.
+fn field_at_line(text: &str, line: usize, message: &str) -> String {
     let mut counts: BTreeMap<String, usize> = BTreeMap::new();
     let mut table = String::new();
-    for l in text.lines().take(line - 1) {
+    for l in text.lines().take(line) {
         let t = l.trim();
         if let Some(name) = t.strip_prefix("[[").and_then(|s| s.strip_suffix("]]")) {
             let idx = counts.entry(name.trim().to_string()).or_insert(0);
@@ -373,12 +408,18 @@ fn field_at_line(text: &str, line: usize) -> String {
             table = name.trim().to_string();
         }
     }
-    let key = text
-        .lines()
-        .nth(line - 1)
-        .and_then(|l| l.split_once('='))
-        .map(|(k, _)| k.trim().to_string())
-        .unwrap_or_default();
+    let missing = message
+        .split_once("missing field `")
+        .and_then(|(_, rest)| rest.split_once('`'))
+        .map(|(name, _)| name.to_string());
+    let key = missing.unwrap_or_else(|| {
+        text.lines()
+            .nth(line - 1)
+            .filter(|l| !l.trim_start().starts_with('['))
+            .and_then(|l| l.split_once('='))
+            .map(|(k, _)| k.trim().to_string())
+            .unwrap_or_default()
+    });
     match (table.is_empty(), key.is_empty()) {
         (true, _) => key,
         (false, true) => table,
