@@ -112,13 +112,15 @@ pub fn point_positions(model: &Model, ws: &Workspace) -> Vec<(String, [f64; 3])>
 /// CSV header of a deployment path: step, time, solver columns, every actuated cable's rest
 /// length, every cable's tension, every point's position.
 pub fn path_csv_header(model: &Model) -> String {
-    let mut cols: Vec<String> =
-        ["step", "time_s", "iterations", "residual_N", "stable"].iter().map(|s| s.to_string()).collect();
+    let mut cols: Vec<String> = ["step", "time_s", "newton_iterations", "residual_N", "stable"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
     for a in &model.actuators {
-        cols.push(format!("rest_length_{}_m", model.cable_names[a.cable.0]));
+        cols.push(format!("{}_rest_length_m", model.cable_names[a.cable.0]));
     }
     for name in &model.cable_names {
-        cols.push(format!("tension_{name}_N"));
+        cols.push(format!("{name}_tension_N"));
     }
     for p in &model.points {
         for ax in ["x", "y", "z"] {

@@ -399,16 +399,16 @@ pub fn deployment_study(
     };
 
     let mut summary = create(&out_dir.join("summary.csv"))?;
-    let _ = writeln!(summary, "ramp_time_s,peak_tension_N,tension_deviation,peak_displacement_m,displacement_deviation,within_max_rate,wall_time_s");
+    let _ = writeln!(summary, "ramp_time_s,peak_tension_N,tension_deviation_percent,peak_displacement_m,displacement_deviation_percent,within_max_rate,wall_time_s");
     for r in &result.rows {
         let _ = writeln!(
             summary,
             "{},{:.9},{:.6e},{:.9},{:.6e},{},{:.4}",
             r.ramp_time,
             r.peak_tension,
-            r.tension_deviation,
+            100.0 * r.tension_deviation,
             r.peak_displacement,
-            r.displacement_deviation,
+            100.0 * r.displacement_deviation,
             r.within_rate,
             r.wall_time
         );

@@ -90,9 +90,11 @@ fn deploy_writes_one_row_per_step() {
     assert_eq!(lines.len(), 1 + 9);
     let header: Vec<&str> = lines[0].split(',').collect();
     assert!(
-        header.contains(&"tension_upper_N")
-            && header.contains(&"rest_length_lower_left_m")
+        header.contains(&"upper_tension_N")
+            && header.contains(&"lower_left_rest_length_m")
             && header.contains(&"mast.b_y_m")
+            && header.contains(&"newton_iterations"),
+        "one naming scheme, <name>_<quantity>_<unit>, as in the dynamic CSV: {header:?}"
     );
     assert!(lines[1..].iter().all(|l| l.split(',').count() == header.len()));
     std::fs::remove_dir_all(&dir).ok();
