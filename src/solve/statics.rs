@@ -307,9 +307,18 @@ impl StaticSolver {
         state.velocities.fill(0.0);
         let start_poses = state.poses.clone();
         let start_multipliers = state.multipliers.clone();
-        least_squares_multipliers(model, state, ws);
+        // a fresh start has no reactions yet; a continuation (deployment) keeps the last ones
+        let fresh = state.multipliers.iter().all(|l| *l == 0.0);
+        if fresh {
+            least_squares_multipliers(model, state, ws);
+        }
         let mut best = f64::INFINITY;
         let mut iterations = 0;
+        // the definiteness check costs a dense eigenproblem: made on the first iteration of a fresh
+        // start (a continuation starts at an equilibrium) and after any iteration whose Newton
+        // step had to be cut or did not halve the residual
+        let mut check_convexity = fresh || model.constraint_count == 0;
+        let mut previous_merit = f64::INFINITY;
         loop {
             evaluate(model, state, ws, Tangents::Stiffness);
             let res = residual_of(model, state, ws, &mut self.rhs, self.size);
@@ -358,9 +367,17 @@ impl StaticSolver {
             let tangent = self.kkt.view((0, 0), (n, n)).into_owned();
             let residual_force = self.rhs.rows(0, n).into_owned();
             let mut energy_mode = false;
-            if let Some((correction, descent)) =
+            let merit_now = res.merit(res.force_scale, res.length_scale);
+            check_convexity |= merit_now > 0.25 * previous_merit;
+            previous_merit = merit_now;
+            let correction = if check_convexity {
                 convexity_correction(model, &tangent, ws, &self.mass, &res, &residual_force)
-            {
+            } else {
+                None
+            };
+            check_convexity = false;
+            if let Some((correction, descent)) = correction {
+                check_convexity = true;
                 let mut top = self.kkt.view_mut((0, 0), (n, n));
                 top += &correction;
                 energy_mode = descent;
@@ -431,6 +448,7 @@ impl StaticSolver {
                 break;
             }
             let alpha = best_trial.1;
+            check_convexity |= alpha < limit.min(1.0);
             retract(model, &mut state.poses, &self.dq, alpha);
             state.multipliers = &base_multipliers + &dlambda * alpha;
             if energy_mode {
