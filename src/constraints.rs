@@ -7,53 +7,118 @@
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
-use crate::forces::cable::add_block;
+use crate::forces::cable::add_vector;
+use crate::forces::{DenseTangents, TangentSink};
 use crate::kinematics::{force_jacobian_derivative, PointKinematics};
-use crate::model::{JointTarget, Model, Pose};
+use crate::model::{JointModel, JointTarget, Model, PointId, Pose};
 
-/// Fills `phi` (rows) and `phi_q` (rows x coordinates) for all joints.
-pub fn evaluate(model: &Model, kin: &[PointKinematics], phi: &mut DVector<f64>, phi_q: &mut DMatrix<f64>) {
+/// Fills `phi` (rows, m) for all joints.
+pub fn evaluate_values(model: &Model, kin: &[PointKinematics], phi: &mut DVector<f64>) {
+    let rows = model.joint_rows();
+    for joint in &model.joints {
+        let ra = kin[joint.point.0].position;
+        let rb = match joint.target {
+            JointTarget::Point(p) => kin[p.0].position,
+            JointTarget::World(x) => x,
+        };
+        for r in 0..rows {
+            phi[joint.row_offset + r] = ra[r] - rb[r];
+        }
+    }
+}
+
+/// Fills the dense `phi_q` (rows x coordinates) for all joints.
+pub fn evaluate_jacobian(model: &Model, kin: &[PointKinematics], phi_q: &mut DMatrix<f64>) {
     if model.joints.is_empty() {
         return;
     }
     phi_q.fill(0.0);
     let rows = model.joint_rows();
     for joint in &model.joints {
-        let pa = &kin[joint.point.0];
-        let (rb, pb) = match joint.target {
-            JointTarget::Point(p) => (kin[p.0].position, Some(&kin[p.0])),
-            JointTarget::World(x) => (x, None),
-        };
-        for r in 0..rows {
-            let row = joint.row_offset + r;
-            phi[row] = pa.position[r] - rb[r];
-            let ba = &model.bodies[pa.body.0];
-            for c in 0..ba.dof_count {
-                phi_q[(row, ba.dof_offset + c)] += pa.jacobian[(r, c)];
-            }
-            if let Some(pb) = pb {
-                let bb = &model.bodies[pb.body.0];
-                for c in 0..bb.dof_count {
-                    phi_q[(row, bb.dof_offset + c)] -= pb.jacobian[(r, c)];
+        for (pid, sign) in joint_points(joint) {
+            let p = &kin[pid.0];
+            let body = &model.bodies[p.body.0];
+            for r in 0..rows {
+                for c in 0..body.dof_count {
+                    phi_q[(joint.row_offset + r, body.dof_offset + c)] += sign * p.jacobian[(r, c)];
                 }
             }
         }
     }
 }
 
-/// Adds `d(Phi_q^T lambda)/dq` (multipliers `lambda`, N) into `out`.
-pub fn add_multiplier_hessian(model: &Model, poses: &[Pose], lambda: &DVector<f64>, out: &mut DMatrix<f64>) {
+/// The points a joint ties, with the sign of their position in `Phi`: `(a, +1)` and, for a
+/// joint between two points, `(b, -1)`.
+pub fn joint_points(joint: &JointModel) -> impl Iterator<Item = (PointId, f64)> {
+    let b = match joint.target {
+        JointTarget::Point(p) => Some((p, -1.0)),
+        JointTarget::World(_) => None,
+    };
+    std::iter::once((joint.point, 1.0)).chain(b)
+}
+
+/// `out += scale * Phi_q^T lambda` (N, N m): the joint reactions as generalized forces, without
+/// forming `Phi_q`.
+pub fn add_reaction_force(
+    model: &Model,
+    kin: &[PointKinematics],
+    lambda: &DVector<f64>,
+    scale: f64,
+    out: &mut DVector<f64>,
+) {
     let rows = model.joint_rows();
     for joint in &model.joints {
         let mut f = Vector3::zeros();
         for r in 0..rows {
             f[r] = lambda[joint.row_offset + r];
         }
-        let a = model.points[joint.point.0].body;
-        add_block(model, a, a, &force_jacobian_derivative(model, poses, joint.point, &f), 1.0, out);
-        if let JointTarget::Point(p) = joint.target {
-            let b = model.points[p.0].body;
-            add_block(model, b, b, &force_jacobian_derivative(model, poses, p, &f), -1.0, out);
+        for (pid, sign) in joint_points(joint) {
+            let p = &kin[pid.0];
+            add_vector(model, p.body, &(p.jacobian.transpose() * f), sign * scale, out);
+        }
+    }
+}
+
+/// `Phi_q v` (m/s): each joint's relative velocity, from the point velocities in `kin`.
+pub fn evaluate_rates(model: &Model, kin: &[PointKinematics], out: &mut DVector<f64>) {
+    let rows = model.joint_rows();
+    for joint in &model.joints {
+        let mut rate = Vector3::zeros();
+        for (pid, sign) in joint_points(joint) {
+            rate += kin[pid.0].velocity * sign;
+        }
+        for r in 0..rows {
+            out[joint.row_offset + r] = rate[r];
+        }
+    }
+}
+
+/// Adds `d(Phi_q^T lambda)/dq` (multipliers `lambda`, N) into `out`.
+pub fn add_multiplier_hessian(model: &Model, poses: &[Pose], lambda: &DVector<f64>, out: &mut DMatrix<f64>) {
+    let mut sink = DenseTangents { model, stiffness: out, damping: None };
+    add_multiplier_hessian_to(model, poses, lambda, 1.0, &mut sink);
+}
+
+/// Adds `scale * d(Phi_q^T lambda)/dq` into the stiffness blocks of `sink`.
+pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
+    model: &Model,
+    poses: &[Pose],
+    lambda: &DVector<f64>,
+    scale: f64,
+    sink: &mut S,
+) {
+    let rows = model.joint_rows();
+    for joint in &model.joints {
+        let mut f = Vector3::zeros();
+        for r in 0..rows {
+            f[r] = lambda[joint.row_offset + r];
+        }
+        for (pid, sign) in joint_points(joint) {
+            let body = model.points[pid.0].body;
+            if model.bodies[body.0].dof_count == 0 {
+                continue;
+            }
+            sink.stiffness(body, body, &force_jacobian_derivative(model, poses, pid, &f), sign * scale);
         }
     }
 }

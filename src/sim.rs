@@ -9,7 +9,7 @@
 use std::time::{Duration, Instant};
 
 use crate::control::{ActuatorCommand, CommandError, Control};
-use crate::forces::{evaluate, Tangents, Workspace};
+use crate::forces::{evaluate_forces, Workspace};
 use crate::model::{ActuatorId, Model};
 use crate::solve::dynamics::{cable_powers, stability_limit, Dynamics, Integrator, NewtonSettings};
 use crate::solve::linear::LinearBackend;
@@ -47,6 +47,9 @@ impl Default for SimSettings {
 pub struct StepStats {
     /// Newton iterations over all accepted sub-steps.
     pub newton_iterations: usize,
+    /// Newton-matrix factorizations over all accepted sub-steps (fewer than the iterations when
+    /// `NewtonSettings::reuse_factorization` reuses older factors).
+    pub factorizations: usize,
     /// Largest final Newton residual of the accepted sub-steps, N.
     pub residual: f64,
     /// Rejected attempts (each followed by a halved retry).
@@ -162,8 +165,8 @@ impl Simulator {
         if !dynamics.initialize(&model, &mut state) {
             return Err(StepError::Initialization);
         }
-        let mut ws = Workspace::new(&model);
-        evaluate(&model, &state, &mut ws, Tangents::None);
+        let mut ws = Workspace::for_forces(&model);
+        evaluate_forces(&model, &state, &mut ws);
         let e = ws.energies;
         let energy = EnergyAccount {
             kinetic: e.kinetic,
@@ -198,7 +201,9 @@ impl Simulator {
     pub fn state(&self) -> &State {
         &self.state
     }
-    /// The workspace evaluated at the current state (cable responses, point positions, energies).
+    /// The workspace evaluated at the current state by `forces::evaluate_forces`: point
+    /// kinematics, generalized force, cable responses, segment lengths, joint values, energies
+    /// (no tangent matrices or joint Jacobian: stepping never forms them densely).
     pub fn workspace(&self) -> &Workspace {
         &self.ws
     }
@@ -285,11 +290,12 @@ impl Simulator {
             match attempt {
                 Some(a) => {
                     debug_assert!(self.state.is_finite());
-                    evaluate(&self.model, &self.state, &mut self.ws, Tangents::None);
+                    evaluate_forces(&self.model, &self.state, &mut self.ws);
                     let (p_act1, p_loss1) = cable_powers(&self.model, &self.ws, &self.rest_rate);
                     self.energy.actuator_work += 0.5 * h_try * (p_act0 + p_act1);
                     self.energy.damping_loss += 0.5 * h_try * (p_loss0 + p_loss1);
                     stats.newton_iterations += a.iterations;
+                    stats.factorizations += a.factorizations;
                     stats.residual = stats.residual.max(a.residual);
                     stats.substeps += 1;
                     // after a cut, try to grow back

@@ -589,125 +589,213 @@ pub fn work_precision(
     Ok(rows)
 }
 
+/// Side strings of a scaling-benchmark tower (`crate::scene::generate::TowerParams`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TowerFamily {
+    /// Helical clustered side cables through every stage (each couples a bar of every stage).
+    Helical,
+    /// One clustered cable per stage through its side strings (MuJoCo's peer towers).
+    PerStage,
+    /// Classical two-point side strings.
+    Classical,
+}
+
+impl TowerFamily {
+    /// Name used in tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            TowerFamily::Helical => "helical clustered",
+            TowerFamily::PerStage => "clustered per stage",
+            TowerFamily::Classical => "classical",
+        }
+    }
+
+    /// The tower of `stages` stages of this family: the helical tower deploys by its side
+    /// cables, the others by their clustered top ring.
+    pub fn model(self, stages: usize) -> Result<Model, String> {
+        use crate::scene::generate::{tower, TowerParams};
+        let spec = tower(&TowerParams {
+            stages,
+            cluster_sides: self == TowerFamily::Helical,
+            cluster_per_stage: self == TowerFamily::PerStage,
+            cluster_top_ring: self != TowerFamily::Helical,
+            ..Default::default()
+        });
+        crate::scene::build_model(&spec, &format!("<{} tower {stages}>", self.name()), None)
+            .map_err(|e| e.to_string())
+    }
+}
+
 /// One row of the scaling benchmark.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ScalingRow {
-    /// Clustered side cables (helices through all stages) or classical two-point strings.
-    pub clustered: bool,
+    /// Which side strings.
+    pub family: TowerFamily,
     /// Tower stages.
     pub stages: usize,
     /// Generalized coordinates.
     pub coordinates: usize,
     /// Constraint rows.
     pub constraints: usize,
-    /// Structural nonzeros of the KKT matrix.
+    /// Unknowns of the sparse Newton system (coordinates, constraint rows, bordered cables).
+    pub sparse_size: usize,
+    /// Structural nonzeros of the sparse Newton matrix.
     pub nonzeros: usize,
-    /// Median wall time per step with the dense LU, s.
-    pub dense_step: f64,
+    /// Median wall time per step with the dense LU, s (`None`: not run, too large).
+    pub dense_step: Option<f64>,
     /// Median wall time per step with the sparse LU, s.
     pub sparse_step: f64,
-    /// Newton iterations per step.
+    /// Newton iterations per step (sparse run).
     pub newton_per_step: f64,
+    /// Factorizations per step (sparse run).
+    pub factorizations_per_step: f64,
 }
 
-/// Median wall time per step (s) of `steps` generalized-alpha steps of `model` (dt 1 ms).
-fn median_step_time(
+/// Largest system the scaling benchmark also times with the dense LU.
+pub const SCALING_DENSE_MAX_SIZE: usize = 800;
+
+/// Median wall time per step (s), Newton iterations and factorizations per step of `steps`
+/// generalized-alpha steps of `model` (dt 1 ms).
+pub fn median_step_time(
     model: &Model,
     linear: crate::solve::linear::LinearBackend,
     steps: usize,
-) -> Result<(f64, f64), String> {
+) -> Result<(f64, f64, f64), String> {
     let settings = SimSettings { dt: 1e-3, linear, ..Default::default() };
     let mut times = Vec::with_capacity(steps);
+    let mut factorizations = 0;
     let totals = run_dynamic(model, settings, steps as f64 * 1e-3, |_, stats| {
         times.push(stats.wall_time.as_secs_f64());
+        factorizations += stats.factorizations;
         Ok(())
     })?;
     times.sort_by(f64::total_cmp);
-    Ok((times[times.len() / 2], totals.newton_iterations as f64 / totals.steps.max(1) as f64))
+    let per = |k: usize| k as f64 / totals.steps.max(1) as f64;
+    Ok((times[times.len() / 2], per(totals.newton_iterations), per(factorizations)))
 }
 
-/// Scaling benchmark: towers of 3-strut prisms with `stages` stages, with clustered side cables
-/// (helices through every stage, which couple all bars on them) and with classical two-point
-/// strings (each couples two bars), `steps` generalized-alpha steps each with the dense and the
-/// sparse LU; writes `scaling.csv`, `scaling.md` and `scaling.{png,svg}` (median wall time per step
-/// against problem size).
+/// Least-squares slope of `log y` against `log x`: the exponent `p` of `y ~ x^p`.
+pub fn growth_exponent(points: &[(f64, f64)]) -> f64 {
+    let logs: Vec<(f64, f64)> = points.iter().map(|(x, y)| (x.ln(), y.ln())).collect();
+    let k = logs.len() as f64;
+    let (mx, my) = (logs.iter().map(|p| p.0).sum::<f64>() / k, logs.iter().map(|p| p.1).sum::<f64>() / k);
+    let sxy: f64 = logs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    let sxx: f64 = logs.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    sxy / sxx
+}
+
+/// Scaling benchmark: towers of 3-strut prisms with `stages` stages in the three
+/// `TowerFamily`s, `steps` generalized-alpha steps each with the sparse LU and (up to
+/// `SCALING_DENSE_MAX_SIZE` unknowns) the dense LU; writes `scaling.csv`, `scaling.md` (with the
+/// fitted growth exponent of the sparse step time over the runs with 8 or more stages) and
+/// `scaling.{png,svg}`.
 pub fn scaling(stages: &[usize], steps: usize, out_dir: &Path) -> Result<Vec<ScalingRow>, String> {
-    use crate::scene::generate::{tower, TowerParams};
-    use crate::solve::linear::{KktPattern, LinearBackend};
+    use crate::solve::linear::{KktSystem, LinearBackend};
     std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
     let mut rows = Vec::new();
-    for clustered in [true, false] {
+    for family in [TowerFamily::Classical, TowerFamily::PerStage, TowerFamily::Helical] {
         for &s in stages {
-            // the classical tower deploys by its clustered top ring, so that both families move
-            let spec = tower(&TowerParams {
-                stages: s,
-                cluster_sides: clustered,
-                cluster_top_ring: !clustered,
-                ..Default::default()
-            });
-            let model =
-                crate::scene::build_model(&spec, &format!("<tower {s}>"), None).map_err(|e| e.to_string())?;
+            let model = family.model(s)?;
+            let kkt = KktSystem::new(&model, LinearBackend::Sparse);
+            let (sparse_step, newton_per_step, factorizations_per_step) =
+                median_step_time(&model, LinearBackend::Sparse, steps)?;
+            let size = model.dof_count + model.constraint_count;
+            let dense_step = if size <= SCALING_DENSE_MAX_SIZE {
+                Some(median_step_time(&model, LinearBackend::Dense, steps)?.0)
+            } else {
+                None
+            };
             rows.push(ScalingRow {
-                clustered,
+                family,
                 stages: s,
                 coordinates: model.dof_count,
                 constraints: model.constraint_count,
-                nonzeros: KktPattern::new(&model).nonzeros(),
-                dense_step: median_step_time(&model, LinearBackend::Dense, steps)?.0,
-                sparse_step: median_step_time(&model, LinearBackend::Sparse, steps)?.0,
-                newton_per_step: median_step_time(&model, LinearBackend::Dense, 20)?.1,
+                sparse_size: kkt.size(),
+                nonzeros: kkt.nonzeros(),
+                dense_step,
+                sparse_step,
+                newton_per_step,
+                factorizations_per_step,
             });
         }
     }
     let mut csv = create(&out_dir.join("scaling.csv"))?;
-    let _ =
-        writeln!(csv, "side_strings,stages,coordinates,constraints,kkt_nonzeros,dense_step_s,sparse_step_s");
+    let _ = writeln!(
+        csv,
+        "side_strings,stages,coordinates,constraints,sparse_unknowns,sparse_nonzeros,newton_per_step,factorizations_per_step,dense_step_us,sparse_step_us"
+    );
     let mut md = format!(
-        "Towers of 3-strut prisms, generalized-alpha at dt = 1 ms, median wall time per step over {steps} steps.\n\n| side strings | stages | coordinates | constraints | KKT size | KKT nonzeros | Newton / step | dense LU step ms | sparse LU step ms | dense / sparse |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+        "Towers of 3-strut prisms, generalized-alpha (rho_inf 0.8) at dt = 1 ms, median wall time per step over {steps} steps.\n\n| side strings | stages | coordinates | constraints | sparse unknowns | sparse nonzeros | Newton / step | factorizations / step | dense LU µs/step | sparse LU µs/step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
     );
     for r in &rows {
-        let kind = if r.clustered { "clustered" } else { "classical" };
+        let dense = r.dense_step.map(|d| format!("{:.1}", 1e6 * d)).unwrap_or_else(|| "-".into());
         let _ = writeln!(
             csv,
-            "{kind},{},{},{},{},{:.6e},{:.6e}",
-            r.stages, r.coordinates, r.constraints, r.nonzeros, r.dense_step, r.sparse_step
-        );
-        let _ = writeln!(
-            md,
-            "| {kind} | {} | {} | {} | {} | {} | {:.2} | {:.3} | {:.3} | {:.2} |",
+            "{},{},{},{},{},{},{:.3},{:.3},{},{:.2}",
+            r.family.name(),
             r.stages,
             r.coordinates,
             r.constraints,
-            r.coordinates + r.constraints,
+            r.sparse_size,
             r.nonzeros,
             r.newton_per_step,
-            1e3 * r.dense_step,
-            1e3 * r.sparse_step,
-            r.dense_step / r.sparse_step
+            r.factorizations_per_step,
+            r.dense_step.map(|d| format!("{:.2}", 1e6 * d)).unwrap_or_default(),
+            1e6 * r.sparse_step
         );
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} | {:.2} | {:.2} | {dense} | {:.1} |",
+            r.family.name(),
+            r.stages,
+            r.coordinates,
+            r.constraints,
+            r.sparse_size,
+            r.nonzeros,
+            r.newton_per_step,
+            r.factorizations_per_step,
+            1e6 * r.sparse_step
+        );
+    }
+    md.push('\n');
+    let mut series = Vec::new();
+    for family in [TowerFamily::Classical, TowerFamily::PerStage, TowerFamily::Helical] {
+        let points: Vec<(f64, f64)> =
+            rows.iter().filter(|r| r.family == family).map(|r| (r.stages as f64, r.sparse_step)).collect();
+        let fit: Vec<(f64, f64)> = points.iter().copied().filter(|p| p.0 >= 8.0).collect();
+        if fit.len() >= 2 {
+            let _ = writeln!(
+                md,
+                "{}: sparse step time ~ stages^{:.2} (fitted over {} runs with 8+ stages)  ",
+                family.name(),
+                growth_exponent(&fit),
+                fit.len()
+            );
+        }
+        series.push(Series { name: format!("{} (sparse LU)", family.name()), points, markers: true });
+        let dense: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.family == family)
+            .filter_map(|r| r.dense_step.map(|d| (r.stages as f64, d)))
+            .collect();
+        if !dense.is_empty() {
+            series.push(Series {
+                name: format!("{} (dense LU)", family.name()),
+                points: dense,
+                markers: true,
+            });
+        }
     }
     csv.flush().map_err(|e| e.to_string())?;
     std::fs::write(out_dir.join("scaling.md"), &md).map_err(|e| e.to_string())?;
-    let size = |r: &ScalingRow| (r.coordinates + r.constraints) as f64;
     plot::write(
         &Chart {
-            title: "generalized-alpha step time vs structure size".into(),
-            x_label: "KKT size (coordinates + constraints)".into(),
+            title: "generalized-alpha step time vs tower size".into(),
+            x_label: "stages".into(),
             y_label: "median wall time per step (s)".into(),
             log_x: true,
             log_y: true,
-            series: vec![
-                Series {
-                    name: "dense LU".into(),
-                    points: rows.iter().map(|r| (size(r), r.dense_step)).collect(),
-                    markers: true,
-                },
-                Series {
-                    name: "sparse LU (faer, symbolic reused)".into(),
-                    points: rows.iter().map(|r| (size(r), r.sparse_step)).collect(),
-                    markers: true,
-                },
-            ],
+            series,
             reference: None,
         },
         &out_dir.join("scaling"),

@@ -21,8 +21,10 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 
+use super::TangentSink;
+
 use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointKinematics};
-use crate::model::{BodyId, Model, PointId, Pose};
+use crate::model::{BodyId, CableId, Model, PointId, Pose};
 
 /// Segments shorter than this (m) are treated as a point: no direction, no geometric stiffness.
 pub const SEGMENT_LENGTH_FLOOR: f64 = 1e-9;
@@ -151,15 +153,14 @@ pub fn add_block(
     }
 }
 
-/// Evaluates one cable and adds its generalized force into `force`, and when given, its tangent
-/// stiffness into `stiffness` and damping matrix into `damping` (all in local coordinates).
+/// Evaluates one cable (route geometry, tension, energy) and adds its generalized force
+/// `-T g` into `force`; leaves the route's geometry in `scratch` for `add_cable_tangents`.
 ///
-/// `kin` holds every point's kinematics at `poses`/`v`; `ea` (N), `damping_coeff` (N s/m) and
-/// `rest_length` (m, > 0) describe the cable.
-pub fn add_cable_terms(
+/// `kin` holds every point's kinematics; `ea` (N), `damping_coeff` (N s/m) and `rest_length`
+/// (m, > 0) describe the cable.
+#[allow(clippy::too_many_arguments)]
+pub fn add_cable_force(
     model: &Model,
-    poses: &[Pose],
-    v: &DVector<f64>,
     route: &[PointId],
     ea: f64,
     damping_coeff: f64,
@@ -167,88 +168,89 @@ pub fn add_cable_terms(
     kin: &[PointKinematics],
     scratch: &mut CableScratch,
     force: &mut DVector<f64>,
-    stiffness: Option<&mut DMatrix<f64>>,
-    damping: Option<&mut DMatrix<f64>>,
 ) -> CableResponse {
     let (length, length_rate) = route_geometry(route, kin, scratch);
     let t = tension(ea, damping_coeff, rest_length, length, length_rate);
-    let response = CableResponse {
+    if t > 0.0 {
+        add_length_gradient(model, route, kin, scratch, -t, force);
+    }
+    CableResponse {
         length,
         length_rate,
         rest_length,
         tension: t,
         slack: length <= rest_length,
         energy: elastic_energy(ea, rest_length, length),
-    };
-    if t <= 0.0 {
-        return response;
     }
-    add_length_gradient(model, route, kin, scratch, -t, force);
+}
+
+/// Adds one cable's tangent stiffness `K` and damping matrix `C` (module docs) into `sink`, for
+/// the tension `t` (N) found by `add_cable_force` and the route geometry it left in `scratch`
+/// (call `route_geometry` again when the scratch was reused since). Nothing while `t <= 0`.
+#[allow(clippy::too_many_arguments)]
+pub fn add_cable_tangents<S: TangentSink + ?Sized>(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    cable: CableId,
+    route: &[PointId],
+    ea: f64,
+    damping_coeff: f64,
+    rest_length: f64,
+    t: f64,
+    kin: &[PointKinematics],
+    scratch: &mut CableScratch,
+    sink: &mut S,
+) {
+    if t <= 0.0 {
+        return;
+    }
     let m = route.len() - 1;
     let body_of = |i: usize| kin[route[i].0].body;
-
-    if let Some(k_mat) = stiffness {
-        let axial = ea / rest_length;
-        // (EA/L0) g g^T
-        for i in 0..=m {
-            for j in 0..=m {
-                let blk = scratch.grad[i] * scratch.grad[j].transpose();
-                add_block(model, body_of(i), body_of(j), &blk, axial, k_mat);
-            }
+    // T sum_k G_k^T P_k G_k
+    for k in 1..=m {
+        let l = scratch.segment_lengths[k - 1];
+        if l <= SEGMENT_LENGTH_FLOOR {
+            continue;
         }
-        // T sum_k G_k^T P_k G_k
+        let e = scratch.seg_dir[k - 1];
+        let p = (Matrix3::identity() - e * e.transpose()) / l;
+        let (ji, jj) = (&kin[route[k - 1].0].jacobian, &kin[route[k].0].jacobian);
+        let (pji, pjj) = (p * ji, p * jj);
+        sink.stiffness(body_of(k), body_of(k), &(jj.transpose() * pjj), t);
+        sink.stiffness(body_of(k - 1), body_of(k - 1), &(ji.transpose() * pji), t);
+        sink.stiffness(body_of(k), body_of(k - 1), &(jj.transpose() * pji), -t);
+        sink.stiffness(body_of(k - 1), body_of(k), &(ji.transpose() * pjj), -t);
+    }
+    // T sum_i d(J_i^T n_i)/dq
+    for i in 0..=m {
+        if model.bodies[body_of(i).0].kind == crate::model::BodyKind::Node {
+            continue; // a point mass's Jacobian does not depend on its configuration
+        }
+        let d2 = force_jacobian_derivative(model, poses, route[i], &scratch.net_dir[i]);
+        sink.stiffness(body_of(i), body_of(i), &d2, t);
+    }
+    // h = dLdot/dq: how the damper's share of T changes with the configuration
+    let rate_grad = if damping_coeff > 0.0 {
+        for i in 0..=m {
+            let dv = velocity_derivative(model, poses, v, route[i]);
+            scratch.rate_grad[i] = dv.transpose() * scratch.net_dir[i];
+        }
         for k in 1..=m {
             let l = scratch.segment_lengths[k - 1];
             if l <= SEGMENT_LENGTH_FLOOR {
                 continue;
             }
             let e = scratch.seg_dir[k - 1];
-            let p = (Matrix3::identity() - e * e.transpose()) / l;
-            let (ji, jj) = (&kin[route[k - 1].0].jacobian, &kin[route[k].0].jacobian);
-            add_block(model, body_of(k), body_of(k), &(jj.transpose() * p * jj), t, k_mat);
-            add_block(model, body_of(k - 1), body_of(k - 1), &(ji.transpose() * p * ji), t, k_mat);
-            add_block(model, body_of(k), body_of(k - 1), &(jj.transpose() * p * ji), -t, k_mat);
-            add_block(model, body_of(k - 1), body_of(k), &(ji.transpose() * p * jj), -t, k_mat);
+            let (pi, pj) = (&kin[route[k - 1].0], &kin[route[k].0]);
+            let w = (pj.velocity - pi.velocity - e * e.dot(&(pj.velocity - pi.velocity))) / l;
+            scratch.rate_grad[k] += pj.jacobian.transpose() * w;
+            scratch.rate_grad[k - 1] -= pi.jacobian.transpose() * w;
         }
-        // T sum_i d(J_i^T n_i)/dq
-        for i in 0..=m {
-            let d2 = force_jacobian_derivative(model, poses, route[i], &scratch.net_dir[i]);
-            add_block(model, body_of(i), body_of(i), &d2, t, k_mat);
-        }
-        // c g h^T: how the damper's share of T changes with the configuration
-        if damping_coeff > 0.0 {
-            for i in 0..=m {
-                let dv = velocity_derivative(model, poses, v, route[i]);
-                scratch.rate_grad[i] = dv.transpose() * scratch.net_dir[i];
-            }
-            for k in 1..=m {
-                let l = scratch.segment_lengths[k - 1];
-                if l <= SEGMENT_LENGTH_FLOOR {
-                    continue;
-                }
-                let e = scratch.seg_dir[k - 1];
-                let (pi, pj) = (&kin[route[k - 1].0], &kin[route[k].0]);
-                let w = (pj.velocity - pi.velocity - e * e.dot(&(pj.velocity - pi.velocity))) / l;
-                scratch.rate_grad[k] += pj.jacobian.transpose() * w;
-                scratch.rate_grad[k - 1] -= pi.jacobian.transpose() * w;
-            }
-            for i in 0..=m {
-                for j in 0..=m {
-                    let blk = scratch.grad[i] * scratch.rate_grad[j].transpose();
-                    add_block(model, body_of(i), body_of(j), &blk, damping_coeff, k_mat);
-                }
-            }
-        }
-    }
-    if let Some(c_mat) = damping {
-        if damping_coeff > 0.0 {
-            for i in 0..=m {
-                for j in 0..=m {
-                    let blk = scratch.grad[i] * scratch.grad[j].transpose();
-                    add_block(model, body_of(i), body_of(j), &blk, damping_coeff, c_mat);
-                }
-            }
-        }
-    }
-    response
+        Some(&scratch.rate_grad[..=m])
+    } else {
+        None
+    };
+    // (EA/L0) g g^T + c g h^T into K, c g g^T into C
+    sink.cable_rank_one(cable, route, kin, &scratch.grad[..=m], rate_grad, ea / rest_length, damping_coeff);
 }

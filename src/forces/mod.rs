@@ -4,13 +4,87 @@
 
 pub mod cable;
 
-use nalgebra::{DMatrix, DVector, Vector3, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix6, Vector3, Vector6};
 
 use crate::constraints;
 use crate::kinematics::{point_kinematics, PointKinematics};
-use crate::model::{BodyId, Model, PointId};
+use crate::model::{BodyId, CableId, Model, PointId};
 use crate::state::State;
-use cable::{add_cable_terms, CableResponse, CableScratch};
+use cable::{add_block, add_cable_force, add_cable_tangents, CableResponse, CableScratch};
+
+/// Receives tangent matrices body block by body block, so that the same element code fills a
+/// dense `K` and `C` (statics, modes) or scatters scaled blocks straight into a Newton matrix
+/// (`crate::solve::linear::KktSystem`). Blocks of bodies without coordinates must be ignored.
+pub trait TangentSink {
+    /// `K[a, b] += scale * blk` (the bodies' `k_a x k_b` corner of `blk`).
+    fn stiffness(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64);
+    /// `C[a, b] += scale * blk`.
+    fn damping(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64);
+    /// The rank-one terms of cable `cable`: `K += g (axial g + damping h)^T` and
+    /// `C += damping g g^T`, where `g = sum_i grad[i]` and `h = sum_i rate_grad[i]`, each
+    /// `grad[i]` (a body-local 6-vector) placed on the body of route point `i`
+    /// (`kin[route[i].0].body`). `rate_grad` is `None` when `damping` is 0. `axial = EA/L0` (N/m),
+    /// `damping = c` (N s/m).
+    #[allow(clippy::too_many_arguments)]
+    fn cable_rank_one(
+        &mut self,
+        cable: CableId,
+        route: &[PointId],
+        kin: &[PointKinematics],
+        grad: &[Vector6<f64>],
+        rate_grad: Option<&[Vector6<f64>]>,
+        axial: f64,
+        damping: f64,
+    );
+}
+
+/// A `TangentSink` into dense `n x n` matrices: `K` always, `C` when given.
+pub struct DenseTangents<'a> {
+    /// The model whose coordinates index the matrices.
+    pub model: &'a Model,
+    /// `K = -dQ/dq`.
+    pub stiffness: &'a mut DMatrix<f64>,
+    /// `C = -dQ/dv`, when wanted.
+    pub damping: Option<&'a mut DMatrix<f64>>,
+}
+
+impl TangentSink for DenseTangents<'_> {
+    fn stiffness(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64) {
+        add_block(self.model, a, b, blk, scale, self.stiffness);
+    }
+    fn damping(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64) {
+        if let Some(c) = self.damping.as_deref_mut() {
+            add_block(self.model, a, b, blk, scale, c);
+        }
+    }
+    fn cable_rank_one(
+        &mut self,
+        _cable: CableId,
+        route: &[PointId],
+        kin: &[PointKinematics],
+        grad: &[Vector6<f64>],
+        rate_grad: Option<&[Vector6<f64>]>,
+        axial: f64,
+        damping: f64,
+    ) {
+        for i in 0..grad.len() {
+            let a = kin[route[i].0].body;
+            for j in 0..grad.len() {
+                let b = kin[route[j].0].body;
+                let mut w = grad[j] * axial;
+                if let Some(h) = rate_grad {
+                    w += h[j] * damping;
+                }
+                add_block(self.model, a, b, &(grad[i] * w.transpose()), 1.0, self.stiffness);
+                if damping > 0.0 {
+                    if let Some(c) = self.damping.as_deref_mut() {
+                        add_block(self.model, a, b, &(grad[i] * grad[j].transpose()), damping, c);
+                    }
+                }
+            }
+        }
+    }
+}
 
 /// Which tangent matrices an evaluation fills.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -55,13 +129,18 @@ pub struct Workspace {
     pub segment_lengths: Vec<f64>,
     /// Energies of the evaluated state (kinetic included).
     pub energies: Energies,
-    scratch: CableScratch,
+    /// Per-route scratch (public so that callers can pass it to `add_tangents`).
+    pub scratch: CableScratch,
 }
 
 impl Workspace {
     /// A workspace sized for `model`.
     pub fn new(model: &Model) -> Self {
-        let n = model.dof_count;
+        Self::new_sized(model, true)
+    }
+
+    fn new_sized(model: &Model, dense: bool) -> Self {
+        let n = if dense { model.dof_count } else { 0 };
         let max_route = model.cables.iter().map(|c| c.route_len).max().unwrap_or(2);
         Self {
             points: vec![
@@ -73,16 +152,23 @@ impl Workspace {
                 };
                 model.points.len()
             ],
-            force: DVector::zeros(n),
+            force: DVector::zeros(model.dof_count),
             stiffness: DMatrix::zeros(n, n),
             damping: DMatrix::zeros(n, n),
             constraint: DVector::zeros(model.constraint_count),
-            constraint_jacobian: DMatrix::zeros(model.constraint_count, n),
+            constraint_jacobian: DMatrix::zeros(if dense { model.constraint_count } else { 0 }, n),
             cables: vec![CableResponse::default(); model.cables.len()],
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
             scratch: CableScratch::new(max_route),
         }
+    }
+
+    /// A workspace for `evaluate_forces` only: the dense `K`, `C` and `Phi_q` are left empty
+    /// (`0 x 0`) and sized by the first `evaluate` that needs them, so that stepping a large scene
+    /// never holds `n x n` matrices.
+    pub fn for_forces(model: &Model) -> Self {
+        Self::new_sized(model, false)
     }
 
     /// Segment lengths of cable `c` from the last evaluation, m.
@@ -97,19 +183,41 @@ impl Workspace {
 /// point kinematics, `Q`, the requested tangents, constraints and their Jacobian, cable responses
 /// and energies.
 pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tangents) {
+    evaluate_forces(model, state, ws);
+    let (n, nc) = (model.dof_count, model.constraint_count);
+    if ws.constraint_jacobian.shape() != (nc, n) {
+        ws.constraint_jacobian = DMatrix::zeros(nc, n);
+    }
+    if tangents != Tangents::None && ws.stiffness.nrows() != n {
+        ws.stiffness = DMatrix::zeros(n, n);
+        ws.damping = DMatrix::zeros(n, n);
+    }
+    let want_k = tangents != Tangents::None;
+    let want_c = tangents == Tangents::StiffnessAndDamping;
+    if want_k {
+        ws.stiffness.fill(0.0);
+        if want_c {
+            ws.damping.fill(0.0);
+        }
+        let mut sink = DenseTangents {
+            model,
+            stiffness: &mut ws.stiffness,
+            damping: if want_c { Some(&mut ws.damping) } else { None },
+        };
+        add_tangents(model, state, &ws.points, &ws.cables, &mut ws.scratch, &mut sink);
+    }
+    constraints::evaluate_jacobian(model, &ws.points, &mut ws.constraint_jacobian);
+}
+
+/// The part of `evaluate` that is linear in the scene size: point kinematics, `Q`, cable
+/// responses and segment lengths, joint constraint values `Phi` and energies. Leaves
+/// `ws.stiffness`, `ws.damping` and `ws.constraint_jacobian` untouched.
+pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     let v = &state.velocities;
     for (i, p) in ws.points.iter_mut().enumerate() {
         *p = point_kinematics(model, &state.poses, v, PointId(i));
     }
     ws.force.fill(0.0);
-    let want_k = tangents != Tangents::None;
-    let want_c = tangents == Tangents::StiffnessAndDamping;
-    if want_k {
-        ws.stiffness.fill(0.0);
-    }
-    if want_c {
-        ws.damping.fill(0.0);
-    }
 
     // gravity: m g on the translation rows of each body (origin = centre of mass)
     let mut gravitational = 0.0;
@@ -126,11 +234,9 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
     // cables
     let mut elastic = 0.0;
     for (c, cable) in model.cables.iter().enumerate() {
-        let route = model.route(crate::model::CableId(c));
-        let response = add_cable_terms(
+        let route = model.route(CableId(c));
+        let response = add_cable_force(
             model,
-            &state.poses,
-            v,
             route,
             cable.axial_stiffness,
             cable.damping,
@@ -138,8 +244,6 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
             &ws.points,
             &mut ws.scratch,
             &mut ws.force,
-            if want_k { Some(&mut ws.stiffness) } else { None },
-            if want_c { Some(&mut ws.damping) } else { None },
         );
         elastic += response.energy;
         ws.cables[c] = response;
@@ -148,8 +252,42 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
         ws.segment_lengths[start..start + m].copy_from_slice(&ws.scratch.segment_lengths[..m]);
     }
 
-    constraints::evaluate(model, &ws.points, &mut ws.constraint, &mut ws.constraint_jacobian);
+    constraints::evaluate_values(model, &ws.points, &mut ws.constraint);
     ws.energies = Energies { elastic, gravitational, kinetic: kinetic_energy(model, v) };
+}
+
+/// Adds the cables' tangent stiffness and damping at `state` into `sink`, using the point
+/// kinematics `points` and cable responses `cables` that `evaluate_forces` left for this state.
+pub fn add_tangents<S: TangentSink + ?Sized>(
+    model: &Model,
+    state: &State,
+    points: &[PointKinematics],
+    cables: &[CableResponse],
+    scratch: &mut CableScratch,
+    sink: &mut S,
+) {
+    for (c, cable) in model.cables.iter().enumerate() {
+        let t = cables[c].tension;
+        if t <= 0.0 {
+            continue;
+        }
+        let route = model.route(CableId(c));
+        cable::route_geometry(route, points, scratch);
+        add_cable_tangents(
+            model,
+            &state.poses,
+            &state.velocities,
+            CableId(c),
+            route,
+            cable.axial_stiffness,
+            cable.damping,
+            state.rest_lengths[c],
+            t,
+            points,
+            scratch,
+            sink,
+        );
+    }
 }
 
 /// Kinetic energy `v^T M v / 2` (J) of local velocities `v`.

@@ -93,6 +93,7 @@ pub fn prism(p: &PrismParams) -> SceneSpec {
         ea: p.ea,
         side_prestress: p.side_prestress,
         cluster_sides: false,
+        cluster_per_stage: false,
         cluster_top_ring: p.cluster_top_ring,
         damping_ratio: p.damping_ratio,
         deploy_shortening: p.deploy_shortening,
@@ -119,6 +120,10 @@ pub struct TowerParams {
     /// Cluster the side strings that continue from stage to stage into n helical cables through
     /// pulleys at the stage joints, each driven by an actuator.
     pub cluster_sides: bool,
+    /// Without `cluster_sides`: run each stage's side strings as one clustered cable (bottom 0,
+    /// top n-1, down bar n-1, top n-2, ..., top 0: pulleys at the bar ends, the legs along the
+    /// bars keep their length), coupling the stage's bars only.
+    pub cluster_per_stage: bool,
     /// Cluster the top ring into one closed cable, driven by an actuator.
     pub cluster_top_ring: bool,
     /// Damping ratio of every cable.
@@ -138,6 +143,7 @@ impl Default for TowerParams {
             ea: 5e4,
             side_prestress: 100.0,
             cluster_sides: true,
+            cluster_per_stage: false,
             cluster_top_ring: false,
             damping_ratio: 0.05,
             deploy_shortening: 0.05,
@@ -210,6 +216,19 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
             let mut c = cable(format!("side{i}"), route, p.ea, p.damping_ratio);
             c.prestress = Some(p.side_prestress);
             actuated.push(c.name.clone());
+            spec.cables.push(c);
+        }
+    } else if p.cluster_per_stage {
+        for l in 0..s {
+            let mut route = vec![point(l, 0)];
+            for i in (0..n).rev() {
+                route.push(format!("bar{l}_{i}.b"));
+                if i > 0 {
+                    route.push(point(l, i));
+                }
+            }
+            let mut c = cable(format!("vertical{l}"), route, p.ea, p.damping_ratio);
+            c.prestress = Some(p.side_prestress);
             spec.cables.push(c);
         }
     } else {

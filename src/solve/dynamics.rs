@@ -29,11 +29,11 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
 
-use crate::constraints::add_multiplier_hessian;
+use crate::constraints::{add_multiplier_hessian_to, add_reaction_force, evaluate_rates, joint_points};
 use crate::forces::cable::{add_block, add_vector};
-use crate::forces::{evaluate, Tangents, Workspace};
+use crate::forces::{add_tangents, evaluate, evaluate_forces, TangentSink, Tangents, Workspace};
 use crate::model::{BodyId, BodyKind, Model};
-use crate::solve::linear::{LinearBackend, LinearSolver};
+use crate::solve::linear::{KktSystem, LinearBackend};
 use crate::state::{retract, State};
 
 /// Which integrator advances the dynamics.
@@ -98,11 +98,22 @@ pub struct NewtonSettings {
     pub tolerance: f64,
     /// Iterations before the step is rejected.
     pub max_iterations: usize,
+    /// Modified Newton: keep the last factored Newton matrix (across iterations and steps of the
+    /// same size) and refactor only when an iteration contracts the residual by less than
+    /// `REFACTOR_CONTRACTION`, after `MAX_STALE_ITERATIONS` iterations on old factors, or when
+    /// the step size changes. The convergence test is the same residual test either way.
+    pub reuse_factorization: bool,
 }
+
+/// A reused factorization is replaced when an iteration leaves more than this fraction of the
+/// residual (`|r_k| > REFACTOR_CONTRACTION |r_(k-1)|`).
+pub const REFACTOR_CONTRACTION: f64 = 0.25;
+/// Iterations in a row on one reused factorization before it is replaced anyway.
+pub const MAX_STALE_ITERATIONS: usize = 4;
 
 impl Default for NewtonSettings {
     fn default() -> Self {
-        Self { tolerance: 1e-9, max_iterations: 15 }
+        Self { tolerance: 1e-9, max_iterations: 15, reuse_factorization: true }
     }
 }
 
@@ -113,24 +124,26 @@ pub struct AttemptStats {
     pub iterations: usize,
     /// Final residual max-norm, N.
     pub residual: f64,
+    /// Newton-matrix factorizations (0 when every iteration reused older factors).
+    pub factorizations: usize,
 }
 
 /// Integrator memory and preallocated buffers for one model.
 #[derive(Debug, Clone)]
 pub struct Dynamics {
-    /// Constant mass matrix (dense, block diagonal).
-    pub mass: DMatrix<f64>,
+    /// Each body's constant mass matrix in its local coordinates (`BodyModel::mass_matrix`).
+    mass: Vec<Matrix6<f64>>,
     /// True acceleration `vdot` at the current state.
     pub acceleration: DVector<f64>,
     /// Generalized-alpha pseudo-acceleration `a`.
     pub pseudo_acceleration: DVector<f64>,
     ws: Workspace,
     trial: State,
-    matrix: DMatrix<f64>,
     rhs: DVector<f64>,
     residual: DVector<f64>,
-    hessian: DMatrix<f64>,
-    linear: LinearSolver,
+    kkt: KktSystem,
+    /// `(beta', gamma')` of the generalized-alpha matrix whose factors `kkt` holds.
+    factored_for: Option<(f64, f64)>,
     // generalized-alpha iterates, preallocated so that a step never allocates
     vdot: DVector<f64>,
     a_next: DVector<f64>,
@@ -139,22 +152,15 @@ pub struct Dynamics {
     lambda: DVector<f64>,
 }
 
-/// Gyroscopic generalized force `B^T [0; w x J w]` of rigid bodies, added into `out`, and its
-/// velocity derivative `B^T [[0,0],[0, [w]x J - [J w]x]] B` added into `c_out` when given.
-pub fn add_gyroscopic(
-    model: &Model,
-    v: &DVector<f64>,
-    out: &mut DVector<f64>,
-    mut c_out: Option<&mut DMatrix<f64>>,
-) {
+/// Gyroscopic generalized force `B^T [0; w x J w]` of rigid bodies (N m), added into `out`.
+pub fn add_gyroscopic(model: &Model, v: &DVector<f64>, out: &mut DVector<f64>) {
     for (b, body) in model.bodies.iter().enumerate() {
         if body.kind != BodyKind::Rigid {
             continue;
         }
         let local = body.local_increment(v.as_slice(), 1.0);
         let w = Vector3::new(local[3], local[4], local[5]);
-        let jw = body.inertia * w;
-        let t = w.cross(&jw);
+        let t = w.cross(&(body.inertia * w));
         add_vector(
             model,
             BodyId(b),
@@ -162,12 +168,23 @@ pub fn add_gyroscopic(
             1.0,
             out,
         );
-        if let Some(c) = c_out.as_deref_mut() {
-            let d: Matrix3<f64> = w.cross_matrix() * body.inertia - jw.cross_matrix();
-            let mut d6 = Matrix6::zeros();
-            d6.fixed_view_mut::<3, 3>(3, 3).copy_from(&d);
-            add_block(model, BodyId(b), BodyId(b), &(body.basis.transpose() * d6 * body.basis), 1.0, c);
+    }
+}
+
+/// The velocity derivative of the gyroscopic force, `B^T [[0,0],[0, [w]x J - [J w]x]] B`
+/// (N m s), added into the damping blocks of `sink`.
+pub fn add_gyroscopic_damping<S: TangentSink + ?Sized>(model: &Model, v: &DVector<f64>, sink: &mut S) {
+    for (b, body) in model.bodies.iter().enumerate() {
+        if body.kind != BodyKind::Rigid {
+            continue;
         }
+        let local = body.local_increment(v.as_slice(), 1.0);
+        let w = Vector3::new(local[3], local[4], local[5]);
+        let jw = body.inertia * w;
+        let d: Matrix3<f64> = w.cross_matrix() * body.inertia - jw.cross_matrix();
+        let mut d6 = Matrix6::zeros();
+        d6.fixed_view_mut::<3, 3>(3, 3).copy_from(&d);
+        sink.damping(BodyId(b), BodyId(b), &(body.basis.transpose() * d6 * body.basis), 1.0);
     }
 }
 
@@ -190,11 +207,13 @@ fn constraint_curvature(model: &Model, state: &State, ws: &mut Workspace) -> DVe
     let eps = 1e-6 / state.velocities.amax().max(1e-12);
     let mut s = state.clone();
     let mut out = DVector::zeros(nc);
+    let mut rates = DVector::zeros(nc);
     for (sign, scale) in [(1.0, eps), (-1.0, -eps)] {
         s.poses.copy_from_slice(&state.poses);
         retract(model, &mut s.poses, &state.velocities, scale);
-        evaluate(model, &s, ws, Tangents::None);
-        out += &ws.constraint_jacobian * &state.velocities * (sign / (2.0 * eps));
+        evaluate_forces(model, &s, ws);
+        evaluate_rates(model, &ws.points, &mut rates);
+        out.axpy(sign / (2.0 * eps), &rates, 1.0);
     }
     out
 }
@@ -222,18 +241,17 @@ impl Dynamics {
     /// Buffers for `model`, solving its Newton systems with `backend`.
     pub fn new(model: &Model, backend: LinearBackend) -> Self {
         let n = model.dof_count;
-        let size = n + model.constraint_count;
+        let kkt = KktSystem::new(model, backend);
         Self {
-            mass: mass_matrix(model),
+            mass: model.bodies.iter().map(|b| b.mass_matrix()).collect(),
             acceleration: DVector::zeros(n),
             pseudo_acceleration: DVector::zeros(n),
-            ws: Workspace::new(model),
+            ws: Workspace::for_forces(model),
             trial: State::initial(model),
-            matrix: DMatrix::zeros(size, size),
-            rhs: DVector::zeros(size),
+            rhs: DVector::zeros(kkt.size()),
             residual: DVector::zeros(n),
-            hessian: DMatrix::zeros(n, n),
-            linear: LinearSolver::new(model, backend),
+            kkt,
+            factored_for: None,
             vdot: DVector::zeros(n),
             a_next: DVector::zeros(n),
             v: DVector::zeros(n),
@@ -244,7 +262,32 @@ impl Dynamics {
 
     /// The linear-solver backend in use (dense or sparse).
     pub fn linear_backend(&self) -> LinearBackend {
-        self.linear.backend()
+        self.kkt.backend()
+    }
+
+    /// The Newton system (size, nonzeros, bordered cables).
+    pub fn kkt(&self) -> &KktSystem {
+        &self.kkt
+    }
+
+    /// `out = M x` with the block-diagonal mass matrix (no `n x n` product).
+    fn mass_times(&self, model: &Model, x: &DVector<f64>, out: &mut DVector<f64>) {
+        for (b, body) in model.bodies.iter().enumerate() {
+            let (o, k) = (body.dof_offset, body.dof_count);
+            for r in 0..k {
+                let mut sum = 0.0;
+                for c in 0..k {
+                    sum += self.mass[b][(r, c)] * x[o + c];
+                }
+                out[o + r] = sum;
+            }
+        }
+    }
+
+    /// Starts the matrix `[M, Phi_q^T; Phi_q, 0]` (bordered rows `dT = 0`) at the point
+    /// kinematics in the workspace.
+    fn assemble_mass_and_joints(&mut self, model: &Model) {
+        assemble_mass_and_joints(model, &self.ws, &self.mass, &mut self.kkt);
     }
 
     /// Sets consistent accelerations and reactions at `state` (solves
@@ -253,33 +296,27 @@ impl Dynamics {
         let n = model.dof_count;
         let nc = model.constraint_count;
         let curvature = constraint_curvature(model, state, &mut self.ws);
-        evaluate(model, state, &mut self.ws, Tangents::None);
+        evaluate_forces(model, state, &mut self.ws);
         let mut gyro = DVector::zeros(n);
-        add_gyroscopic(model, &state.velocities, &mut gyro, None);
-        let f = &self.ws.force - gyro;
-        self.matrix.fill(0.0);
-        self.matrix.view_mut((0, 0), (n, n)).copy_from(&self.mass);
-        if nc > 0 {
-            self.matrix.view_mut((0, n), (n, nc)).copy_from(&self.ws.constraint_jacobian.transpose());
-            self.matrix.view_mut((n, 0), (nc, n)).copy_from(&self.ws.constraint_jacobian);
-        }
-        self.rhs.rows_mut(0, n).copy_from(&f);
-        if nc > 0 {
-            self.rhs.rows_mut(n, nc).copy_from(&(-curvature));
-        }
-        let mut x = self.rhs.clone();
-        if !self.linear.solve(&self.matrix, &mut x) {
+        add_gyroscopic(model, &state.velocities, &mut gyro);
+        self.assemble_mass_and_joints(model);
+        self.rhs.fill(0.0);
+        self.rhs.rows_mut(0, n).copy_from(&(&self.ws.force - gyro));
+        self.rhs.rows_mut(n, nc).copy_from(&(-curvature));
+        self.factored_for = None;
+        if !self.kkt.solve(&mut self.rhs) {
             return false;
         }
-        self.acceleration.copy_from(&x.rows(0, n));
+        self.acceleration.copy_from(&self.rhs.rows(0, n));
         self.pseudo_acceleration.copy_from(&self.acceleration);
-        state.multipliers.copy_from(&x.rows(n, nc));
+        state.multipliers.copy_from(&self.rhs.rows(n, nc));
         true
     }
 
     /// One step of size `h` with rest lengths `rest_next` at the new time. On success writes the
     /// new state into `state` (and the accelerations here) and returns the attempt's statistics;
     /// on failure leaves everything unchanged and returns `None`.
+    #[allow(clippy::too_many_arguments)]
     pub fn step(
         &mut self,
         model: &Model,
@@ -326,21 +363,26 @@ impl Dynamics {
         self.trial.time = state.time + h;
         self.trial.rest_lengths.copy_from_slice(rest_next);
         let mut stats = AttemptStats::default();
+        let coefficients = (beta_p, gamma_p);
+        let mut reuse = newton.reuse_factorization && self.factored_for == Some(coefficients);
+        let mut previous = f64::INFINITY;
+        let mut stale = 0;
+        let mut factorizations = 0;
         for iter in 0..=newton.max_iterations {
             self.trial.poses.copy_from_slice(&state.poses);
             retract(model, &mut self.trial.poses, &self.delta, 1.0);
             self.trial.velocities.copy_from(&self.v);
             self.trial.multipliers.copy_from(&self.lambda);
-            evaluate(model, &self.trial, &mut self.ws, Tangents::StiffnessAndDamping);
+            evaluate_forces(model, &self.trial, &mut self.ws);
 
             // residual r = M vdot + gyro - Q + Phi_q^T lambda
-            self.mass.mul_to(&self.vdot, &mut self.residual);
-            let inertial = self.residual.amax();
-            add_gyroscopic(model, &self.v, &mut self.residual, Some(&mut self.ws.damping));
-            self.residual -= &self.ws.force;
-            if nc > 0 {
-                self.residual.gemv_tr(1.0, &self.ws.constraint_jacobian, &self.lambda, 1.0);
-            }
+            let mut residual = std::mem::take(&mut self.residual);
+            self.mass_times(model, &self.vdot, &mut residual);
+            let inertial = residual.amax();
+            add_gyroscopic(model, &self.v, &mut residual);
+            residual -= &self.ws.force;
+            add_reaction_force(model, &self.ws.points, &self.lambda, 1.0, &mut residual);
+            self.residual = residual;
             if !all_finite(&self.residual) {
                 return None;
             }
@@ -348,34 +390,44 @@ impl Dynamics {
             let phi_norm = if nc > 0 { self.ws.constraint.amax() } else { 0.0 };
             let scale = force_scale(model, &self.ws, inertial);
             let length_scale = self.ws.cables.iter().map(|c| c.length).fold(1e-3, f64::max);
-            stats = AttemptStats { iterations: iter, residual: r_norm };
+            stats = AttemptStats { iterations: iter, residual: r_norm, factorizations };
             if r_norm <= (newton.tolerance * scale).max(force_floor(model, &self.ws))
                 && phi_norm <= 1e-12 * length_scale
             {
                 break;
             }
             if iter == newton.max_iterations {
+                self.factored_for = None;
                 return None;
             }
-            // [S / beta', Phi_q^T; Phi_q, 0] [d delta; d lambda / beta'] = [-r / beta'; -Phi]
-            if nc > 0 {
-                self.hessian.fill(0.0);
-                add_multiplier_hessian(model, &self.trial.poses, &self.lambda, &mut self.hessian);
+            let contraction = r_norm.max(phi_norm * scale / length_scale);
+            if reuse && (contraction > REFACTOR_CONTRACTION * previous || stale >= MAX_STALE_ITERATIONS) {
+                reuse = false;
             }
-            for j in 0..n {
-                for i in 0..n {
-                    let mut a = self.mass[(i, j)]
-                        + (gamma_p * self.ws.damping[(i, j)] + self.ws.stiffness[(i, j)]) / beta_p;
-                    if nc > 0 {
-                        a += self.hessian[(i, j)] / beta_p;
-                    }
-                    self.matrix[(i, j)] = a;
+            previous = contraction;
+            // [M + (gamma' C + K + H_lambda)/beta', Phi_q^T; Phi_q, 0] [d delta; d lambda / beta'] = [-r / beta'; -Phi]
+            self.rhs.fill(0.0);
+            self.rhs.rows_mut(0, n).axpy(-1.0 / beta_p, &self.residual, 0.0);
+            self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
+            if reuse && self.kkt.solve_factored(&mut self.rhs) {
+                stale += 1;
+            } else {
+                self.assemble_newton_matrix(model, beta_p, gamma_p);
+                factorizations += 1;
+                self.factored_for = None;
+                if !self.kkt.factor() {
+                    return None;
                 }
-                self.rhs[j] = -self.residual[j] / beta_p;
-            }
-            self.fill_constraint_border(n, nc, 1.0);
-            if !self.linear.solve(&self.matrix, &mut self.rhs) {
-                return None;
+                self.factored_for = Some(coefficients);
+                self.rhs.fill(0.0);
+                self.rhs.rows_mut(0, n).axpy(-1.0 / beta_p, &self.residual, 0.0);
+                self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
+                if !self.kkt.solve_factored(&mut self.rhs) {
+                    self.factored_for = None;
+                    return None;
+                }
+                reuse = newton.reuse_factorization;
+                stale = 0;
             }
             let dd = self.rhs.rows(0, n);
             self.delta += dd;
@@ -397,20 +449,9 @@ impl Dynamics {
         Some(stats)
     }
 
-    /// Writes the KKT border `[., Phi_q^T; Phi_q, 0]` into the matrix and `-Phi * phi_scale` into
-    /// the constraint rows of the right-hand side.
-    fn fill_constraint_border(&mut self, n: usize, nc: usize, phi_scale: f64) {
-        for r in 0..nc {
-            for j in 0..n {
-                let g = self.ws.constraint_jacobian[(r, j)];
-                self.matrix[(n + r, j)] = g;
-                self.matrix[(j, n + r)] = g;
-            }
-            for q in 0..nc {
-                self.matrix[(n + r, n + q)] = 0.0;
-            }
-            self.rhs[n + r] = -self.ws.constraint[r] * phi_scale;
-        }
+    /// Assembles the generalized-alpha Newton matrix at the trial state.
+    fn assemble_newton_matrix(&mut self, model: &Model, beta_p: f64, gamma_p: f64) {
+        assemble_newton_matrix(model, &self.trial, &mut self.ws, &self.mass, &mut self.kkt, beta_p, gamma_p);
     }
 
     /// `a_next = (alpha_f vdot_n - alpha_m a_n + (1 - alpha_f) vdot) / (1 - alpha_m)`, in place.
@@ -436,22 +477,23 @@ impl Dynamics {
         self.trial.velocities.copy_from(&state.velocities);
         self.trial.multipliers.copy_from(&state.multipliers);
         self.trial.rest_lengths.copy_from_slice(rest_now);
-        evaluate(model, &self.trial, &mut self.ws, Tangents::None);
+        evaluate_forces(model, &self.trial, &mut self.ws);
         // f = Q - gyro (in `residual`), M v_n (in `vdot`)
         self.v.fill(0.0);
-        add_gyroscopic(model, &state.velocities, &mut self.v, None);
+        add_gyroscopic(model, &state.velocities, &mut self.v);
         self.residual.copy_from(&self.ws.force);
         self.residual -= &self.v;
-        self.mass.mul_to(&state.velocities, &mut self.vdot);
+        let mut mv = std::mem::take(&mut self.vdot);
+        self.mass_times(model, &state.velocities, &mut mv);
+        self.vdot = mv;
         // [M Phi_q^T; Phi_q 0] [v+; h lambda] = [M v + h f; -Phi / h]
-        for j in 0..n {
-            for i in 0..n {
-                self.matrix[(i, j)] = self.mass[(i, j)];
-            }
-            self.rhs[j] = self.vdot[j] + h * self.residual[j];
-        }
-        self.fill_constraint_border(n, nc, 1.0 / h);
-        if !self.linear.solve(&self.matrix, &mut self.rhs) {
+        self.assemble_mass_and_joints(model);
+        self.rhs.fill(0.0);
+        self.rhs.rows_mut(0, n).copy_from(&self.vdot);
+        self.rhs.rows_mut(0, n).axpy(h, &self.residual, 1.0);
+        self.rhs.rows_mut(n, nc).axpy(-1.0 / h, &self.ws.constraint, 0.0);
+        self.factored_for = None;
+        if !self.kkt.solve(&mut self.rhs) {
             return None;
         }
         self.v.copy_from(&self.rhs.rows(0, n));
@@ -471,7 +513,44 @@ impl Dynamics {
         state.time += h;
         self.acceleration.copy_from(&self.vdot);
         self.pseudo_acceleration.copy_from(&self.vdot);
-        Some(AttemptStats { iterations: 0, residual: 0.0 })
+        Some(AttemptStats { iterations: 0, residual: 0.0, factorizations: 1 })
+    }
+}
+
+/// Zeroes `kkt` and adds `[M, Phi_q^T; Phi_q, 0]`: the body mass blocks `mass` (one 6 x 6 per
+/// body, `BodyModel::mass_matrix`) and the joint Jacobian rows at the point kinematics in `ws`.
+pub fn assemble_mass_and_joints(model: &Model, ws: &Workspace, mass: &[Matrix6<f64>], kkt: &mut KktSystem) {
+    kkt.clear();
+    for (b, m) in mass.iter().enumerate() {
+        kkt.add_body_block(BodyId(b), BodyId(b), m, 1.0);
+    }
+    for (j, joint) in model.joints.iter().enumerate() {
+        for (side, (p, sign)) in joint_points(joint).enumerate() {
+            let point = &ws.points[p.0];
+            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
+        }
+    }
+}
+
+/// Assembles the generalized-alpha Newton matrix
+/// `[M + (gamma' C + K + H_lambda)/beta', Phi_q^T; Phi_q, 0]` into `kkt` at `state` (its
+/// velocities and multipliers are the iterate's), with `ws` evaluated there by
+/// `forces::evaluate_forces`. `beta'` (1/s^2) and `gamma'` (1/s) as in the module docs.
+pub fn assemble_newton_matrix(
+    model: &Model,
+    state: &State,
+    ws: &mut Workspace,
+    mass: &[Matrix6<f64>],
+    kkt: &mut KktSystem,
+    beta_p: f64,
+    gamma_p: f64,
+) {
+    assemble_mass_and_joints(model, ws, mass, kkt);
+    let mut sink = kkt.tangents(1.0 / beta_p, gamma_p / beta_p);
+    add_tangents(model, state, &ws.points, &ws.cables, &mut ws.scratch, &mut sink);
+    add_gyroscopic_damping(model, &state.velocities, &mut sink);
+    if model.constraint_count > 0 {
+        add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
     }
 }
 

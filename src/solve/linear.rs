@@ -1,98 +1,381 @@
-//! Linear solves for the Newton iterations: takes the square KKT matrix of a model (coordinates
-//! then constraint rows) and a right-hand side, gives the solution, with a dense LU or a
-//! sparse LU (faer) whose symbolic analysis (column ordering, elimination structure) is done once
-//! per model and reused for every numeric factorization.
+//! Newton systems of the implicit dynamics: takes a model, gives a `KktSystem` that the
+//! integrators assemble block by block (mass, tangent stiffness and damping, joint rows) and solve
+//! in place, with a dense LU or a sparse LU (faer) whose symbolic analysis is done once per model.
 //!
-//! The sparsity pattern is fixed by the model: each body's diagonal block (mass, damping,
-//! geometric and gyroscopic terms), the blocks between every pair of bodies that share a cable
-//! (`g g^T` couples all bodies on a route), the constraint rows against their bodies' columns and
-//! the transposes, and the diagonal. `LinearBackend::Auto` picks the sparse LU only for large, thin
-//! patterns (at least `SPARSE_MIN_SIZE` unknowns and at most `SPARSE_MAX_DENSITY` of the entries
-//! structurally nonzero): in `tensegrity bench scaling` on the 2-core development machine the
-//! sparse LU was 1.6-1.9x faster per step for classical towers of 576-768 unknowns (3-5 % full),
-//! and slower at every size for towers whose clustered cables couple every stage (16-20 % full)
-//! and for all systems below about 400 unknowns.
+//! # Assembly costs O(segments)
+//! Every contribution is a small fixed-size block (6 x 6 at most, `nalgebra` static sizes) of a
+//! body pair, a joint row block or a cable border entry. The sparse backend scatters it straight
+//! into the compressed-column values through an index map computed once per model
+//! (`body_blocks`: for the block of bodies `(a, b)`, the position of row `a`'s first coordinate in
+//! each of `b`'s columns; the rows of one body are contiguous in every column). No dense `n x n`
+//! matrix is zeroed, filled or copied per iteration on that path. The dense backend writes the same
+//! blocks into a column-major buffer that the LU then factors in place.
+//!
+//! # Clustered cables stay sparse (bordered form)
+//! A taut cable adds `g (k g + c' h)^T` to the Newton matrix (`g = dL/dq`, `h = dLdot/dq`,
+//! `k = (EA/L0 + c gamma')/beta'`, `c' = c/beta'`, see `crate::solve::dynamics`). When the route
+//! crosses `BORDER_MIN_BODIES` or more moving bodies, that rank-one term would couple all of them;
+//! the sparse backend instead carries the cable's tension increment `dT` as one more unknown:
+//!
+//! ```text
+//! [ A              g    ] [dq]   [r]
+//! [ (g + h c'/k)^T -1/k ] [dT] = [0]
+//! ```
+//!
+//! Eliminating `dT = (k g + c' h)^T dq` gives back `A + g (k g + c' h)^T`: the same Newton step,
+//! exactly (a Schur complement, not an approximation; tests/assembly.rs checks it to round-off).
+//! The extra row is scaled by `1/k`, so a stiff cable behaves like a compliant constraint
+//! (`-1/k -> 0`) instead of putting huge entries in the matrix. A slack cable's row reads `dT = 0`.
+//! Classical cables (two bodies) are added directly: their four blocks are already in the pattern.
+//!
+//! # Choice of factorization
+//! `LinearBackend::Auto` uses the dense LU below `SPARSE_MIN_SIZE` unknowns and the sparse LU
+//! above; `tensegrity bench scaling` (README) measured the crossover between about 100 and 200
+//! unknowns on the 2-core development machine. The sparse LU is faer's simplicial (left-looking,
+//! partial pivoting) LU with a COLAMD column order in which border columns count as dense (ordered
+//! last); its buffers are reused, so a factorization allocates nothing once warmed up.
+//! `crate::solve::dynamics` refactors only when reused factors stop contracting the residual.
 
 use std::collections::BTreeSet;
 
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::linalg::lu::partial_pivoting as dense_lu;
-use faer::reborrow::{Reborrow, ReborrowMut};
+use faer::reborrow::ReborrowMut;
 use faer::sparse::linalg::lu::{factorize_symbolic_lu, LuSymbolicParams, NumericLu, SymbolicLu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par};
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Matrix6, Vector6};
 
-use crate::model::{JointTarget, Model};
+use crate::constraints::joint_points;
+use crate::forces::TangentSink;
+use crate::kinematics::{PointJacobian, PointKinematics};
+use crate::model::{BodyId, CableId, Model, PointId};
 
-/// Smallest size (coordinates + constraint rows) for which `Auto` uses the sparse LU.
-pub const SPARSE_MIN_SIZE: usize = 500;
-/// Largest fraction of structurally nonzero entries for which `Auto` uses the sparse LU.
-pub const SPARSE_MAX_DENSITY: f64 = 0.1;
+/// Smallest size (unknowns) for which `Auto` uses the sparse LU.
+pub const SPARSE_MIN_SIZE: usize = 200;
+/// Routes crossing at least this many moving bodies are bordered on the sparse path.
+pub const BORDER_MIN_BODIES: usize = 3;
 
 /// Which factorization solves the Newton systems.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum LinearBackend {
     /// Dense LU with partial pivoting (faer, in place in a preallocated buffer).
     Dense,
-    /// Sparse LU (faer), symbolic analysis once per model.
+    /// Sparse LU (faer), symbolic analysis once per model; clustered cables bordered.
     Sparse,
-    /// Sparse for large thin patterns (`SPARSE_MIN_SIZE`, `SPARSE_MAX_DENSITY`), else dense.
+    /// Sparse from `SPARSE_MIN_SIZE` unknowns, else dense.
     Auto,
 }
 
-/// The structural nonzeros of a model's KKT matrix, in compressed-column form.
+/// Index of each body's slot in a cable's list of distinct moving bodies.
 #[derive(Debug, Clone)]
-pub struct KktPattern {
-    size: usize,
-    col_ptr: Vec<usize>,
-    row_idx: Vec<usize>,
+struct CableSlots {
+    /// Per cable: start of its bodies in `bodies`.
+    start: Vec<usize>,
+    /// The distinct moving bodies of every route, concatenated.
+    bodies: Vec<BodyId>,
+    /// Per entry of `Model::route_points`: the point's slot in its cable, `usize::MAX` when the
+    /// point is on a body without coordinates.
+    point_slot: Vec<usize>,
+    /// Per cable: its first entry in `Model::route_points`.
+    route_start: Vec<usize>,
 }
 
-impl KktPattern {
-    /// The pattern of `model`'s KKT matrix (see the module docs).
-    pub fn new(model: &Model) -> Self {
+impl CableSlots {
+    fn new(model: &Model) -> Self {
+        let mut start = Vec::with_capacity(model.cables.len() + 1);
+        let mut bodies = Vec::new();
+        let mut point_slot = vec![usize::MAX; model.route_points.len()];
+        for (c, cable) in model.cables.iter().enumerate() {
+            start.push(bodies.len());
+            for (i, p) in model.route(CableId(c)).iter().enumerate() {
+                let body = model.points[p.0].body;
+                if model.bodies[body.0].dof_count == 0 {
+                    continue;
+                }
+                let mine = &bodies[start[c]..];
+                let slot = match mine.iter().position(|b| *b == body) {
+                    Some(s) => s,
+                    None => {
+                        bodies.push(body);
+                        bodies.len() - 1 - start[c]
+                    }
+                };
+                point_slot[cable.route_start + i] = slot;
+            }
+        }
+        start.push(bodies.len());
+        let route_start = model.cables.iter().map(|c| c.route_start).collect();
+        Self { start, bodies, point_slot, route_start }
+    }
+
+    fn of(&self, c: usize) -> &[BodyId] {
+        &self.bodies[self.start[c]..self.start[c + 1]]
+    }
+}
+
+/// Where each block lives in the compressed-column values.
+#[derive(Debug, Clone)]
+struct SparseIndex {
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    /// Per column body `b`: `(row body a, [position of a's first row in each of b's columns])`,
+    /// sorted by `a`.
+    body_blocks: Vec<Vec<(usize, [usize; 6])>>,
+    /// Per joint and side: position of the joint's first row in each column of the side's body.
+    joint_cols: Vec<[[usize; 6]; 2]>,
+    /// Per joint and side: position of the body's first coordinate in each of the joint's columns.
+    joint_rows: Vec<[[usize; 3]; 2]>,
+    /// Per (bordered cable, slot), in `CableSlots` order: position of the slot body's first row
+    /// in the border column.
+    border_col: Vec<usize>,
+    /// Per (bordered cable, slot): position of the border row in each of the slot body's columns.
+    border_row: Vec<[usize; 6]>,
+    /// Position of every diagonal entry.
+    diagonal: Vec<usize>,
+}
+
+impl SparseIndex {
+    fn position(&self, row: usize, col: usize) -> usize {
+        let rows = &self.row_idx[self.col_ptr[col]..self.col_ptr[col + 1]];
+        self.col_ptr[col] + rows.binary_search(&row).expect("entry in the KKT pattern")
+    }
+}
+
+enum Storage {
+    Dense {
+        a: Vec<f64>,
+        lu: Vec<f64>,
+        perm: Vec<usize>,
+        perm_inv: Vec<usize>,
+        mem: MemBuffer,
+    },
+    Sparse {
+        index: Box<SparseIndex>,
+        values: Vec<f64>,
+        symbolic: Box<SymbolicLu<usize>>,
+        numeric: Box<NumericLu<usize, f64>>,
+        mem: MemBuffer,
+    },
+}
+
+/// One model's Newton (KKT) matrix and its factorization. Unknowns: the `n` coordinates, the
+/// `nc` joint rows (multipliers), then one tension increment per bordered cable.
+pub struct KktSystem {
+    backend: LinearBackend,
+    n: usize,
+    nc: usize,
+    size: usize,
+    joint_rows: usize,
+    offsets: Vec<(usize, usize)>,
+    slots: CableSlots,
+    /// Per cable: index of its border unknown among the borders.
+    border: Vec<Option<usize>>,
+    /// Per border: position of its first slot in the `SparseIndex` border tables.
+    border_slot_start: Vec<usize>,
+    slot_g: Vec<Vector6<f64>>,
+    slot_w: Vec<Vector6<f64>>,
+    storage: Storage,
+    factored: bool,
+}
+
+impl std::fmt::Debug for KktSystem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("KktSystem")
+            .field("backend", &self.backend)
+            .field("size", &self.size)
+            .field("nonzeros", &self.nonzeros())
+            .finish()
+    }
+}
+
+impl Clone for KktSystem {
+    fn clone(&self) -> Self {
+        self.rebuild()
+    }
+}
+
+impl KktSystem {
+    /// The Newton system of `model` factored with `backend` (`Auto` resolves by size). The sparse
+    /// backend borders clustered cables and runs the symbolic analysis here, once.
+    pub fn new(model: &Model, backend: LinearBackend) -> Self {
+        let slots = CableSlots::new(model);
         let n = model.dof_count;
-        let size = n + model.constraint_count;
-        let mut cols: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); size];
-        let dofs = |b: usize| {
-            let body = &model.bodies[b];
-            body.dof_offset..body.dof_offset + body.dof_count
+        let nc = model.constraint_count;
+        let backend = match backend {
+            LinearBackend::Auto if n + nc >= SPARSE_MIN_SIZE => LinearBackend::Sparse,
+            LinearBackend::Auto => LinearBackend::Dense,
+            b => b,
         };
-        let couple = |a: usize, b: usize, cols: &mut Vec<BTreeSet<usize>>| {
-            for i in dofs(a) {
-                for j in dofs(b) {
-                    cols[j].insert(i);
-                    cols[i].insert(j);
+        let mut border = vec![None; model.cables.len()];
+        let mut border_slot_start = Vec::new();
+        if backend == LinearBackend::Sparse {
+            let mut slot_total = 0;
+            for (c, b) in border.iter_mut().enumerate() {
+                let count = slots.of(c).len();
+                if count >= BORDER_MIN_BODIES {
+                    *b = Some(border_slot_start.len());
+                    border_slot_start.push(slot_total);
+                    slot_total += count;
                 }
             }
+        }
+        let size = n + nc + border_slot_start.len();
+        let max_slots = (0..model.cables.len()).map(|c| slots.of(c).len()).max().unwrap_or(0);
+        let offsets = model.bodies.iter().map(|b| (b.dof_offset, b.dof_count)).collect();
+        let storage = if backend == LinearBackend::Sparse && size > 0 {
+            Self::sparse_storage(model, &slots, &border, size)
+        } else {
+            None
+        };
+        let (backend, storage) = match storage {
+            Some(s) => (LinearBackend::Sparse, s),
+            None => {
+                // no sparse structure (or no unknowns): dense without borders
+                border.iter_mut().for_each(|b| *b = None);
+                border_slot_start.clear();
+                let size = n + nc;
+                let req = StackReq::or(
+                    dense_lu::factor::lu_in_place_scratch::<usize, f64>(
+                        size,
+                        size,
+                        Par::Seq,
+                        Default::default(),
+                    ),
+                    dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
+                );
+                (
+                    LinearBackend::Dense,
+                    Storage::Dense {
+                        a: vec![0.0; size * size],
+                        lu: vec![0.0; size * size],
+                        perm: vec![0; size],
+                        perm_inv: vec![0; size],
+                        mem: MemBuffer::new(req),
+                    },
+                )
+            }
+        };
+        let size = n + nc + border_slot_start.len();
+        Self {
+            backend,
+            n,
+            nc,
+            size,
+            joint_rows: model.joint_rows(),
+            offsets,
+            slots,
+            border,
+            border_slot_start,
+            slot_g: vec![Vector6::zeros(); max_slots],
+            slot_w: vec![Vector6::zeros(); max_slots],
+            storage,
+            factored: false,
+        }
+    }
+
+    fn rebuild(&self) -> Self {
+        // the model is not kept; rebuild the storage from the tables we hold
+        let storage = match &self.storage {
+            Storage::Dense { a, lu, perm, perm_inv, .. } => {
+                let size = perm.len();
+                let req = StackReq::or(
+                    dense_lu::factor::lu_in_place_scratch::<usize, f64>(
+                        size,
+                        size,
+                        Par::Seq,
+                        Default::default(),
+                    ),
+                    dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
+                );
+                Storage::Dense {
+                    a: a.clone(),
+                    lu: lu.clone(),
+                    perm: perm.clone(),
+                    perm_inv: perm_inv.clone(),
+                    mem: MemBuffer::new(req),
+                }
+            }
+            Storage::Sparse { index, values, symbolic, .. } => Storage::Sparse {
+                mem: MemBuffer::new(sparse_scratch(symbolic)),
+                index: index.clone(),
+                values: values.clone(),
+                symbolic: symbolic.clone(),
+                numeric: Box::new(NumericLu::new()),
+            },
+        };
+        Self {
+            backend: self.backend,
+            n: self.n,
+            nc: self.nc,
+            size: self.size,
+            joint_rows: self.joint_rows,
+            offsets: self.offsets.clone(),
+            slots: self.slots.clone(),
+            border: self.border.clone(),
+            border_slot_start: self.border_slot_start.clone(),
+            slot_g: self.slot_g.clone(),
+            slot_w: self.slot_w.clone(),
+            storage,
+            factored: false,
+        }
+    }
+
+    fn sparse_storage(
+        model: &Model,
+        slots: &CableSlots,
+        border: &[Option<usize>],
+        size: usize,
+    ) -> Option<Storage> {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        let dofs = |b: BodyId| {
+            let body = &model.bodies[b.0];
+            body.dof_offset..body.dof_offset + body.dof_count
+        };
+        let mut cols: Vec<BTreeSet<usize>> = vec![BTreeSet::new(); size];
+        let couple = |a: BodyId, b: BodyId, cols: &mut Vec<BTreeSet<usize>>| {
+            for j in dofs(b) {
+                cols[j].extend(dofs(a));
+            }
+            for j in dofs(a) {
+                cols[j].extend(dofs(b));
+            }
+        };
+        let tie = |row: usize, b: BodyId, cols: &mut Vec<BTreeSet<usize>>| {
+            for j in dofs(b) {
+                cols[j].insert(row);
+            }
+            cols[row].extend(dofs(b));
         };
         for b in 0..model.bodies.len() {
-            couple(b, b, &mut cols);
+            couple(BodyId(b), BodyId(b), &mut cols);
         }
-        for c in 0..model.cables.len() {
-            let bodies: BTreeSet<usize> =
-                model.route(crate::model::CableId(c)).iter().map(|p| model.points[p.0].body.0).collect();
-            for &a in &bodies {
-                for &b in &bodies {
-                    couple(a, b, &mut cols);
+        for (c, bordered) in border.iter().enumerate() {
+            let route = model.route(CableId(c));
+            match bordered {
+                Some(k) => {
+                    for w in route.windows(2) {
+                        couple(model.points[w[0].0].body, model.points[w[1].0].body, &mut cols);
+                    }
+                    for &b in slots.of(c) {
+                        tie(n + nc + k, b, &mut cols);
+                    }
+                }
+                None => {
+                    for &a in slots.of(c) {
+                        for &b in slots.of(c) {
+                            couple(a, b, &mut cols);
+                        }
+                    }
                 }
             }
         }
         let rows = model.joint_rows();
         for joint in &model.joints {
-            let mut bodies = vec![model.points[joint.point.0].body.0];
-            if let JointTarget::Point(p) = joint.target {
-                bodies.push(model.points[p.0].body.0);
-                couple(bodies[0], bodies[1], &mut cols);
-            }
-            for r in 0..rows {
-                let row = n + joint.row_offset + r;
-                for &b in &bodies {
-                    for j in dofs(b) {
-                        cols[j].insert(row);
-                        cols[row].insert(j);
-                    }
+            for (p, _) in joint_points(joint) {
+                for r in 0..rows {
+                    tie(n + joint.row_offset + r, model.points[p.0].body, &mut cols);
                 }
             }
         }
@@ -105,165 +388,387 @@ impl KktPattern {
             row_idx.extend(c.iter().copied());
             col_ptr.push(row_idx.len());
         }
-        Self { size, col_ptr, row_idx }
-    }
-
-    /// Number of structural nonzeros.
-    pub fn nonzeros(&self) -> usize {
-        self.row_idx.len()
-    }
-    /// Matrix size.
-    pub fn size(&self) -> usize {
-        self.size
-    }
-}
-
-/// A reusable solver for one model's KKT systems.
-pub struct LinearSolver {
-    backend: LinearBackend,
-    pattern: KktPattern,
-    symbolic: Option<SymbolicLu<usize>>,
-    numeric: NumericLu<usize, f64>,
-    values: Vec<f64>,
-    mem: MemBuffer,
-    dense: Vec<f64>,
-    perm: Vec<usize>,
-    perm_inv: Vec<usize>,
-}
-
-impl std::fmt::Debug for LinearSolver {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("LinearSolver")
-            .field("backend", &self.backend)
-            .field("size", &self.pattern.size)
-            .field("nonzeros", &self.pattern.nonzeros())
-            .finish()
-    }
-}
-
-impl Clone for LinearSolver {
-    fn clone(&self) -> Self {
-        Self::from_pattern(self.pattern.clone(), self.backend)
-    }
-}
-
-impl LinearSolver {
-    /// A solver for `model`'s KKT matrices; `Auto` resolves to dense or sparse by size. The sparse
-    /// backend runs the symbolic analysis here, once.
-    pub fn new(model: &Model, backend: LinearBackend) -> Self {
-        Self::from_pattern(KktPattern::new(model), backend)
-    }
-
-    fn from_pattern(pattern: KktPattern, backend: LinearBackend) -> Self {
-        let backend = match backend {
-            LinearBackend::Auto
-                if pattern.size >= SPARSE_MIN_SIZE
-                    && pattern.nonzeros() as f64
-                        <= SPARSE_MAX_DENSITY * (pattern.size * pattern.size) as f64 =>
-            {
-                LinearBackend::Sparse
+        let mut index = SparseIndex {
+            col_ptr,
+            row_idx,
+            body_blocks: vec![Vec::new(); model.bodies.len()],
+            joint_cols: Vec::new(),
+            joint_rows: Vec::new(),
+            border_col: Vec::new(),
+            border_row: Vec::new(),
+            diagonal: Vec::new(),
+        };
+        index.diagonal = (0..size).map(|i| index.position(i, i)).collect();
+        for (b, body) in model.bodies.iter().enumerate() {
+            if body.dof_count == 0 {
+                continue;
             }
-            LinearBackend::Auto => LinearBackend::Dense,
-            b => b,
-        };
-        let symbolic = if backend == LinearBackend::Sparse && pattern.size > 0 {
-            let sym = SymbolicSparseColMatRef::new_checked(
-                pattern.size,
-                pattern.size,
-                &pattern.col_ptr,
-                None,
-                &pattern.row_idx,
-            );
-            factorize_symbolic_lu(sym, LuSymbolicParams::default()).ok()
-        } else {
-            None
-        };
-        let backend = if symbolic.is_none() { LinearBackend::Dense } else { backend };
-        let size = pattern.size;
-        let req = match &symbolic {
-            Some(s) => StackReq::or(
-                s.factorize_numeric_lu_scratch::<f64>(Par::Seq, Default::default()),
-                s.solve_in_place_scratch::<f64>(1, Par::Seq),
-            ),
-            None => StackReq::or(
-                dense_lu::factor::lu_in_place_scratch::<usize, f64>(size, size, Par::Seq, Default::default()),
-                dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
-            ),
-        };
-        let dense_len = if symbolic.is_none() { size * size } else { 0 };
-        Self {
-            backend,
-            dense: vec![0.0; dense_len],
-            perm: vec![0; size],
-            perm_inv: vec![0; size],
-            values: vec![0.0; pattern.nonzeros()],
-            pattern,
-            symbolic,
-            numeric: NumericLu::new(),
-            mem: MemBuffer::new(req),
+            let col0 = body.dof_offset;
+            let neighbours: BTreeSet<usize> = model
+                .bodies
+                .iter()
+                .enumerate()
+                .filter(|(_, a)| a.dof_count > 0)
+                .filter(|(_, a)| {
+                    index.row_idx[index.col_ptr[col0]..index.col_ptr[col0 + 1]].contains(&a.dof_offset)
+                })
+                .map(|(a, _)| a)
+                .collect();
+            for a in neighbours {
+                let mut starts = [0; 6];
+                for (c, s) in starts.iter_mut().enumerate().take(body.dof_count) {
+                    *s = index.position(model.bodies[a].dof_offset, col0 + c);
+                }
+                index.body_blocks[b].push((a, starts));
+            }
         }
+        for joint in &model.joints {
+            let mut jc = [[0; 6]; 2];
+            let mut jr = [[0; 3]; 2];
+            for (side, (p, _)) in joint_points(joint).enumerate() {
+                let body = &model.bodies[model.points[p.0].body.0];
+                if body.dof_count == 0 {
+                    continue;
+                }
+                for c in 0..body.dof_count {
+                    jc[side][c] = index.position(n + joint.row_offset, body.dof_offset + c);
+                }
+                for r in 0..rows {
+                    jr[side][r] = index.position(body.dof_offset, n + joint.row_offset + r);
+                }
+            }
+            index.joint_cols.push(jc);
+            index.joint_rows.push(jr);
+        }
+        for (c, bordered) in border.iter().enumerate() {
+            let Some(k) = bordered else { continue };
+            let u = n + nc + k;
+            for &b in slots.of(c) {
+                let body = &model.bodies[b.0];
+                index.border_col.push(index.position(body.dof_offset, u));
+                let mut row = [0; 6];
+                for (cc, r) in row.iter_mut().enumerate().take(body.dof_count) {
+                    *r = index.position(u, body.dof_offset + cc);
+                }
+                index.border_row.push(row);
+            }
+        }
+        let sym = SymbolicSparseColMatRef::new_checked(size, size, &index.col_ptr, None, &index.row_idx);
+        // COLAMD orders "dense" rows and columns last. Make every border (a clustered cable's row
+        // and column, which touch all bodies on its route) count as dense once it is longer than
+        // twice the longest ordinary column, so that eliminating it early cannot fill the factors.
+        let ordinary = (0..n + nc).map(|j| index.col_ptr[j + 1] - index.col_ptr[j]).max().unwrap_or(1);
+        let dense = (2 * ordinary) as f64 / size as f64;
+        // simplicial: faer's supernodal numeric LU was about 2x faster on towers of 16-64 stages,
+        // but it allocates working storage in every factorization; this one reuses its buffers
+        let params = LuSymbolicParams {
+            colamd_params: faer::sparse::linalg::colamd::Control {
+                dense_row: dense,
+                dense_col: dense,
+                aggressive: true,
+            },
+            supernodal_flop_ratio_threshold: faer::sparse::linalg::SupernodalThreshold::FORCE_SIMPLICIAL,
+            ..Default::default()
+        };
+        let symbolic = factorize_symbolic_lu(sym, params).ok()?;
+        Some(Storage::Sparse {
+            mem: MemBuffer::new(sparse_scratch(&symbolic)),
+            values: vec![0.0; index.row_idx.len()],
+            index: Box::new(index),
+            symbolic: Box::new(symbolic),
+            numeric: Box::new(NumericLu::new()),
+        })
     }
 
     /// The backend in use (never `Auto`).
     pub fn backend(&self) -> LinearBackend {
         self.backend
     }
-
-    /// Solves `a x = b` in place of `b`. `a` is the dense KKT matrix (entries outside the pattern
-    /// must be zero). Returns false when the matrix is singular or the result is not finite.
-    pub fn solve(&mut self, a: &DMatrix<f64>, b: &mut DVector<f64>) -> bool {
-        let ok = match self.backend {
-            LinearBackend::Sparse => self.solve_sparse(a, b),
-            _ => self.solve_dense(a, b),
-        };
-        ok && b.iter().all(|v| v.is_finite())
+    /// Number of unknowns: coordinates, joint rows, bordered cables.
+    pub fn size(&self) -> usize {
+        self.size
+    }
+    /// Number of cables carried as a border unknown.
+    pub fn bordered_cables(&self) -> usize {
+        self.border_slot_start.len()
+    }
+    /// Structural nonzeros of the matrix (`size^2` for the dense backend).
+    pub fn nonzeros(&self) -> usize {
+        match &self.storage {
+            Storage::Dense { a, .. } => a.len(),
+            Storage::Sparse { values, .. } => values.len(),
+        }
     }
 
-    /// Dense LU with partial pivoting, in place in a preallocated buffer (faer; no allocation).
-    fn solve_dense(&mut self, a: &DMatrix<f64>, b: &mut DVector<f64>) -> bool {
-        let size = self.pattern.size;
+    /// Zeroes the matrix; a bordered cable's row reads `dT = 0` until `cable_rank_one` fills it.
+    pub fn clear(&mut self) {
+        match &mut self.storage {
+            Storage::Dense { a, .. } => a.fill(0.0),
+            Storage::Sparse { values, index, .. } => {
+                values.fill(0.0);
+                for k in self.n + self.nc..self.size {
+                    values[index.diagonal[k]] = 1.0;
+                }
+            }
+        }
+    }
+
+    /// `A[a, b] += scale * blk` on the bodies' coordinates (`k_a x k_b` corner of `blk`).
+    pub fn add_body_block(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64) {
+        let (ra, ka) = self.offsets[a.0];
+        let (cb, kb) = self.offsets[b.0];
+        if ka == 0 || kb == 0 {
+            return;
+        }
+        match &mut self.storage {
+            Storage::Dense { a: m, .. } => {
+                let size = self.n + self.nc;
+                for c in 0..kb {
+                    let col = &mut m[(cb + c) * size + ra..(cb + c) * size + ra + ka];
+                    for (r, x) in col.iter_mut().enumerate() {
+                        *x += scale * blk[(r, c)];
+                    }
+                }
+            }
+            Storage::Sparse { values, index, .. } => {
+                let blocks = &index.body_blocks[b.0];
+                let at = blocks.binary_search_by_key(&a.0, |e| e.0).expect("body pair in the KKT pattern");
+                let starts = &blocks[at].1;
+                for (c, &s) in starts.iter().enumerate().take(kb) {
+                    for (r, x) in values[s..s + ka].iter_mut().enumerate() {
+                        *x += scale * blk[(r, c)];
+                    }
+                }
+            }
+        }
+    }
+
+    /// Adds `sign * J` (the joint's rows of the point Jacobian `jac`) at joint `joint`'s rows and
+    /// the `side` point's body columns, and its transpose (`Phi_q` and `Phi_q^T`).
+    pub fn add_joint_jacobian(
+        &mut self,
+        joint: usize,
+        row_offset: usize,
+        side: usize,
+        body: BodyId,
+        jac: &PointJacobian,
+        sign: f64,
+    ) {
+        let (off, k) = self.offsets[body.0];
+        let rows = self.joint_rows;
+        let row0 = self.n + row_offset;
+        match &mut self.storage {
+            Storage::Dense { a: m, .. } => {
+                let size = self.n + self.nc;
+                for r in 0..rows {
+                    for c in 0..k {
+                        let v = sign * jac[(r, c)];
+                        m[(off + c) * size + row0 + r] += v;
+                        m[(row0 + r) * size + off + c] += v;
+                    }
+                }
+            }
+            Storage::Sparse { values, index, .. } => {
+                let (jc, jr) = (&index.joint_cols[joint][side], &index.joint_rows[joint][side]);
+                for r in 0..rows {
+                    for c in 0..k {
+                        let v = sign * jac[(r, c)];
+                        values[jc[c] + r] += v;
+                        values[jr[r] + c] += v;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Solves `A x = b` in place of `rhs` (length `size()`) with a fresh factorization of the
+    /// assembled `A`. False when `A` is singular or `x` is not finite.
+    pub fn solve(&mut self, rhs: &mut DVector<f64>) -> bool {
+        self.factor() && self.solve_factored(rhs)
+    }
+
+    /// Factors the assembled matrix and keeps the factors (the assembly buffer may then be
+    /// cleared and refilled: the factors stay until the next `factor` or `forget_factors`).
+    /// False when the matrix is singular.
+    pub fn factor(&mut self) -> bool {
+        let size = self.size;
+        self.factored = false;
+        if size == 0 {
+            self.factored = true;
+            return true;
+        }
+        let ok = match &mut self.storage {
+            Storage::Dense { a, lu, perm, perm_inv, mem } => {
+                lu.copy_from_slice(a);
+                let mut f = MatMut::from_column_major_slice_mut(lu, size, size);
+                dense_lu::factor::lu_in_place(
+                    f.rb_mut(),
+                    perm,
+                    perm_inv,
+                    Par::Seq,
+                    MemStack::new(mem),
+                    Default::default(),
+                );
+                (0..size).all(|i| {
+                    let d = f[(i, i)];
+                    d != 0.0 && d.is_finite()
+                })
+            }
+            Storage::Sparse { index, values, symbolic, numeric, mem } => {
+                let sym =
+                    SymbolicSparseColMatRef::new_checked(size, size, &index.col_ptr, None, &index.row_idx);
+                let mat = SparseColMatRef::new(sym, values);
+                symbolic
+                    .factorize_numeric_lu(numeric, mat, Par::Seq, MemStack::new(mem), Default::default())
+                    .is_ok()
+            }
+        };
+        self.factored = ok;
+        ok
+    }
+
+    /// True when factors from a successful `factor` are held.
+    pub fn is_factored(&self) -> bool {
+        self.factored
+    }
+
+    /// Drops the held factors (e.g. after the step size changed).
+    pub fn forget_factors(&mut self) {
+        self.factored = false;
+    }
+
+    /// Solves with the held factors, in place of `rhs`. False without factors or when `x` is
+    /// not finite.
+    pub fn solve_factored(&mut self, rhs: &mut DVector<f64>) -> bool {
+        let size = self.size;
+        if !self.factored {
+            return false;
+        }
         if size == 0 {
             return true;
         }
-        self.dense.copy_from_slice(a.as_slice());
-        let mut lu = MatMut::from_column_major_slice_mut(&mut self.dense, size, size);
-        let (_, perm) = dense_lu::factor::lu_in_place(
-            lu.rb_mut(),
-            &mut self.perm,
-            &mut self.perm_inv,
-            Par::Seq,
-            MemStack::new(&mut self.mem),
-            Default::default(),
-        );
-        if (0..size).any(|i| {
-            let d = lu[(i, i)];
-            d == 0.0 || !d.is_finite()
-        }) {
-            return false;
-        }
-        let rhs = MatMut::from_column_major_slice_mut(b.as_mut_slice(), size, 1);
-        dense_lu::solve::solve_in_place(lu.rb(), lu.rb(), perm, rhs, Par::Seq, MemStack::new(&mut self.mem));
-        true
-    }
-
-    fn solve_sparse(&mut self, a: &DMatrix<f64>, b: &mut DVector<f64>) -> bool {
-        let p = &self.pattern;
-        for j in 0..p.size {
-            for k in p.col_ptr[j]..p.col_ptr[j + 1] {
-                self.values[k] = a[(p.row_idx[k], j)];
+        let x = MatMut::from_column_major_slice_mut(rhs.as_mut_slice(), size, 1);
+        match &mut self.storage {
+            Storage::Dense { lu, perm, perm_inv, mem, .. } => {
+                let f = faer::MatRef::from_column_major_slice(lu, size, size);
+                let p = faer::perm::PermRef::new_checked(perm, perm_inv, size);
+                dense_lu::solve::solve_in_place(f, f, p, x, Par::Seq, MemStack::new(mem));
+            }
+            Storage::Sparse { symbolic, numeric, mem, .. } => {
+                let lu = faer::sparse::linalg::lu::LuRef::new_unchecked(symbolic, numeric);
+                lu.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(mem));
             }
         }
-        let Some(symbolic) = &self.symbolic else { return false };
-        let sym = SymbolicSparseColMatRef::new_checked(p.size, p.size, &p.col_ptr, None, &p.row_idx);
-        let mat = SparseColMatRef::new(sym, &self.values);
-        let stack = MemStack::new(&mut self.mem);
-        let Ok(lu) =
-            symbolic.factorize_numeric_lu(&mut self.numeric, mat, Par::Seq, stack, Default::default())
-        else {
-            return false;
-        };
-        let rhs = MatMut::from_column_major_slice_mut(b.as_mut_slice(), p.size, 1);
-        lu.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(&mut self.mem));
-        true
+        rhs.iter().all(|v| v.is_finite())
+    }
+
+    /// The assembled matrix as a dense `size x size` matrix (tests and diagnostics; allocates).
+    /// Call before `solve`, which consumes it.
+    pub fn to_dense(&self) -> DMatrix<f64> {
+        match &self.storage {
+            Storage::Dense { a, .. } => DMatrix::from_column_slice(self.size, self.size, a),
+            Storage::Sparse { index, values, .. } => {
+                let mut m = DMatrix::zeros(self.size, self.size);
+                for j in 0..self.size {
+                    for k in index.col_ptr[j]..index.col_ptr[j + 1] {
+                        m[(index.row_idx[k], j)] = values[k];
+                    }
+                }
+                m
+            }
+        }
+    }
+
+    /// A `TangentSink` that adds `stiffness_scale * K + damping_scale * C` into this matrix.
+    pub fn tangents(&mut self, stiffness_scale: f64, damping_scale: f64) -> NewtonTangents<'_> {
+        NewtonTangents { kkt: self, stiffness_scale, damping_scale }
+    }
+}
+
+fn sparse_scratch(symbolic: &SymbolicLu<usize>) -> StackReq {
+    StackReq::or(
+        symbolic.factorize_numeric_lu_scratch::<f64>(Par::Seq, Default::default()),
+        symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+    )
+}
+
+/// Adds scaled tangents into a `KktSystem`: `K` times `stiffness_scale`, `C` times
+/// `damping_scale` (for generalized-alpha `1/beta'` and `gamma'/beta'`).
+pub struct NewtonTangents<'a> {
+    kkt: &'a mut KktSystem,
+    stiffness_scale: f64,
+    damping_scale: f64,
+}
+
+impl TangentSink for NewtonTangents<'_> {
+    fn stiffness(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64) {
+        self.kkt.add_body_block(a, b, blk, scale * self.stiffness_scale);
+    }
+    fn damping(&mut self, a: BodyId, b: BodyId, blk: &Matrix6<f64>, scale: f64) {
+        self.kkt.add_body_block(a, b, blk, scale * self.damping_scale);
+    }
+    fn cable_rank_one(
+        &mut self,
+        cable: CableId,
+        route: &[PointId],
+        _kin: &[PointKinematics],
+        grad: &[Vector6<f64>],
+        rate_grad: Option<&[Vector6<f64>]>,
+        axial: f64,
+        damping: f64,
+    ) {
+        // A += g (k g + c' h)^T, k = axial s_K + damping s_C, c' = damping s_K
+        let k = axial * self.stiffness_scale + damping * self.damping_scale;
+        let c_rate = damping * self.stiffness_scale;
+        let kkt = &mut *self.kkt;
+        let c = cable.0;
+        let first = kkt.slots.start[c];
+        let count = kkt.slots.start[c + 1] - first;
+        debug_assert_eq!(route.len(), grad.len());
+        let g = &mut kkt.slot_g[..count];
+        let w = &mut kkt.slot_w[..count];
+        g.fill(Vector6::zeros());
+        w.fill(Vector6::zeros());
+        let base = kkt.slots.route_start[c];
+        let point_slot = &kkt.slots.point_slot;
+        for i in 0..grad.len() {
+            let s = point_slot[base + i];
+            if s == usize::MAX {
+                continue;
+            }
+            g[s] += grad[i];
+            w[s] += grad[i] * k;
+            if let Some(h) = rate_grad {
+                w[s] += h[i] * c_rate;
+            }
+        }
+        match kkt.border[c] {
+            None => {
+                for sa in 0..count {
+                    for sb in 0..count {
+                        let (a, b) = (kkt.slots.bodies[first + sa], kkt.slots.bodies[first + sb]);
+                        let blk = kkt.slot_g[sa] * kkt.slot_w[sb].transpose();
+                        kkt.add_body_block(a, b, &blk, 1.0);
+                    }
+                }
+            }
+            Some(border) => {
+                let Storage::Sparse { index, values, .. } = &mut kkt.storage else {
+                    unreachable!("only the sparse backend borders cables")
+                };
+                let t0 = kkt.border_slot_start[border];
+                for s in 0..count {
+                    let b = kkt.slots.bodies[first + s];
+                    let kb = kkt.offsets[b.0].1;
+                    let col = index.border_col[t0 + s];
+                    let row = &index.border_row[t0 + s];
+                    for r in 0..kb {
+                        values[col + r] += kkt.slot_g[s][r];
+                        values[row[r]] += kkt.slot_w[s][r] / k;
+                    }
+                }
+                values[index.diagonal[kkt.n + kkt.nc + border]] = -1.0 / k;
+            }
+        }
     }
 }
