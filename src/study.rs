@@ -674,6 +674,49 @@ pub fn median_step_time(
     Ok((times[times.len() / 2], per(totals.newton_iterations), per(factorizations)))
 }
 
+/// Step-time statistics of one run (`step_times`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepTimes {
+    /// Median wall time per step, s.
+    pub median: f64,
+    /// Mean wall time per step, s.
+    pub mean: f64,
+    /// Largest wall time of one step, s.
+    pub max: f64,
+    /// Newton iterations per step.
+    pub newton_per_step: f64,
+    /// Newton-matrix factorizations per step.
+    pub factorizations_per_step: f64,
+    /// The linear-solver backend `Auto` chose.
+    pub backend: crate::solve::linear::LinearBackend,
+}
+
+/// Times `steps` steps of `model` with `settings` after 10 untimed warm-up steps.
+pub fn step_times(model: &Model, settings: SimSettings, steps: usize) -> Result<StepTimes, String> {
+    let mut sim = Simulator::new(model.clone(), settings).map_err(|e| e.to_string())?;
+    for _ in 0..10 {
+        sim.step().map_err(|e| e.to_string())?;
+    }
+    let mut times = Vec::with_capacity(steps);
+    let (mut newton, mut factorizations) = (0, 0);
+    for _ in 0..steps {
+        let s = sim.step().map_err(|e| e.to_string())?;
+        times.push(s.wall_time.as_secs_f64());
+        newton += s.newton_iterations;
+        factorizations += s.factorizations;
+    }
+    let mean = times.iter().sum::<f64>() / steps as f64;
+    times.sort_by(f64::total_cmp);
+    Ok(StepTimes {
+        median: times[steps / 2],
+        mean,
+        max: times[steps - 1],
+        newton_per_step: newton as f64 / steps as f64,
+        factorizations_per_step: factorizations as f64 / steps as f64,
+        backend: sim.linear_backend(),
+    })
+}
+
 /// Least-squares slope of `log y` against `log x`: the exponent `p` of `y ~ x^p`.
 pub fn growth_exponent(points: &[(f64, f64)]) -> f64 {
     let logs: Vec<(f64, f64)> = points.iter().map(|(x, y)| (x.ln(), y.ln())).collect();

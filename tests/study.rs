@@ -171,3 +171,41 @@ fn work_precision_bench_writes_a_table_with_converging_errors() {
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn step_and_scaling_benches_time_real_steps_and_refuse_bad_targets() {
+    let out = tensegrity(&["bench", "steps", "config/scenes/prism3.toml", "--steps", "200"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let median: f64 = text.split("median ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    let newton: f64 = text.split("Newton ").nth(1).unwrap().split('/').next().unwrap().parse().unwrap();
+    assert!(median > 0.0 && newton >= 1.0, "a deploying prism needs Newton work every step: {text}");
+    for bad in ["tower:spiral:4", "tower:classical:0", "tower:helical", "no/such/scene.toml"] {
+        let out = tensegrity(&["bench", "steps", bad, "--steps", "5"]);
+        assert!(!out.status.success(), "{bad} accepted");
+    }
+
+    let dir = scratch("scaling");
+    let out = tensegrity(&[
+        "bench",
+        "scaling",
+        "--stages",
+        "2,8,16",
+        "--steps",
+        "20",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let csv = std::fs::read_to_string(dir.join("scaling.csv")).unwrap();
+    let rows: Vec<Vec<String>> =
+        csv.lines().skip(1).map(|l| l.split(',').map(String::from).collect()).collect();
+    assert_eq!(rows.len(), 9, "3 families x 3 sizes:\n{csv}");
+    for r in &rows {
+        let sparse: f64 = r[9].parse().unwrap();
+        assert!(sparse > 0.0, "every run timed: {r:?}");
+    }
+    let md = std::fs::read_to_string(dir.join("scaling.md")).unwrap();
+    assert_eq!(md.matches("sparse step time ~ stages^").count(), 3, "{md}");
+    std::fs::remove_dir_all(&dir).ok();
+}

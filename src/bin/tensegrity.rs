@@ -149,6 +149,22 @@ impl DynamicArgs {
 
 #[derive(Subcommand)]
 enum BenchKind {
+    /// Wall time per step of one scene: median, mean and largest over the timed steps, Newton
+    /// iterations and factorizations per step (what a controller waits for).
+    Steps {
+        /// Scene file (TOML), or a generated tower `tower:FAMILY:STAGES` with FAMILY one of
+        /// classical, per-stage, helical.
+        target: String,
+        /// Integrator.
+        #[arg(long, default_value = "generalized-alpha")]
+        integrator: IntegratorName,
+        /// Physics step, s.
+        #[arg(long, default_value_t = 1e-3)]
+        dt: f64,
+        /// Steps timed (after 10 untimed ones).
+        #[arg(long, default_value_t = 5000)]
+        steps: usize,
+    },
     /// Step time against structure size (towers of stacked prisms), dense vs sparse LU.
     Scaling {
         /// Tower stages to run.
@@ -612,6 +628,49 @@ fn run(cli: Cli) -> Result<(), String> {
             )?;
             print!("{}", result.markdown());
             println!("written to {}", out.display());
+            Ok(())
+        }
+        Command::Bench { kind: BenchKind::Steps { target, integrator, dt, steps } } => {
+            let model = match target.strip_prefix("tower:") {
+                Some(rest) => {
+                    let (family, stages) = rest.split_once(':').ok_or("expected tower:FAMILY:STAGES")?;
+                    let family = match family {
+                        "classical" => study::TowerFamily::Classical,
+                        "per-stage" => study::TowerFamily::PerStage,
+                        "helical" => study::TowerFamily::Helical,
+                        f => {
+                            return Err(format!("unknown tower family {f:?} (classical, per-stage, helical)"))
+                        }
+                    };
+                    let stages: usize = stages
+                        .parse()
+                        .ok()
+                        .filter(|s| (1..=256).contains(s))
+                        .ok_or("stages must be in [1, 256]")?;
+                    family.model(stages)?
+                }
+                None => load(Path::new(&target))?,
+            };
+            if !(dt.is_finite() && dt > 0.0) || steps == 0 {
+                return Err("--dt must be positive and --steps >= 1".into());
+            }
+            let integrator = match integrator {
+                IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf: 0.8 },
+                IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
+            };
+            let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;
+            println!(
+                "{}: {} dt {dt} s, {} unknowns ({:?} LU): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
+                model.name,
+                integrator.name(),
+                model.dof_count + model.constraint_count,
+                t.backend,
+                1e6 * t.median,
+                1e6 * t.mean,
+                1e6 * t.max,
+                t.newton_per_step,
+                t.factorizations_per_step
+            );
             Ok(())
         }
         Command::Bench { kind: BenchKind::Scaling { stages, steps, out } } => {
