@@ -57,6 +57,15 @@ pub fn joint_points(joint: &JointModel) -> impl Iterator<Item = (PointId, f64)> 
     std::iter::once((joint.point, 1.0)).chain(b)
 }
 
+/// A joint's multipliers as a world vector (N; z is 0 in planar scenes, which have 2 rows).
+fn joint_reaction(joint: &JointModel, rows: usize, lambda: &DVector<f64>) -> Vector3<f64> {
+    let mut f = Vector3::zeros();
+    for r in 0..rows {
+        f[r] = lambda[joint.row_offset + r];
+    }
+    f
+}
+
 /// `out += scale * Phi_q^T lambda` (N, N m): the joint reactions as generalized forces, without
 /// forming `Phi_q`.
 pub fn add_reaction_force(
@@ -68,10 +77,7 @@ pub fn add_reaction_force(
 ) {
     let rows = model.joint_rows();
     for joint in &model.joints {
-        let mut f = Vector3::zeros();
-        for r in 0..rows {
-            f[r] = lambda[joint.row_offset + r];
-        }
+        let f = joint_reaction(joint, rows, lambda);
         for (pid, sign) in joint_points(joint) {
             let p = &kin[pid.0];
             add_vector(model, p.body, &(p.jacobian.transpose() * f), sign * scale, out);
@@ -109,10 +115,7 @@ pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
 ) {
     let rows = model.joint_rows();
     for joint in &model.joints {
-        let mut f = Vector3::zeros();
-        for r in 0..rows {
-            f[r] = lambda[joint.row_offset + r];
-        }
+        let f = joint_reaction(joint, rows, lambda);
         for (pid, sign) in joint_points(joint) {
             let body = model.points[pid.0].body;
             if model.bodies[body.0].dof_count == 0 {

@@ -7,7 +7,6 @@
 
 mod common;
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{DMatrix, DVector, Matrix6};
@@ -193,19 +192,6 @@ fn the_sparse_pattern_stays_linear_in_the_number_of_stages() {
     }
 }
 
-fn body(name: &str, kind: BodyKindSpec) -> BodySpec {
-    BodySpec {
-        name: name.into(),
-        kind,
-        mass: None,
-        position: None,
-        rotation: None,
-        ends: None,
-        inertia: None,
-        points: BTreeMap::new(),
-    }
-}
-
 /// A random scene: `kinds.len()` bodies in a row (0 node, 1 bar, 2 rigid), two world pins,
 /// and cables whose routes run through the listed points (long routes cross many
 /// bodies and are bordered on the sparse path); `rest` are the rest lengths (m; short ones are
@@ -218,20 +204,20 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
         let y = if i % 2 == 0 { 0.0 } else { 0.4 };
         let mut b = match k % 3 {
             0 => {
-                let mut b = body(&format!("b{i}"), BodyKindSpec::Node);
+                let mut b = BodySpec::new(&format!("b{i}"), BodyKindSpec::Node);
                 b.position = Some([x, y, 0.1 * i as f64]);
                 pool.push(format!("b{i}"));
                 b
             }
             1 => {
-                let mut b = body(&format!("b{i}"), BodyKindSpec::Bar);
+                let mut b = BodySpec::new(&format!("b{i}"), BodyKindSpec::Bar);
                 b.ends = Some([[x, y, 0.0], [x + 0.1, y - 0.2, 1.0]]);
                 b.points.insert("m".into(), PointSpec::Along(0.4));
                 pool.extend([format!("b{i}.a"), format!("b{i}.b"), format!("b{i}.m")]);
                 b
             }
             _ => {
-                let mut b = body(&format!("b{i}"), BodyKindSpec::Rigid);
+                let mut b = BodySpec::new(&format!("b{i}"), BodyKindSpec::Rigid);
                 b.position = Some([x, y, 0.5]);
                 b.rotation = Some([0.1 * i as f64, -0.2, 0.3]);
                 b.inertia = Some(vec![0.3, 0.4, 0.5, 0.01, -0.02, 0.03]);

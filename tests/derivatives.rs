@@ -9,43 +9,29 @@ mod common;
 use common::*;
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
-use std::collections::BTreeMap;
 use tensegrity::constraints::add_multiplier_hessian;
 use tensegrity::forces::{evaluate, Tangents, Workspace};
 use tensegrity::scene::{BodyKindSpec, BodySpec, CableSpec, JointKindSpec, JointSpec, PointSpec, SceneSpec};
 use tensegrity::state::State;
 
-fn body(name: &str, kind: BodyKindSpec) -> BodySpec {
-    BodySpec {
-        name: name.into(),
-        kind,
-        mass: None,
-        position: None,
-        rotation: None,
-        ends: None,
-        inertia: None,
-        points: BTreeMap::new(),
-    }
-}
-
 /// A scene with one body of each kind; `route` indexes into its point pool.
 fn scene(p: &Params, route: &[usize], planar: bool) -> SceneSpec {
     let z = |v: [f64; 3]| if planar { [v[0], v[1], 0.0] } else { v };
     let zr = |v: [f64; 3]| if planar { [0.0, 0.0, v[2]] } else { v };
-    let mut g = body("g", BodyKindSpec::Fixed);
+    let mut g = BodySpec::new("g", BodyKindSpec::Fixed);
     g.position = Some(z(p.pos[0]));
     g.rotation = Some(zr(p.rot[0]));
     g.points.insert("p".into(), PointSpec::Local(p.local[0]));
-    let mut n = body("n", BodyKindSpec::Node);
+    let mut n = BodySpec::new("n", BodyKindSpec::Node);
     n.mass = Some(1.5);
     n.position = Some(z(p.pos[1]));
-    let mut b = body("b", BodyKindSpec::Bar);
+    let mut b = BodySpec::new("b", BodyKindSpec::Bar);
     b.mass = Some(2.0);
     let (c, d) = (z(p.pos[2]), p.local[1]);
     let d = if planar { [d[0], d[1] + 0.5, 0.0] } else { [d[0], d[1], d[2] + 0.5] };
     b.ends = Some([[c[0] - d[0], c[1] - d[1], c[2] - d[2]], [c[0] + d[0], c[1] + d[1], c[2] + d[2]]]);
     b.points.insert("m".into(), PointSpec::Along(0.3));
-    let mut r = body("r", BodyKindSpec::Rigid);
+    let mut r = BodySpec::new("r", BodyKindSpec::Rigid);
     r.mass = Some(3.0);
     r.position = Some(z(p.pos[3]));
     r.rotation = Some(zr(p.rot[1]));

@@ -419,9 +419,12 @@ impl Dynamics {
                     return None;
                 }
                 self.factored_for = Some(coefficients);
-                self.rhs.fill(0.0);
-                self.rhs.rows_mut(0, n).axpy(-1.0 / beta_p, &self.residual, 0.0);
-                self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
+                if reuse {
+                    // the failed solve on the old factors overwrote the right-hand side
+                    self.rhs.fill(0.0);
+                    self.rhs.rows_mut(0, n).axpy(-1.0 / beta_p, &self.residual, 0.0);
+                    self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
+                }
                 if !self.kkt.solve_factored(&mut self.rhs) {
                     self.factored_for = None;
                     return None;

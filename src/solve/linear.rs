@@ -235,15 +235,7 @@ impl KktSystem {
                 border.iter_mut().for_each(|b| *b = None);
                 border_slot_start.clear();
                 let size = n + nc;
-                let req = StackReq::or(
-                    dense_lu::factor::lu_in_place_scratch::<usize, f64>(
-                        size,
-                        size,
-                        Par::Seq,
-                        Default::default(),
-                    ),
-                    dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
-                );
+                let req = dense_scratch(size);
                 (
                     LinearBackend::Dense,
                     Storage::Dense {
@@ -279,15 +271,7 @@ impl KktSystem {
         let storage = match &self.storage {
             Storage::Dense { a, lu, perm, perm_inv, .. } => {
                 let size = perm.len();
-                let req = StackReq::or(
-                    dense_lu::factor::lu_in_place_scratch::<usize, f64>(
-                        size,
-                        size,
-                        Par::Seq,
-                        Default::default(),
-                    ),
-                    dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
-                );
+                let req = dense_scratch(size);
                 Storage::Dense {
                     a: a.clone(),
                     lu: lu.clone(),
@@ -683,6 +667,13 @@ impl KktSystem {
     pub fn tangents(&mut self, stiffness_scale: f64, damping_scale: f64) -> NewtonTangents<'_> {
         NewtonTangents { kkt: self, stiffness_scale, damping_scale }
     }
+}
+
+fn dense_scratch(size: usize) -> StackReq {
+    StackReq::or(
+        dense_lu::factor::lu_in_place_scratch::<usize, f64>(size, size, Par::Seq, Default::default()),
+        dense_lu::solve::solve_in_place_scratch::<usize, f64>(size, 1, Par::Seq),
+    )
 }
 
 fn sparse_scratch(symbolic: &SymbolicLu<usize>) -> StackReq {
