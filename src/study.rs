@@ -39,9 +39,13 @@ pub fn rigidly_aligned(now: &[Vector3<f64>], start: &[Vector3<f64>]) -> Vec<Vect
     for (p, q) in now.iter().zip(start) {
         h += (p - pc) * (q - sc).transpose();
     }
-    let svd = h.svd(true, true);
-    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else { return now.to_vec() };
-    let v = v_t.transpose();
+    let Some(svd) =
+        crate::solve::linear::ThinSvd::new(&nalgebra::DMatrix::from_column_slice(3, 3, h.as_slice()))
+    else {
+        return now.to_vec();
+    };
+    let u = nalgebra::Matrix3::from_column_slice(svd.u.as_slice());
+    let v = nalgebra::Matrix3::from_column_slice(svd.v.as_slice());
     let d = (v * u.transpose()).determinant().signum();
     let r = v * nalgebra::Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
     now.iter().map(|p| r * (p - pc) + sc).collect()

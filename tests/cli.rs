@@ -125,6 +125,8 @@ fn generators_refuse_arguments_that_make_invalid_scenes() {
         (vec!["generate", "prism", "--prestress", "-5"], "cables[0].prestress: a cable can only pull"),
         (vec!["generate", "atwood", "--m1=0"], "bodies[1].mass: must be positive, got 0"),
         (vec!["generate", "atwood", "--m1", "-1"], "bodies[1].mass: must be positive, got -1"),
+        // a clustered ring through 1000 pulleys is longer than a route may be (it used to panic)
+        (vec!["generate", "prism", "--n", "1000", "--cluster"], "a route has at most 1000 points, got 1001"),
     ] {
         let out = tensegrity(&args);
         assert_eq!(out.status.code(), Some(1), "{args:?}");
@@ -163,4 +165,44 @@ fn deploy_writes_a_row_for_t_zero_and_can_write_to_standard_output() {
         String::from_utf8_lossy(&out.stderr).contains("10 steps of 0.001 s"),
         "the summary goes to stderr"
     );
+}
+
+#[test]
+fn check_of_a_999_strut_clustered_prism_finds_its_form() {
+    // form finding on 4995 coordinates and 2994 unknowns takes the sparse path (a dense SVD of
+    // that size took minutes); its cost is tested in tests/formfind.rs
+    let dir = tempfile_dir("check999");
+    let scene = dir.join("prism999.toml");
+    let out = tensegrity(&["generate", "prism", "--n", "999", "--cluster", "--out", scene.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = tensegrity(&["check", scene.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.contains("valid scene 'prism999'") && text.contains("pulleys: 998"), "{text}");
+}
+
+#[test]
+fn output_into_a_closed_pipe_ends_quietly() {
+    // `tensegrity ... | head -1`: the reader leaves early; no panic, no backtrace
+    use std::io::Read;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tensegrity"))
+        .args(["deploy", "config/scenes/prism3.toml", "--dynamic", "--out", "-"])
+        .current_dir(root())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("runs");
+    let mut first = [0u8; 16];
+    child.stdout.take().expect("piped").read_exact(&mut first).expect("some output");
+    // the read end is dropped here, closing the pipe
+    let out = child.wait_with_output().expect("exits");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(out.status.code().is_some_and(|c| c == 0), "status {:?}: {err}", out.status);
+}
+
+fn tempfile_dir(name: &str) -> PathBuf {
+    let dir = root().join("target").join("test-output").join(name);
+    std::fs::create_dir_all(&dir).expect("temporary directory");
+    dir
 }

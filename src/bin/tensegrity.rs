@@ -348,8 +348,22 @@ fn counted(n: usize, what: &str) -> String {
 }
 
 /// Writes to standard output; a closed pipe (`| head`) is not an error.
+/// Writes to standard output; a reader that went away (`| head`) ends the program quietly, as
+/// it would a C tool, instead of a panic from `println!`.
 fn emit(text: &str) {
-    let _ = std::io::stdout().write_all(text.as_bytes());
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: cannot write to standard output: {e}");
+        std::process::exit(1);
+    }
+}
+
+/// `println!` through `emit`.
+macro_rules! say {
+    ($($arg:tt)*) => { emit(&(format!($($arg)*) + "\n")) };
 }
 
 fn progress(len: u64, unit: &str) -> ProgressBar {
@@ -423,7 +437,7 @@ fn say(out: &Path, text: String) {
     if out == Path::new("-") {
         eprintln!("{text}");
     } else {
-        println!("{text}");
+        say!("{text}");
     }
 }
 
@@ -483,8 +497,8 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Check { scene } => {
             let model = load(&scene)?;
             let s = report::summary(&model);
-            println!("{}: valid scene '{}'", scene.display(), s.name);
-            println!(
+            say!("{}: valid scene '{}'", scene.display(), s.name);
+            say!(
                 "bodies: {} ({} node, {} bar, {} rigid, {} fixed)",
                 s.bodies.iter().sum::<usize>(),
                 s.bodies[0],
@@ -492,16 +506,16 @@ fn run(cli: Cli) -> Result<(), String> {
                 s.bodies[2],
                 s.bodies[3]
             );
-            println!("coordinates: {}", s.coordinates);
-            println!("constraints: {}", s.constraints);
-            println!("cables: {} ({} sliding)", s.cables, s.sliding_cables);
-            println!("pulleys: {}", s.pulleys);
-            println!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));
+            say!("coordinates: {}", s.coordinates);
+            say!("constraints: {}", s.constraints);
+            say!("cables: {} ({} sliding)", s.cables, s.sliding_cables);
+            say!("pulleys: {}", s.pulleys);
+            say!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));
             if s.planar {
-                println!("planar: yes (xy plane)");
+                say!("planar: yes (xy plane)");
             }
             if let Some(note) = report::unheld_bodies_note(&model) {
-                println!("warning: {note} (dynamics lets them drift or fall)");
+                say!("warning: {note} (dynamics lets them drift or fall)");
             }
             Ok(())
         }
@@ -626,8 +640,8 @@ fn run(cli: Cli) -> Result<(), String> {
                 settle,
                 &out,
             )?;
-            print!("{}", result.markdown());
-            println!("written to {}", out.display());
+            emit(&result.markdown());
+            say!("written to {}", out.display());
             Ok(())
         }
         Command::Bench { kind: BenchKind::Steps { target, integrator, dt, steps } } => {
@@ -659,7 +673,7 @@ fn run(cli: Cli) -> Result<(), String> {
                 IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
             };
             let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;
-            println!(
+            say!(
                 "{}: {} dt {dt} s, {} unknowns ({:?} LU): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
                 model.name,
                 integrator.name(),
@@ -678,8 +692,8 @@ fn run(cli: Cli) -> Result<(), String> {
                 return Err("stages and steps must be >= 1".into());
             }
             study::scaling(&stages, steps, &out)?;
-            print!("{}", std::fs::read_to_string(out.join("scaling.md")).map_err(|e| e.to_string())?);
-            println!("written to {}", out.display());
+            emit(&std::fs::read_to_string(out.join("scaling.md")).map_err(|e| e.to_string())?);
+            say!("written to {}", out.display());
             Ok(())
         }
         Command::Bench { kind: BenchKind::WorkPrecision { scene, reference_dt, repeats, duration, out } } => {
@@ -691,8 +705,8 @@ fn run(cli: Cli) -> Result<(), String> {
                 (Integrator::SymplecticEuler, vec![5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]),
             ];
             let rows = study::work_precision(&model, &configs, reference_dt, duration, repeats, &out)?;
-            print!("{}", std::fs::read_to_string(out.join("work_precision.md")).map_err(|e| e.to_string())?);
-            println!("{} runs written to {}", rows.len(), out.display());
+            emit(&std::fs::read_to_string(out.join("work_precision.md")).map_err(|e| e.to_string())?);
+            say!("{} runs written to {}", rows.len(), out.display());
             Ok(())
         }
         Command::Generate { kind, out } => {

@@ -128,6 +128,21 @@ pub fn add_length_gradient(
     }
 }
 
+/// Pushes `(row, dL/dq_row)` for every coordinate the route's points move, using the geometry
+/// last computed by `route_geometry` (rows repeat when a route passes a body twice; sum them).
+pub fn length_gradient_entries(
+    model: &Model,
+    route: &[PointId],
+    kin: &[PointKinematics],
+    scratch: &CableScratch,
+    out: &mut Vec<(usize, f64)>,
+) {
+    for (i, pid) in route.iter().enumerate() {
+        let b = &model.bodies[kin[pid.0].body.0];
+        out.extend((0..b.dof_count).map(|r| (b.dof_offset + r, scratch.grad[i][r])));
+    }
+}
+
 /// Adds the first `dof_count` entries of `v * scale` into the body's rows of `out`.
 pub fn add_vector(model: &Model, body: BodyId, v: &Vector6<f64>, scale: f64, out: &mut DVector<f64>) {
     let b = &model.bodies[body.0];

@@ -256,8 +256,15 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
             }
         }
     }
-    if p.deploy_shortening > 0.0 && !actuated.is_empty() {
-        let scene_model = super::build_model(&spec, "<generated>", None).expect("generated scenes are valid");
+    // the schedule needs the form-found rest lengths; parameters that make an invalid scene
+    // (e.g. a clustered ring longer than a route may be) give it without one, and building it
+    // then says why
+    let built = if p.deploy_shortening > 0.0 && !actuated.is_empty() {
+        super::build_model(&spec, "<generated>", None).ok()
+    } else {
+        None
+    };
+    if let Some(scene_model) = built {
         let mut ramps = Vec::new();
         for name in actuated {
             let c = scene_model.cable_id(&name).expect("generated cable");
@@ -368,10 +375,12 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
         ],
         ..Default::default()
     };
-    if p.deploy_shortening > 0.0 {
-        // the winch hauls in the left lower string: the cross bar tilts and the upper cable slides
-        // over the mast top (a symmetric pull would only change tensions: the bars are rigid)
-        let model = super::build_model(&spec, "<generated>", None).expect("generated scenes are valid");
+    // the winch hauls in the left lower string: the cross bar tilts and the upper cable slides
+    // over the mast top (a symmetric pull would only change tensions: the bars are rigid); an
+    // invalid scene is given without the schedule, and building it says why
+    let built =
+        if p.deploy_shortening > 0.0 { super::build_model(&spec, "<generated>", None).ok() } else { None };
+    if let Some(model) = built {
         let l0 = model.initial_rest_lengths[1];
         spec.actuators.push(ActuatorSpec {
             name: "lower_winch".into(),

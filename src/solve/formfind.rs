@@ -6,15 +6,37 @@
 //! `Q_g - sum_c T_c g_c - Phi_q^T lambda = 0`. Cables with a given rest length have known tensions;
 //! the others (`U`) and the reactions are unknowns of the linear system `A x = b`,
 //! `A = [-g_U, -Phi_q^T]`. Among its solutions we take the one closest (least squares) to the
-//! targets (a prestress `T*`, or a force density `q*` meaning `T* = q* L`). The result is refused when the geometry admits no equilibrium, when a
-//! target cannot be met, when a cable would have to push, or when some tension is left undetermined.
+//! targets (a prestress `T*`, or a force density `q*` meaning `T* = q* L`). The result is refused
+//! when the geometry admits no equilibrium, when a target cannot be met, when a cable would have to
+//! push, or when some tension is left undetermined.
 //! Rest lengths then follow from the tension law: `L0 = EA L / (EA + T)`.
+//!
+//! Small systems (`n + p <= DENSE_FORM_FINDING_MAX`) are solved with a dense SVD (rank decisions
+//! at `1e-10` of the largest singular value). Large ones never form a dense matrix: `A` is kept
+//! column by column and each constrained least-squares problem is a sparse saddle-point system,
+//! factored as faer's sparse `LDL^T` after regularization (`-eps` on the multiplier blocks, which
+//! makes it quasi-definite, so any fill-reducing ordering is stable and redundant equilibrium
+//! equations do not make it singular), then refined against the unregularized system. With `E`
+//! selecting the target columns:
+//! - `[I A^T E^T; A 0 0; E 0 0] (x, mu, nu) = (0, b, t)` gives the smallest solution that meets
+//!   equilibrium and every target exactly (when they are compatible);
+//! - the same matrix with right-hand side `(c, 0, 0)` gives `d = P c`, the projection of a fixed
+//!   pseudo-random `c` on the null space of `[A; E]`: a tension is undetermined exactly when some
+//!   null direction moves it, which shows as `d_j != 0` (generically in `c`);
+//! - when the first solve misses equilibrium or a target, `[W A^T; A 0] (x, mu) = (W t, b)` with
+//!   `W = 1` on targets and 0 elsewhere (factored with `1e-3` in place of the zeros) gives the
+//!   equilibrium nearest to the targets, whose residual and target misfit the error reports.
+//!
+//! Cost: one symbolic and numeric sparse `LDL^T` of size `p + n + targets`, whose fill grows
+//! linearly with the structure for the bundled families (prisms of 100 and 999 struts in
+//! `tests/formfind.rs`; `check` on the 999-strut clustered prism takes about 0.02 s).
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::forces::cable::{add_length_gradient, route_geometry, tension, CableScratch};
-use crate::forces::{evaluate, Tangents, Workspace};
+use crate::forces::cable::{length_gradient_entries, route_geometry, tension, CableScratch};
+use crate::forces::{evaluate_forces, Workspace};
 use crate::model::{CableId, Model};
+use crate::solve::linear::{SparseLdlt, ThinSvd};
 use crate::state::State;
 
 /// How a cable's rest length is specified in the scene.
@@ -30,17 +52,55 @@ pub enum RestLengthSpec {
     Free,
 }
 
+/// Which linear algebra form finding uses (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FormFindingMethod {
+    /// Dense SVD up to `DENSE_FORM_FINDING_MAX`, sparse above.
+    #[default]
+    Auto,
+    /// Dense SVD whatever the size (cubic cost).
+    Dense,
+    /// Sparse regularized saddle-point solves whatever the size.
+    Sparse,
+}
+
+/// Largest `n + p` (coordinates plus unknown tensions and reactions) that
+/// `FormFindingMethod::Auto` solves with the dense SVD.
+pub const DENSE_FORM_FINDING_MAX: usize = 400;
+
+/// A form-finding refusal: the cable to blame (index into `Model::cables`), if one is, and why.
+pub type FormFindingError = (Option<usize>, String);
+
+/// What form finding found, and what it cost.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FormFound {
+    /// Rest length of every cable, m.
+    pub rest_lengths: Vec<f64>,
+    /// Unknowns `p` (tensions of cables without a given rest length, then joint reactions).
+    pub unknowns: usize,
+    /// True when the dense SVD was used.
+    pub dense: bool,
+    /// Entries of the sparse `LDL^T` factor (0 on the dense path or with no unknowns).
+    pub factor_entries: usize,
+}
+
 /// Rest lengths (m) for every cable, or `(cable index if one is to blame, reason)`.
-pub fn find_rest_lengths(
+pub fn find_rest_lengths(model: &Model, specs: &[RestLengthSpec]) -> Result<Vec<f64>, FormFindingError> {
+    find_rest_lengths_with(model, specs, FormFindingMethod::Auto).map(|f| f.rest_lengths)
+}
+
+/// `find_rest_lengths` with a chosen method. `specs` has one entry per cable.
+pub fn find_rest_lengths_with(
     model: &Model,
     specs: &[RestLengthSpec],
-) -> Result<Vec<f64>, (Option<usize>, String)> {
+    method: FormFindingMethod,
+) -> Result<FormFound, FormFindingError> {
     let unknown: Vec<usize> =
         (0..specs.len()).filter(|&c| !matches!(specs[c], RestLengthSpec::Given(_))).collect();
     let mut state = State::initial(model);
     state.rest_lengths.iter_mut().for_each(|l| *l = f64::MAX);
-    let mut ws = Workspace::new(model);
-    evaluate(model, &state, &mut ws, Tangents::None);
+    let mut ws = Workspace::for_forces(model);
+    evaluate_forces(model, &state, &mut ws);
     let lengths: Vec<f64> = ws.cables.iter().map(|c| c.length).collect();
     for (c, l) in lengths.iter().enumerate() {
         if *l <= 1e-12 {
@@ -48,118 +108,368 @@ pub fn find_rest_lengths(
         }
     }
     if unknown.is_empty() {
-        return Ok(specs
+        let rest_lengths = specs
             .iter()
             .map(|s| if let RestLengthSpec::Given(l) = s { *l } else { unreachable!() })
-            .collect());
+            .collect();
+        return Ok(FormFound { rest_lengths, unknowns: 0, dense: true, factor_entries: 0 });
     }
 
-    let n = model.dof_count;
-    let nc = model.constraint_count;
-    let nu = unknown.len();
-    let max_route = model.cables.iter().map(|c| c.route_len).max().unwrap_or(2);
-    let mut scratch = CableScratch::new(max_route);
-    let gradient = |c: usize, scratch: &mut CableScratch| {
-        let route = model.route(CableId(c));
-        route_geometry(route, &ws.points, scratch);
-        let mut g = DVector::zeros(n);
-        add_length_gradient(model, route, &ws.points, scratch, 1.0, &mut g);
-        g
+    let sys = EquilibriumSystem::assemble(model, specs, &ws, &lengths, unknown);
+    let dense = match method {
+        FormFindingMethod::Auto => sys.n + sys.columns.len() <= DENSE_FORM_FINDING_MAX,
+        FormFindingMethod::Dense => true,
+        FormFindingMethod::Sparse => false,
     };
+    let (x, factor_entries) = if dense { (solve_dense(model, &sys)?, 0) } else { solve_sparse(model, &sys)? };
 
-    let p = nu + nc;
-    let rows = n.max(p);
-    let mut a = DMatrix::zeros(rows, p);
-    let mut b = DVector::zeros(rows);
-    b.rows_mut(0, n).copy_from(&(-&ws.force));
-    for (c, spec) in specs.iter().enumerate() {
-        let g = gradient(c, &mut scratch);
-        match unknown.iter().position(|&u| u == c) {
-            Some(col) => a.view_mut((0, col), (n, 1)).copy_from(&(-g)),
-            None => {
-                let l0 = if let RestLengthSpec::Given(l) = spec { *l } else { unreachable!() };
-                let t = tension(model.cables[c].axial_stiffness, 0.0, l0, lengths[c], 0.0);
-                b.rows_mut(0, n).axpy(t, &g, 1.0);
-            }
-        }
-    }
-    if nc > 0 {
-        a.view_mut((0, nu), (n, nc)).copy_from(&(-ws.constraint_jacobian.transpose()));
-    }
-
-    let targets: Vec<(usize, f64)> = unknown
-        .iter()
-        .enumerate()
-        .filter_map(|(col, &c)| match specs[c] {
-            RestLengthSpec::Prestress(t) => Some((col, t)),
-            RestLengthSpec::ForceDensity(q) => Some((col, q * lengths[c])),
-            _ => None,
-        })
-        .collect();
-    let scale = targets.iter().map(|t| t.1.abs()).fold(b.amax(), f64::max).max(1e-12);
-
-    let svd = a.clone().svd(true, true);
-    let smax = svd.singular_values.max();
-    let tol = 1e-10 * smax.max(1e-300);
-    let x_p = svd.solve(&b, tol).map_err(|e| (None, format!("form finding failed: {e}")))?;
-    let residual = (&a * &x_p - &b).amax();
-    if residual > 1e-8 * scale {
-        return Err((None, format!("the initial geometry is not an equilibrium for any cable tensions (force residual {residual:.3e} N); move the bodies or give rest lengths")));
-    }
-    let v_t = svd.v_t.as_ref().expect("requested");
-    let null: Vec<DVector<f64>> =
-        (0..p).filter(|&i| svd.singular_values[i] <= tol).map(|i| v_t.row(i).transpose()).collect();
-    let mut x = x_p;
-    if !null.is_empty() {
-        let nb = DMatrix::from_columns(&null);
-        let mut sn = DMatrix::zeros(targets.len().max(null.len()), null.len());
-        let mut rhs = DVector::zeros(sn.nrows());
-        for (r, (col, t)) in targets.iter().enumerate() {
-            sn.row_mut(r).copy_from(&nb.row(*col));
-            rhs[r] = t - x[*col];
-        }
-        let svd2 = sn.clone().svd(true, true);
-        let tol2 = 1e-10 * svd2.singular_values.max().max(1.0);
-        let y = svd2.solve(&rhs, tol2).map_err(|e| (None, format!("form finding failed: {e}")))?;
-        x += &nb * &y;
-        // directions that the targets leave open must not change any tension
-        let v2 = svd2.v_t.as_ref().expect("requested");
-        for i in 0..null.len() {
-            if svd2.singular_values[i] > tol2 {
-                continue;
-            }
-            let dir = &nb * v2.row(i).transpose();
-            let open: Vec<&str> = (0..nu)
-                .filter(|&col| dir[col].abs() > 1e-8)
-                .map(|col| model.cable_names[unknown[col]].as_str())
-                .collect();
-            if !open.is_empty() {
-                return Err((None, format!("form finding cannot determine the tensions of cables {}: give one of them a prestress or a rest_length", open.join(", "))));
-            }
-        }
-    }
-    for (col, t) in &targets {
-        if (x[*col] - t).abs() > 1e-6 * scale {
-            return Err((Some(unknown[*col]), format!("prestress target {t} N is not compatible with equilibrium at this geometry (nearest equilibrium has {:.6} N)", x[*col])));
+    for (col, t) in &sys.targets {
+        if (x[*col] - t).abs() > 1e-6 * sys.scale {
+            return Err((Some(sys.unknown[*col]), format!("prestress target {t} N is not compatible with equilibrium at this geometry (nearest equilibrium has {:.6} N)", x[*col])));
         }
     }
     let mut out = vec![0.0; specs.len()];
     for (c, spec) in specs.iter().enumerate() {
-        out[c] = match (spec, unknown.iter().position(|&u| u == c)) {
-            (RestLengthSpec::Given(l), _) => *l,
-            (_, Some(col)) => {
-                let t = x[col];
-                if t < -1e-9 * scale {
-                    return Err((
-                        Some(c),
-                        format!("equilibrium needs this cable to push (T = {t:.6} N); a cable can only pull"),
-                    ));
-                }
-                let ea = model.cables[c].axial_stiffness;
-                ea * lengths[c] / (ea + t.max(0.0))
-            }
-            _ => unreachable!(),
-        };
+        if let RestLengthSpec::Given(l) = spec {
+            out[c] = *l;
+        }
     }
-    Ok(out)
+    for (col, &c) in sys.unknown.iter().enumerate() {
+        let t = x[col];
+        if t < -1e-9 * sys.scale {
+            return Err((
+                Some(c),
+                format!("equilibrium needs this cable to push (T = {t:.6} N); a cable can only pull"),
+            ));
+        }
+        let ea = model.cables[c].axial_stiffness;
+        out[c] = ea * lengths[c] / (ea + t.max(0.0));
+    }
+    Ok(FormFound { rest_lengths: out, unknowns: sys.columns.len(), dense, factor_entries })
+}
+
+/// The equilibrium equations `A x = b` of form finding, `A` (n x p) kept column by column:
+/// columns `0..nu` are `-g_c` of the cables without a given rest length, the rest `-Phi_q^T`.
+struct EquilibriumSystem {
+    /// Rows: generalized coordinates.
+    n: usize,
+    /// `(row, value)` per column, rows sorted and unique.
+    columns: Vec<Vec<(usize, f64)>>,
+    /// Right-hand side: `-Q_g` plus the forces of cables with given rest lengths, N.
+    b: DVector<f64>,
+    /// The cable of each of the first `nu` columns.
+    unknown: Vec<usize>,
+    /// `(column, target tension N)`.
+    targets: Vec<(usize, f64)>,
+    /// Force scale for the tolerances, N.
+    scale: f64,
+}
+
+impl EquilibriumSystem {
+    fn assemble(
+        model: &Model,
+        specs: &[RestLengthSpec],
+        ws: &Workspace,
+        lengths: &[f64],
+        unknown: Vec<usize>,
+    ) -> Self {
+        let n = model.dof_count;
+        let max_route = model.cables.iter().map(|c| c.route_len).max().unwrap_or(2);
+        let mut scratch = CableScratch::new(max_route);
+        let mut b = -&ws.force;
+        let mut columns = Vec::with_capacity(unknown.len() + model.constraint_count);
+        let mut entries = Vec::new();
+        for (c, spec) in specs.iter().enumerate() {
+            let route = model.route(CableId(c));
+            route_geometry(route, &ws.points, &mut scratch);
+            entries.clear();
+            length_gradient_entries(model, route, &ws.points, &scratch, &mut entries);
+            if let RestLengthSpec::Given(l0) = spec {
+                let t = tension(model.cables[c].axial_stiffness, 0.0, *l0, lengths[c], 0.0);
+                for &(r, g) in &entries {
+                    b[r] += t * g;
+                }
+            } else {
+                columns.push(merged(entries.iter().map(|&(r, g)| (r, -g))));
+            }
+        }
+        let rows = model.joint_rows();
+        for joint in &model.joints {
+            for r in 0..rows {
+                let column = crate::constraints::joint_points(joint).flat_map(|(pid, sign)| {
+                    let p = &ws.points[pid.0];
+                    let body = &model.bodies[p.body.0];
+                    (0..body.dof_count).map(move |k| (body.dof_offset + k, -sign * p.jacobian[(r, k)]))
+                });
+                columns.push(merged(column));
+            }
+        }
+        let targets: Vec<(usize, f64)> = unknown
+            .iter()
+            .enumerate()
+            .filter_map(|(col, &c)| match specs[c] {
+                RestLengthSpec::Prestress(t) => Some((col, t)),
+                RestLengthSpec::ForceDensity(q) => Some((col, q * lengths[c])),
+                _ => None,
+            })
+            .collect();
+        let scale = targets.iter().map(|t| t.1.abs()).fold(b.amax(), f64::max).max(1e-12);
+        Self { n, columns, b, unknown, targets, scale }
+    }
+
+    /// `|A x - b|_inf`, N.
+    fn residual(&self, x: &DVector<f64>) -> f64 {
+        let mut r = -&self.b;
+        for (j, column) in self.columns.iter().enumerate() {
+            for &(i, a) in column {
+                r[i] += a * x[j];
+            }
+        }
+        r.amax()
+    }
+
+    /// Refuses `x` when it misses equilibrium.
+    fn check_equilibrium(&self, x: &DVector<f64>) -> Result<(), FormFindingError> {
+        let residual = self.residual(x);
+        if residual > 1e-8 * self.scale {
+            return Err((None, format!("the initial geometry is not an equilibrium for any cable tensions (force residual {residual:.3e} N); move the bodies or give rest lengths")));
+        }
+        Ok(())
+    }
+
+    /// The refusal for tensions (columns `< nu` among `open`) that equilibrium leaves free.
+    fn undetermined(&self, model: &Model, open: impl Iterator<Item = usize>) -> Result<(), FormFindingError> {
+        let names: Vec<&str> = open
+            .filter(|&col| col < self.unknown.len())
+            .map(|col| model.cable_names[self.unknown[col]].as_str())
+            .collect();
+        if names.is_empty() {
+            return Ok(());
+        }
+        let listed = if names.len() > 6 {
+            format!("{} and {} more", names[..5].join(", "), names.len() - 5)
+        } else {
+            names.join(", ")
+        };
+        Err((None, format!("form finding cannot determine the tensions of cables {listed}: give one of them a prestress or a rest_length")))
+    }
+}
+
+/// Sums repeated rows and sorts them.
+fn merged(entries: impl Iterator<Item = (usize, f64)>) -> Vec<(usize, f64)> {
+    let mut v: Vec<(usize, f64)> = entries.collect();
+    v.sort_unstable_by_key(|e| e.0);
+    let mut out: Vec<(usize, f64)> = Vec::with_capacity(v.len());
+    for (r, a) in v {
+        match out.last_mut() {
+            Some(last) if last.0 == r => last.1 += a,
+            _ => out.push((r, a)),
+        }
+    }
+    out.retain(|e| e.1 != 0.0);
+    out
+}
+
+/// The dense SVD path: minimum-norm solution, then the targets fitted in the null space.
+fn solve_dense(model: &Model, sys: &EquilibriumSystem) -> Result<DVector<f64>, FormFindingError> {
+    let (n, p) = (sys.n, sys.columns.len());
+    let rows = n.max(p);
+    let mut a = DMatrix::zeros(rows, p);
+    for (j, column) in sys.columns.iter().enumerate() {
+        for &(i, v) in column {
+            a[(i, j)] = v;
+        }
+    }
+    let mut b = DVector::zeros(rows);
+    b.rows_mut(0, n).copy_from(&sys.b);
+
+    let failed =
+        || (None, "form finding failed: the singular value decomposition did not converge".to_string());
+    let svd = ThinSvd::new(&a).ok_or_else(failed)?;
+    let tol = 1e-10 * svd.s.max().max(1e-300);
+    let mut x = svd.solve(&b, tol);
+    sys.check_equilibrium(&x)?;
+    let null: Vec<DVector<f64>> =
+        (0..p).filter(|&i| svd.s[i] <= tol).map(|i| svd.v.column(i).into_owned()).collect();
+    if null.is_empty() {
+        return Ok(x);
+    }
+    let nb = DMatrix::from_columns(&null);
+    let mut sn = DMatrix::zeros(sys.targets.len().max(null.len()), null.len());
+    let mut rhs = DVector::zeros(sn.nrows());
+    for (r, (col, t)) in sys.targets.iter().enumerate() {
+        sn.row_mut(r).copy_from(&nb.row(*col));
+        rhs[r] = t - x[*col];
+    }
+    let svd2 = ThinSvd::new(&sn).ok_or_else(failed)?;
+    let tol2 = 1e-10 * svd2.s.max().max(1.0);
+    x += &nb * svd2.solve(&rhs, tol2);
+    // directions that the targets leave open must not change any tension
+    let mut open = vec![false; p];
+    for i in 0..null.len() {
+        if svd2.s[i] > tol2 {
+            continue;
+        }
+        let dir = &nb * svd2.v.column(i);
+        (0..p).filter(|&col| dir[col].abs() > 1e-8).for_each(|col| open[col] = true);
+    }
+    sys.undetermined(model, (0..p).filter(|&col| open[col]))?;
+    Ok(x)
+}
+
+/// Regularization of the multiplier blocks of the exact-target system, relative to the largest
+/// entry of `A` (the ratio to its unit weights bounds the growth in the `LDL^T`).
+const KKT_REGULARIZATION: f64 = 1e-12;
+/// The nearest-equilibrium fit: weight of the columns without a target in the factored matrix
+/// (the fit itself gives them none; refinement removes the bias) ...
+const UNTARGETED_WEIGHT: f64 = 1e-3;
+/// ... and its multiplier regularization, both relative to the largest entry of `A`.
+const FIT_REGULARIZATION: f64 = 1e-9;
+/// Refinement steps against the unregularized systems (each stops early at round-off, or once a
+/// step no longer shrinks the residual by a tenth: what is left then lies along redundant
+/// equations, which do not move `x`).
+const EXACT_REFINEMENT_STEPS: usize = 12;
+const FIT_REFINEMENT_STEPS: usize = 400;
+/// `|d_j|` above which a tension is moved by a null direction (`c_j` has magnitude 0.5..1.5).
+const OPEN_DIRECTION_TOLERANCE: f64 = 1e-6;
+
+/// The saddle-point matrix `K0 = [W A^T E^T; A 0 0; E 0 0]` (no `E` rows unless `hard_targets`),
+/// with the factors of `K0 + diag(R, -eps, -eps)` that precondition its refinement.
+struct SaddlePoint<'a> {
+    sys: &'a EquilibriumSystem,
+    weights: Vec<f64>,
+    hard_targets: bool,
+    max_steps: usize,
+    lu: SparseLdlt,
+}
+
+impl<'a> SaddlePoint<'a> {
+    fn size(sys: &EquilibriumSystem, hard_targets: bool) -> usize {
+        sys.columns.len() + sys.n + if hard_targets { sys.targets.len() } else { 0 }
+    }
+
+    /// `weights` is `W`, `extra` is `R` (both per column of `A`, `W + R > 0`).
+    fn factor(
+        sys: &'a EquilibriumSystem,
+        weights: Vec<f64>,
+        extra: &[f64],
+        hard_targets: bool,
+        eps: f64,
+        max_steps: usize,
+    ) -> Result<Self, FormFindingError> {
+        let (n, p) = (sys.n, sys.columns.len());
+        let size = Self::size(sys, hard_targets);
+        let mut upper = Vec::new();
+        for (j, column) in sys.columns.iter().enumerate() {
+            upper.push((j, j, weights[j] + extra[j]));
+            upper.extend(column.iter().map(|&(i, a)| (j, p + i, a)));
+        }
+        upper.extend((p..size).map(|i| (i, i, -eps)));
+        if hard_targets {
+            upper.extend(sys.targets.iter().enumerate().map(|(k, &(j, _))| (j, p + n + k, 1.0)));
+        }
+        let signs: Vec<i8> = (0..size).map(|i| if i < p { 1 } else { -1 }).collect();
+        let lu = SparseLdlt::factor(size, &upper, &signs, eps)
+            .map_err(|e| (None, format!("form finding failed: {e}")))?;
+        Ok(Self { sys, weights, hard_targets, max_steps, lu })
+    }
+    /// The unregularized product `K0 z`.
+    fn apply(&self, z: &[f64], out: &mut [f64]) {
+        let (n, p) = (self.sys.n, self.sys.columns.len());
+        out.fill(0.0);
+        for (j, column) in self.sys.columns.iter().enumerate() {
+            out[j] += self.weights[j] * z[j];
+            for &(i, a) in column {
+                out[j] += a * z[p + i];
+                out[p + i] += a * z[j];
+            }
+        }
+        if self.hard_targets {
+            for (k, &(j, _)) in self.sys.targets.iter().enumerate() {
+                out[j] += z[p + n + k];
+                out[p + n + k] += z[j];
+            }
+        }
+    }
+
+    /// Solves `K0 z = rhs` through the regularized factors with iterative refinement; returns
+    /// the `x` part.
+    fn solve(&mut self, rhs: &[f64]) -> DVector<f64> {
+        let size = rhs.len();
+        let mut z = rhs.to_vec();
+        self.lu.solve_in_place(&mut z);
+        let mut r = vec![0.0; size];
+        let floor = 1e-15 * rhs.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
+        let mut previous = f64::INFINITY;
+        for _ in 0..self.max_steps {
+            self.apply(&z, &mut r);
+            let mut worst = 0.0f64;
+            for (ri, bi) in r.iter_mut().zip(rhs) {
+                *ri = bi - *ri;
+                worst = worst.max(ri.abs());
+            }
+            if worst <= floor || worst > 0.9 * previous {
+                break;
+            }
+            previous = worst;
+            self.lu.solve_in_place(&mut r);
+            z.iter_mut().zip(&r).for_each(|(zi, di)| *zi += di);
+        }
+        DVector::from_column_slice(&z[..self.sys.columns.len()])
+    }
+}
+
+/// The sparse path (module documentation): exact targets, determinacy, nearest equilibrium.
+/// Returns the solution and the entries of the (first) factor.
+fn solve_sparse(model: &Model, sys: &EquilibriumSystem) -> Result<(DVector<f64>, usize), FormFindingError> {
+    let (n, p) = (sys.n, sys.columns.len());
+    let a_max = sys.columns.iter().flatten().fold(0.0f64, |m, e| m.max(e.1.abs())).max(1e-300);
+    let eps = KKT_REGULARIZATION * a_max;
+    let mut hard =
+        SaddlePoint::factor(sys, vec![a_max; p], &vec![0.0; p], true, eps, EXACT_REFINEMENT_STEPS)?;
+    let size = SaddlePoint::size(sys, true);
+
+    let mut rhs = vec![0.0; size];
+    rhs[p..p + n].copy_from_slice(sys.b.as_slice());
+    for (k, &(_, t)) in sys.targets.iter().enumerate() {
+        rhs[p + n + k] = t;
+    }
+    let mut x = hard.solve(&rhs);
+    let meets = |x: &DVector<f64>| {
+        sys.residual(x) <= 1e-8 * sys.scale
+            && sys.targets.iter().all(|&(j, t)| (x[j] - t).abs() <= 1e-6 * sys.scale)
+    };
+    if !meets(&x) {
+        let targeted: Vec<bool> = (0..p).map(|j| sys.targets.iter().any(|t| t.0 == j)).collect();
+        let weights: Vec<f64> = targeted.iter().map(|&t| if t { a_max } else { 0.0 }).collect();
+        let extra: Vec<f64> =
+            targeted.iter().map(|&t| if t { 0.0 } else { UNTARGETED_WEIGHT * a_max }).collect();
+        let mut soft = SaddlePoint::factor(
+            sys,
+            weights.clone(),
+            &extra,
+            false,
+            FIT_REGULARIZATION * a_max,
+            FIT_REFINEMENT_STEPS,
+        )?;
+        let mut rhs = vec![0.0; SaddlePoint::size(sys, false)];
+        for &(j, t) in &sys.targets {
+            rhs[j] = weights[j] * t;
+        }
+        rhs[p..p + n].copy_from_slice(sys.b.as_slice());
+        x = soft.solve(&rhs);
+    }
+    sys.check_equilibrium(&x)?;
+
+    // determinacy: d = P c on the null space of [A; E]
+    let mut rhs = vec![0.0; size];
+    let mut seed: u64 = 0x9e37_79b9_7f4a_7c15;
+    for v in rhs.iter_mut().take(p) {
+        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+        let u = (seed >> 11) as f64 / (1u64 << 53) as f64;
+        *v = if (seed >> 40) & 1 == 0 { 0.5 + u } else { -0.5 - u } * a_max;
+    }
+    let d = hard.solve(&rhs);
+    sys.undetermined(model, (0..p).filter(|&j| d[j].abs() > OPEN_DIRECTION_TOLERANCE))?;
+    Ok((x, hard.lu.factor_entries()))
 }

@@ -39,11 +39,15 @@
 use std::collections::BTreeSet;
 
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::lu::partial_pivoting as dense_lu;
 use faer::reborrow::ReborrowMut;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
+};
 use faer::sparse::linalg::lu::{factorize_symbolic_lu, LuSymbolicParams, NumericLu, SymbolicLu};
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
-use faer::{Conj, MatMut, Par};
+use faer::{Conj, MatMut, Par, Side};
 use nalgebra::{DMatrix, DVector, Matrix6, Vector6};
 
 use crate::constraints::joint_points;
@@ -442,19 +446,7 @@ impl KktSystem {
         // and column, which touch all bodies on its route) count as dense once it is longer than
         // twice the longest ordinary column, so that eliminating it early cannot fill the factors.
         let ordinary = (0..n + nc).map(|j| index.col_ptr[j + 1] - index.col_ptr[j]).max().unwrap_or(1);
-        let dense = (2 * ordinary) as f64 / size as f64;
-        // simplicial: faer's supernodal numeric LU was about 2x faster on towers of 16-64 stages,
-        // but it allocates working storage in every factorization; this one reuses its buffers
-        let params = LuSymbolicParams {
-            colamd_params: faer::sparse::linalg::colamd::Control {
-                dense_row: dense,
-                dense_col: dense,
-                aggressive: true,
-            },
-            supernodal_flop_ratio_threshold: faer::sparse::linalg::SupernodalThreshold::FORCE_SIMPLICIAL,
-            ..Default::default()
-        };
-        let symbolic = factorize_symbolic_lu(sym, params).ok()?;
+        let symbolic = factorize_symbolic_lu(sym, sparse_lu_params(2 * ordinary, size)).ok()?;
         Some(Storage::Sparse {
             mem: MemBuffer::new(sparse_scratch(&symbolic)),
             values: vec![0.0; index.row_idx.len()],
@@ -666,6 +658,140 @@ impl KktSystem {
     /// A `TangentSink` that adds `stiffness_scale * K + damping_scale * C` into this matrix.
     pub fn tangents(&mut self, stiffness_scale: f64, damping_scale: f64) -> NewtonTangents<'_> {
         NewtonTangents { kkt: self, stiffness_scale, damping_scale }
+    }
+}
+
+/// The symbolic settings of every sparse LU here: COLAMD ordering, with rows and columns of more
+/// than `dense_len` entries (of `size`) counted dense and ordered last, so that eliminating them
+/// early cannot fill the factors; simplicial numeric factorization (faer's supernodal one was
+/// about 2x faster on towers of 16-64 stages, but it allocates working storage in every
+/// factorization; this one reuses its buffers).
+fn sparse_lu_params(dense_len: usize, size: usize) -> LuSymbolicParams<'static> {
+    let dense = dense_len as f64 / size.max(1) as f64;
+    LuSymbolicParams {
+        colamd_params: faer::sparse::linalg::colamd::Control {
+            dense_row: dense,
+            dense_col: dense,
+            aggressive: true,
+        },
+        supernodal_flop_ratio_threshold: faer::sparse::linalg::SupernodalThreshold::FORCE_SIMPLICIAL,
+        ..Default::default()
+    }
+}
+
+/// A one-off sparse `LDL^T` (faer, AMD ordering) of a symmetric quasi-definite matrix, for
+/// saddle-point solves outside the step loop (form finding). Quasi-definite (`[H A^T; A -G]`
+/// with `H` and `G` positive definite) means the factorization exists for every symmetric
+/// ordering, so the fill-reducing ordering is never spoiled by pivoting; a pivot whose sign
+/// differs from the expected one, or whose magnitude is below `1e-13` of the largest diagonal
+/// entry, is replaced by that sign times the regularization (faer's dynamic regularization).
+pub struct SparseLdlt {
+    size: usize,
+    symbolic: SymbolicCholesky<usize>,
+    values: Vec<f64>,
+    mem: MemBuffer,
+}
+
+impl SparseLdlt {
+    /// Factors the `size x size` symmetric matrix given by its upper-triangle entries
+    /// `(row, col, value)` with `row <= col` (duplicates summed). `signs[i]` is `+1` for a row of
+    /// the positive definite block and `-1` for one of the negative definite block;
+    /// `regularization` (> 0, same units as the entries) replaces pivots of the wrong sign.
+    /// Err with the reason when the pattern is invalid or a pivot is zero.
+    pub fn factor(
+        size: usize,
+        upper: &[(usize, usize, f64)],
+        signs: &[i8],
+        regularization: f64,
+    ) -> Result<Self, String> {
+        let triplets: Vec<faer::sparse::Triplet<usize, usize, f64>> =
+            upper.iter().map(|&(r, c, v)| faer::sparse::Triplet::new(r, c, v)).collect();
+        let matrix = faer::sparse::SparseColMat::<usize, f64>::try_new_from_triplets(size, size, &triplets)
+            .map_err(|e| format!("{e:?}"))?;
+        let symbolic = factorize_symbolic_cholesky(
+            matrix.symbolic(),
+            Side::Upper,
+            SymmetricOrdering::Amd,
+            Default::default(),
+        )
+        .map_err(|e| format!("{e:?}"))?;
+        let mut values = vec![0.0; symbolic.len_val()];
+        let mut mem = MemBuffer::new(StackReq::or(
+            symbolic.factorize_numeric_ldlt_scratch::<f64>(Par::Seq, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+        ));
+        let largest = upper.iter().filter(|e| e.0 == e.1).fold(0.0f64, |m, e| m.max(e.2.abs())).max(1e-300);
+        symbolic
+            .factorize_numeric_ldlt(
+                &mut values,
+                matrix.as_ref(),
+                Side::Upper,
+                LdltRegularization {
+                    dynamic_regularization_signs: Some(signs),
+                    dynamic_regularization_delta: regularization,
+                    dynamic_regularization_epsilon: 1e-13 * largest,
+                },
+                Par::Seq,
+                MemStack::new(&mut mem),
+                Default::default(),
+            )
+            .map_err(|e| format!("{e:?}"))?;
+        Ok(Self { size, symbolic, values, mem })
+    }
+
+    /// Stored entries of the factor `L` (its fill, a measure of the cost).
+    pub fn factor_entries(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Solves in place of `x` (length `size`).
+    pub fn solve_in_place(&mut self, x: &mut [f64]) {
+        let ldlt = LdltRef::new(&self.symbolic, &self.values);
+        let x = MatMut::from_column_major_slice_mut(x, self.size, 1);
+        ldlt.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(&mut self.mem));
+    }
+}
+
+/// Thin singular value decomposition `a = U diag(s) V^T` (faer's: nalgebra 0.35's SVD
+/// reconstructed the 20 x 14 form-finding matrix of a 4-strut prism with an error of 9.5e-4,
+/// singular values all near 1; see also dimforge/nalgebra#1172).
+#[derive(Debug, Clone)]
+pub struct ThinSvd {
+    /// Left singular vectors, `m x k` (`k = min(m, n)`).
+    pub u: DMatrix<f64>,
+    /// Singular values, nonnegative and nonincreasing.
+    pub s: DVector<f64>,
+    /// Right singular vectors, `n x k`.
+    pub v: DMatrix<f64>,
+}
+
+impl ThinSvd {
+    /// Decomposes `a`; None when the iteration does not converge or `a` is not finite.
+    pub fn new(a: &DMatrix<f64>) -> Option<Self> {
+        let (m, n) = a.shape();
+        if m == 0 || n == 0 {
+            let k = m.min(n);
+            return Some(Self { u: DMatrix::zeros(m, k), s: DVector::zeros(k), v: DMatrix::zeros(n, k) });
+        }
+        let f = faer::MatRef::from_column_major_slice(a.as_slice(), m, n);
+        let svd = f.thin_svd().ok()?;
+        let (u, s, v) = (svd.U(), svd.S().column_vector(), svd.V());
+        let k = s.nrows();
+        Some(Self {
+            u: DMatrix::from_fn(m, k, |i, j| u[(i, j)]),
+            s: DVector::from_fn(k, |i, _| s[i]),
+            v: DMatrix::from_fn(n, k, |i, j| v[(i, j)]),
+        })
+    }
+
+    /// The minimum-norm least-squares solution of `a x = b`, singular values `<= tol` taken
+    /// as zero.
+    pub fn solve(&self, b: &DVector<f64>, tol: f64) -> DVector<f64> {
+        let mut c = self.u.transpose() * b;
+        for (ci, si) in c.iter_mut().zip(self.s.iter()) {
+            *ci = if *si > tol { *ci / si } else { 0.0 };
+        }
+        &self.v * c
     }
 }
 
