@@ -1,8 +1,12 @@
 //! Line plots for studies and benchmarks: takes named series of (x, y) points, gives the same
-//! chart as PNG and SVG (plotters). Log axes are drawn as log10 of the value, labelled so.
+//! chart as PNG and SVG (plotters). Logarithmic axes are real log scales with ticks at decades
+//! labelled in data units (`1e-3`); series take the Okabe-Ito colour-blind-safe palette (its
+//! yellow left out: too faint on white; dashed once it repeats) with alternating marker shapes, and
+//! reference curves are drawn last, black and dashed, so that nothing hides them.
 
 use std::path::Path;
 
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
@@ -15,6 +19,16 @@ pub struct Series {
     pub points: Vec<(f64, f64)>,
     /// Draw markers as well as the line.
     pub markers: bool,
+    /// A reference to compare the others with (e.g. the quasi-static path): black, dashed,
+    /// drawn on top.
+    pub reference: bool,
+}
+
+impl Series {
+    /// A plain series.
+    pub fn new(name: impl Into<String>, points: Vec<(f64, f64)>, markers: bool) -> Self {
+        Self { name: name.into(), points, markers, reference: false }
+    }
 }
 
 /// A chart description.
@@ -26,9 +40,9 @@ pub struct Chart {
     pub x_label: String,
     /// Y axis label (units included).
     pub y_label: String,
-    /// Plot log10(x).
+    /// Logarithmic x axis (points with x <= 0 are left out).
     pub log_x: bool,
-    /// Plot log10(y).
+    /// Logarithmic y axis (points with y <= 0 are left out).
     pub log_y: bool,
     /// Data.
     pub series: Vec<Series>,
@@ -36,73 +50,149 @@ pub struct Chart {
     pub reference: Option<(f64, String)>,
 }
 
-fn tr(v: f64, log: bool) -> f64 {
+/// Okabe & Ito (2008) colours without the yellow: blue, vermillion, bluish green, reddish
+/// purple, orange, sky blue.
+pub const PALETTE: [RGBColor; 6] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(230, 159, 0),
+    RGBColor(86, 180, 233),
+];
+
+/// A tick label: `1e-3`, `2.5e4` on log axes; up to 6 significant digits on linear ones.
+fn tick_label(v: f64, log: bool) -> String {
     if log {
-        v.max(1e-300).log10()
+        if !(v > 0.0 && v.is_finite()) {
+            return format!("{v}");
+        }
+        // 9.999999999999999e-5 is 1e-4: round the mantissa, then carry
+        let mut e = (v.log10() + 1e-9).floor();
+        let mut m = ((v / 10f64.powf(e)) * 1e3).round() / 1e3;
+        if m >= 10.0 {
+            m /= 10.0;
+            e += 1.0;
+        }
+        if m == 1.0 {
+            format!("1e{e}")
+        } else {
+            format!("{m}e{e}")
+        }
     } else {
-        v
+        let r = if v == 0.0 { 0.0 } else { format!("{v:.6e}").parse().unwrap_or(v) };
+        format!("{}", r + 0.0)
+    }
+}
+
+/// Data bounds of the drawable points, padded: 5 % on linear axes, a fifth of a decade on
+/// log ones.
+fn bounds(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite() && (!log || *v > 0.0))
+        .fold((f64::MAX, f64::MIN), |a, v| (a.0.min(v), a.1.max(v)));
+    if lo > hi {
+        return if log { (0.1, 10.0) } else { (0.0, 1.0) };
+    }
+    if log {
+        let (a, b) = if hi > lo { (lo, hi) } else { (lo / 10.0, hi * 10.0) };
+        (a / 10f64.powf(0.2), b * 10f64.powf(0.2))
+    } else {
+        let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 * lo.abs().max(1.0) };
+        (lo - pad, hi + pad)
     }
 }
 
 fn render<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, chart: &Chart) -> Result<(), String> {
-    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    root.fill(&WHITE).map_err(err)?;
-    let pts: Vec<(f64, f64)> = chart
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let xs = chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
+    let ys = chart
         .series
         .iter()
-        .flat_map(|s| s.points.iter().map(|&(x, y)| (tr(x, chart.log_x), tr(y, chart.log_y))))
-        .chain(chart.reference.iter().map(|(y, _)| (f64::NAN, tr(*y, chart.log_y))))
-        .collect();
-    let finite = |v: f64| v.is_finite();
-    let (mut x0, mut x1) = pts
-        .iter()
-        .map(|p| p.0)
-        .filter(|v| finite(*v))
-        .fold((f64::MAX, f64::MIN), |a, v| (a.0.min(v), a.1.max(v)));
-    let (mut y0, mut y1) = pts
-        .iter()
-        .map(|p| p.1)
-        .filter(|v| finite(*v))
-        .fold((f64::MAX, f64::MIN), |a, v| (a.0.min(v), a.1.max(v)));
-    if x0 > x1 {
-        (x0, x1) = (0.0, 1.0);
+        .flat_map(|s| s.points.iter().map(|p| p.1))
+        .chain(chart.reference.iter().map(|r| r.0));
+    let (x0, x1) = bounds(xs, chart.log_x);
+    let (y0, y1) = bounds(ys, chart.log_y);
+    match (chart.log_x, chart.log_y) {
+        (false, false) => draw(root, chart, x0..x1, y0..y1),
+        (true, false) => draw(root, chart, (x0..x1).log_scale(), y0..y1),
+        (false, true) => draw(root, chart, x0..x1, (y0..y1).log_scale()),
+        (true, true) => draw(root, chart, (x0..x1).log_scale(), (y0..y1).log_scale()),
     }
-    if y0 > y1 {
-        (y0, y1) = (0.0, 1.0);
-    }
-    let pad = |a: f64, b: f64| if b - a > 0.0 { 0.05 * (b - a) } else { 0.5 * a.abs().max(1.0) };
-    let (px, py) = (pad(x0, x1), pad(y0, y1));
-    let label = |s: &str, log: bool| if log { format!("log10 {s}") } else { s.to_string() };
+}
+
+fn draw<DB, X, Y>(root: DrawingArea<DB, Shift>, chart: &Chart, x: X, y: Y) -> Result<(), String>
+where
+    DB: DrawingBackend,
+    X: AsRangedCoord<Value = f64>,
+    Y: AsRangedCoord<Value = f64>,
+    X::CoordDescType: ValueFormatter<f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
+{
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    let (log_x, log_y) = (chart.log_x, chart.log_y);
+    let drawable =
+        |p: &(f64, f64)| p.0.is_finite() && p.1.is_finite() && (!log_x || p.0 > 0.0) && (!log_y || p.1 > 0.0);
     let mut c = ChartBuilder::on(&root)
         .caption(&chart.title, ("sans-serif", 22))
         .margin(15)
         .x_label_area_size(45)
         .y_label_area_size(75)
-        .build_cartesian_2d((x0 - px)..(x1 + px), (y0 - py)..(y1 + py))
+        .build_cartesian_2d(x, y)
         .map_err(err)?;
+    let x_range = c.x_range();
     c.configure_mesh()
-        .x_desc(label(&chart.x_label, chart.log_x))
-        .y_desc(label(&chart.y_label, chart.log_y))
+        .x_desc(chart.x_label.as_str())
+        .y_desc(chart.y_label.as_str())
+        .x_label_formatter(&|v| tick_label(*v, log_x))
+        .y_label_formatter(&|v| tick_label(*v, log_y))
         .draw()
         .map_err(err)?;
+    for (i, s) in chart.series.iter().filter(|s| !s.reference).enumerate() {
+        let color = PALETTE[i % PALETTE.len()];
+        let data: Vec<(f64, f64)> = s.points.iter().copied().filter(drawable).collect();
+        // past the palette's length the colours repeat with dashed lines
+        if (i / PALETTE.len()) % 2 == 0 {
+            c.draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
+                .map_err(err)?
+                .label(s.name.clone())
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(2)));
+        } else {
+            c.draw_series(DashedLineSeries::new(data.clone(), 6, 4, color.stroke_width(2)))
+                .map_err(err)?
+                .label(s.name.clone())
+                .legend(move |(x, y)| {
+                    EmptyElement::at((x, y))
+                        + PathElement::new([(0, 0), (7, 0)], color.stroke_width(2))
+                        + PathElement::new([(12, 0), (20, 0)], color.stroke_width(2))
+                });
+        }
+        if s.markers {
+            if i % 2 == 0 {
+                c.draw_series(data.iter().map(|&p| Circle::new(p, 4, color.filled()))).map_err(err)?;
+            } else {
+                c.draw_series(data.iter().map(|&p| TriangleMarker::new(p, 5, color.filled())))
+                    .map_err(err)?;
+            }
+        }
+    }
+    // references on top
+    for s in chart.series.iter().filter(|s| s.reference) {
+        let data: Vec<(f64, f64)> = s.points.iter().copied().filter(drawable).collect();
+        c.draw_series(DashedLineSeries::new(data.clone(), 8, 5, BLACK.stroke_width(3)))
+            .map_err(err)?
+            .label(s.name.clone())
+            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(3)));
+        if s.markers {
+            c.draw_series(data.iter().map(|&p| Circle::new(p, 4, BLACK.filled()))).map_err(err)?;
+        }
+    }
     if let Some((y, name)) = &chart.reference {
-        let y = tr(*y, chart.log_y);
-        c.draw_series(LineSeries::new([(x0 - px, y), (x1 + px, y)], BLACK.stroke_width(1)))
+        let line = [(x_range.start, *y), (x_range.end, *y)];
+        c.draw_series(DashedLineSeries::new(line, 6, 6, BLACK.stroke_width(1)))
             .map_err(err)?
             .label(name.clone())
             .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK));
-    }
-    for (i, s) in chart.series.iter().enumerate() {
-        let color = Palette99::pick(i).to_rgba();
-        let data: Vec<(f64, f64)> =
-            s.points.iter().map(|&(x, y)| (tr(x, chart.log_x), tr(y, chart.log_y))).collect();
-        c.draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
-            .map_err(err)?
-            .label(s.name.clone())
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(2)));
-        if s.markers {
-            c.draw_series(data.iter().map(|&p| Circle::new(p, 4, color.filled()))).map_err(err)?;
-        }
     }
     c.configure_series_labels().background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(err)?;
     root.present().map_err(err)?;
@@ -118,4 +208,21 @@ pub fn write(chart: &Chart, base: &Path) -> Result<(), String> {
     render(SVGBackend::new(&svg, (900, 600)).into_drawing_area(), chart)
         .map_err(|e| format!("{}: {e}", svg.display()))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::tick_label;
+
+    #[test]
+    fn tick_labels_read_as_numbers() {
+        assert_eq!(tick_label(1e-3, true), "1e-3");
+        assert_eq!(tick_label(1.0000000000000002e-3, true), "1e-3");
+        assert_eq!(tick_label(2.5e4, true), "2.5e4");
+        assert_eq!(tick_label(9.999999999999999e-5, true), "1e-4");
+        assert_eq!(tick_label(1e-6, true), "1e-6");
+        assert_eq!(tick_label(0.30000000000000004, false), "0.3");
+        assert_eq!(tick_label(-0.0, false), "0");
+        assert_eq!(tick_label(1500.0, false), "1500");
+    }
 }

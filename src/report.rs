@@ -32,6 +32,29 @@ pub struct CableReport {
     pub pulley_slip: Vec<f64>,
 }
 
+/// Displays a number as `f64` does (honouring width, alignment and precision), except that a
+/// value that rounds to zero never shows a sign: `-0.000000` prints as `0.000000`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Num(pub f64);
+
+impl std::fmt::Display for Num {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mut s = match f.precision() {
+            Some(p) => format!("{:.*}", p, self.0),
+            None => format!("{}", self.0),
+        };
+        if s.starts_with('-') && s[1..].chars().all(|c| c == '0' || c == '.') {
+            s.remove(0);
+        }
+        match (f.width(), f.align()) {
+            (Some(w), Some(std::fmt::Alignment::Left)) => write!(f, "{s:<w$}"),
+            (Some(w), Some(std::fmt::Alignment::Center)) => write!(f, "{s:^w$}"),
+            (Some(w), _) => write!(f, "{s:>w$}"),
+            (None, _) => f.write_str(&s),
+        }
+    }
+}
+
 /// Rest-length material coordinate `s_i` of each pulley of cable `c` (see `CableReport`).
 pub fn pulley_coordinates(model: &Model, ws: &Workspace, rest_length: f64, c: usize) -> Vec<f64> {
     let seg = ws.cable_segments(model, c);
@@ -146,10 +169,10 @@ pub fn path_csv_row(
         let _ = write!(row, ",{:.12}", state.rest_lengths[a.cable.0]);
     }
     for c in &ws.cables {
-        let _ = write!(row, ",{:.12}", c.tension);
+        let _ = write!(row, ",{:.12}", Num(c.tension));
     }
     for k in &ws.points {
-        let _ = write!(row, ",{:.12},{:.12},{:.12}", k.position.x, k.position.y, k.position.z);
+        let _ = write!(row, ",{:.12},{:.12},{:.12}", Num(k.position.x), Num(k.position.y), Num(k.position.z));
     }
     row
 }

@@ -23,6 +23,7 @@ use crate::forces::Workspace;
 use crate::model::Model;
 use crate::plot::{self, Chart, Series};
 use crate::report;
+use crate::report::Num;
 use crate::sim::{SimSettings, Simulator, StepStats};
 use crate::solve::dynamics::{stability_limit, Integrator};
 use crate::solve::statics::deploy_quasi_static;
@@ -140,10 +141,10 @@ pub fn dynamic_csv_row(sim: &Simulator, stats: &StepStats) -> String {
     let ws = sim.workspace();
     let mut row = format!("{:.9}", sim.state().time);
     for c in &ws.cables {
-        let _ = write!(row, ",{:.9},{:.12},{:.12}", c.tension, c.length, c.rest_length);
+        let _ = write!(row, ",{:.9},{:.12},{:.12}", Num(c.tension), c.length, c.rest_length);
     }
     for p in &ws.points {
-        let _ = write!(row, ",{:.12},{:.12},{:.12}", p.position.x, p.position.y, p.position.z);
+        let _ = write!(row, ",{:.12},{:.12},{:.12}", Num(p.position.x), Num(p.position.y), Num(p.position.z));
     }
     let e = sim.energy();
     let _ = write!(
@@ -263,6 +264,27 @@ pub fn one_percent_threshold(times: &[f64], dev: &[f64]) -> Option<f64> {
     Some((t0.ln() + f * (t1.ln() - t0.ln())).exp())
 }
 
+/// Actuation-time factors of `default_ramp_times`.
+pub const DEFAULT_RAMP_FACTORS: [f64; 8] = [0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0];
+
+/// A span of actuation times around the scene's own (the end of its schedule, `T0`):
+/// `T0 x (0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5)` s, each to 3 significant digits. Err when the
+/// scene has no deployment schedule.
+pub fn default_ramp_times(model: &Model) -> Result<Vec<f64>, String> {
+    let t0 = model.schedule.end_time();
+    if model.schedule.ramps.is_empty() || t0.is_nan() || t0 <= 0.0 {
+        return Err(format!("scene '{}' has no deployment schedule to study", model.name));
+    }
+    Ok(DEFAULT_RAMP_FACTORS
+        .iter()
+        .map(|f| {
+            let t = f * t0;
+            let scale = 10f64.powi(2 - t.log10().floor() as i32);
+            (t * scale).round() / scale
+        })
+        .collect())
+}
+
 /// Runs the deployment study (see the module docs) and writes into `out_dir`. `point` defaults to
 /// the point that moves most along the quasi-static path. Files:
 /// `quasi_static.csv`, `dynamic_T<time>.csv`, `summary.csv`, `summary.md`, `deviation.{png,svg}`,
@@ -333,9 +355,12 @@ pub fn deployment_study(
     qs_file.flush().map_err(|e| e.to_string())?;
     let pid = match point {
         Some(p) => model.point_id(p).expect("checked above"),
-        None => crate::model::PointId(
-            (0..qs_disp.len()).max_by(|&a, &b| qs_disp[a].total_cmp(&qs_disp[b])).unwrap_or(0),
-        ),
+        // the first point (in file order) within 1e-9 of the largest displacement: symmetric
+        // points tie, and round-off must not pick between them
+        None => {
+            let top = qs_disp.iter().copied().fold(0.0, f64::max);
+            crate::model::PointId((0..qs_disp.len()).find(|&i| qs_disp[i] >= top * (1.0 - 1e-9)).unwrap_or(0))
+        }
     };
     let point = model.points[pid.0].name.as_str();
     let qs_peak_disp = qs_disp[pid.0];
@@ -347,7 +372,7 @@ pub fn deployment_study(
         s0.points.iter().map(|p| p.position).collect()
     };
     let mut rows = Vec::new();
-    let mut histories = vec![Series { name: "quasi-static".into(), points: qs_tension, markers: false }];
+    let mut histories = vec![Series { reference: true, ..Series::new("quasi-static", qs_tension, false) }];
     for &t_ramp in &times {
         let mut m = model.clone();
         scale_schedule(&mut m, t_ramp);
@@ -389,7 +414,7 @@ pub fn deployment_study(
             within_rate,
             wall_time: totals.wall_time.as_secs_f64(),
         });
-        histories.push(Series { name: format!("T = {t_ramp} s"), points: history, markers: false });
+        histories.push(Series::new(format!("T = {t_ramp} s"), history, false));
     }
     let worst: Vec<f64> =
         rows.iter().map(|r| r.tension_deviation.abs().max(r.displacement_deviation.abs())).collect();
@@ -420,10 +445,12 @@ pub fn deployment_study(
     summary.flush().map_err(|e| e.to_string())?;
     std::fs::write(out_dir.join("summary.md"), result.markdown()).map_err(|e| e.to_string())?;
 
-    let dev_series = |name: &str, f: &dyn Fn(&StudyRow) -> f64| Series {
-        name: name.into(),
-        points: result.rows.iter().map(|r| (r.ramp_time, 100.0 * f(r).abs().max(1e-6))).collect(),
-        markers: true,
+    let dev_series = |name: &str, f: &dyn Fn(&StudyRow) -> f64| {
+        Series::new(
+            name,
+            result.rows.iter().map(|r| (r.ramp_time, 100.0 * f(r).abs().max(1e-6))).collect(),
+            true,
+        )
     };
     plot::write(
         &Chart {
@@ -571,11 +598,9 @@ pub fn work_precision(
     for r in &rows {
         match series.iter_mut().find(|s| s.name == r.integrator) {
             Some(s) => s.points.push((r.wall_time, r.error.max(1e-16))),
-            None => series.push(Series {
-                name: r.integrator.clone(),
-                points: vec![(r.wall_time, r.error.max(1e-16))],
-                markers: true,
-            }),
+            None => {
+                series.push(Series::new(r.integrator.clone(), vec![(r.wall_time, r.error.max(1e-16))], true))
+            }
         }
     }
     plot::write(
@@ -819,18 +844,14 @@ pub fn scaling(stages: &[usize], steps: usize, out_dir: &Path) -> Result<Vec<Sca
                 fit.len()
             );
         }
-        series.push(Series { name: format!("{} (sparse LU)", family.name()), points, markers: true });
+        series.push(Series::new(format!("{} (sparse LU)", family.name()), points, true));
         let dense: Vec<(f64, f64)> = rows
             .iter()
             .filter(|r| r.family == family)
             .filter_map(|r| r.dense_step.map(|d| (r.stages as f64, d)))
             .collect();
         if !dense.is_empty() {
-            series.push(Series {
-                name: format!("{} (dense LU)", family.name()),
-                points: dense,
-                markers: true,
-            });
+            series.push(Series::new(format!("{} (dense LU)", family.name()), dense, true));
         }
     }
     csv.flush().map_err(|e| e.to_string())?;

@@ -206,3 +206,42 @@ fn tempfile_dir(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).expect("temporary directory");
     dir
 }
+
+#[test]
+fn text_statics_lists_segments_and_slips_and_never_a_negative_zero() {
+    let out = tensegrity(&["statics", "config/scenes/tbar.toml"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    // the upper cable runs over the mast top: two segments of 1.166190 m, one pulley, no slip yet
+    assert!(text.contains("sliding cable   segment      length m       slip m"), "{text}");
+    assert!(text.contains("upper                 1     1.166190     0.000000"), "{text}");
+    assert!(text.contains("                      2     1.166190            -"), "{text}");
+    // mast.a sits at z = -1e-17 or so: printed as 0.000000
+    assert!(!text.contains("-0.000000"), "{text}");
+    let csv =
+        tensegrity(&["deploy", "config/scenes/prism3.toml", "--dynamic", "--duration", "0.01", "--out", "-"]);
+    assert!(csv.status.success());
+    let csv = String::from_utf8(csv.stdout).unwrap();
+    assert!(
+        !csv.contains(",-0.000000000000,") && !csv.contains(",-0.000000000,"),
+        "negative zeros in the CSV"
+    );
+}
+
+#[test]
+fn the_readme_names_the_command_that_writes_each_bundled_scene() {
+    // rows "| `prism3.toml` | `tensegrity generate prism --cluster` | ..." of the README's table
+    let readme = std::fs::read_to_string(root().join("README.md")).unwrap();
+    let mut checked = 0;
+    for line in readme.lines().filter(|l| l.starts_with("| `") && l.contains("` | `tensegrity generate ")) {
+        let cells: Vec<&str> = line.split('|').map(|c| c.trim().trim_matches('`')).collect();
+        let (file, command) = (cells[1], cells[2]);
+        let args: Vec<&str> = command.split_whitespace().skip(1).collect();
+        let out = tensegrity(&args);
+        assert!(out.status.success(), "{command}");
+        let bundled = std::fs::read_to_string(root().join("config/scenes").join(file)).unwrap();
+        assert_eq!(String::from_utf8(out.stdout).unwrap(), bundled, "`{command}` does not write {file}");
+        checked += 1;
+    }
+    assert_eq!(checked, 4, "the bundled-scene table lists every scene with its command");
+}

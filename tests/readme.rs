@@ -36,3 +36,34 @@ fn every_toml_block_of_the_readme_is_a_bundled_example_that_loads_and_solves() {
         assert_eq!(r.negative_modes, 0, "{}: {}", path.display(), r.stability_words());
     }
 }
+
+#[test]
+fn the_readme_field_reference_is_generated_and_lists_exactly_the_parsed_fields() {
+    use std::collections::BTreeSet;
+    use tensegrity::scene::reference::{markdown, scene_fields, TABLES};
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let expected = format!("<!-- fields:begin -->\n{}<!-- fields:end -->", markdown());
+    assert!(
+        readme.contains(&expected),
+        "the README's field table differs from `tensegrity fields`: paste its output between the markers"
+    );
+    // the parser's own list: an unknown key in each table is refused with the accepted ones
+    for (table, key) in TABLES {
+        let text = match key {
+            "" => "bogus = 1\n".to_string(),
+            "deployment.ramps" => "[deployment]\nsteps = 1\n[[deployment.ramps]]\nbogus = 1\n".to_string(),
+            k if table.starts_with("[[") => format!("[[{k}]]\nbogus = 1\n"),
+            k => format!("[{k}]\nbogus = 1\n"),
+        };
+        let err =
+            tensegrity::scene::parse(&text, "fields.toml").expect_err("unknown field refused").to_string();
+        let after = &err[err.find("expected").unwrap_or_else(|| panic!("{table}: {err}"))..];
+        let tables: BTreeSet<&str> = TABLES.iter().map(|t| t.1).collect();
+        let accepted: BTreeSet<&str> =
+            after.split('`').skip(1).step_by(2).filter(|k| !key.is_empty() || !tables.contains(k)).collect();
+        let documented: BTreeSet<&str> =
+            scene_fields().iter().filter(|d| d.table == table).map(|d| d.field).collect();
+        assert_eq!(documented, accepted, "{table}: documented fields vs the parser's ({err})");
+    }
+}

@@ -131,7 +131,43 @@ fn study_writes_tables_histories_and_plots() {
     );
     let png = std::fs::read(dir.join("deviation.png")).unwrap();
     assert_eq!(&png[1..4], b"PNG");
-    assert!(std::fs::read_to_string(dir.join("deviation.svg")).unwrap().contains("<svg"));
+    // real log axes: decade ticks labelled in data units, no "log10" in an axis title
+    let svg = std::fs::read_to_string(dir.join("deviation.svg")).unwrap();
+    assert!(svg.contains("<svg") && !svg.contains("log10"), "axis titles in log10 units");
+    assert!(svg.contains("\n1e-1\n") && svg.contains("\n1e0\n"), "no decade tick labels");
+    // colour-blind-safe palette; the quasi-static reference drawn after (on top of) the runs
+    let svg = std::fs::read_to_string(dir.join("histories.svg")).unwrap();
+    let (blue, black) =
+        (svg.find("#0072B2").expect("Okabe-Ito blue"), svg.rfind("stroke=\"#000000\"").unwrap());
+    assert!(svg.contains("#D55E00") && black > blue, "palette or drawing order");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn study_without_ramp_times_spans_the_scenes_own_actuation_time() {
+    use tensegrity::study::{default_ramp_times, scale_schedule};
+    let mut model = tensegrity::scene::load(&root().join("config/scenes/tbar.toml")).unwrap();
+    assert_eq!(default_ramp_times(&model).unwrap(), vec![0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0]);
+    scale_schedule(&mut model, 0.3);
+    assert_eq!(default_ramp_times(&model).unwrap(), vec![0.006, 0.015, 0.03, 0.06, 0.15, 0.3, 0.6, 1.5]);
+    let atwood = tensegrity::scene::load(&root().join("config/scenes/atwood.toml")).unwrap();
+    assert!(default_ramp_times(&atwood).unwrap_err().contains("no deployment schedule"));
+
+    let dir = scratch("study-default");
+    let out = tensegrity(&[
+        "study",
+        "config/scenes/tbar.toml",
+        "--settle",
+        "0.2",
+        "--dt",
+        "4e-3",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let summary = std::fs::read_to_string(dir.join("summary.csv")).unwrap();
+    let times: Vec<&str> = summary.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(times, ["0.02", "0.05", "0.1", "0.2", "0.5", "1", "2", "5"], "{summary}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

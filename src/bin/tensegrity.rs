@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use tensegrity::forces::{evaluate, Tangents, Workspace};
 use tensegrity::report;
+use tensegrity::report::Num;
 use tensegrity::scene::{self, generate};
 use tensegrity::sim::SimSettings;
 use tensegrity::solve::dynamics::Integrator;
@@ -25,6 +26,9 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Print the scene-file field reference (every table and field: format, unit, default,
+    /// range) as a Markdown table.
+    Fields,
     /// Validate a scene and print counts of bodies, coordinates, constraints, cables and pulleys.
     Check {
         /// Scene file (TOML).
@@ -78,9 +82,10 @@ enum Command {
     Study {
         /// Scene file (TOML) with a deployment schedule.
         scene: PathBuf,
-        /// Actuation times, s (the whole schedule is time-scaled to end at each).
-        #[arg(long, value_delimiter = ',', required = true)]
-        ramp_times: Vec<f64>,
+        /// Actuation times, s (the whole schedule is time-scaled to end at each). Default: the
+        /// scene's own actuation time T0 times 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2 and 5.
+        #[arg(long, value_delimiter = ',')]
+        ramp_times: Option<Vec<f64>>,
         /// Point whose displacement is tracked (default: the one that moves most along the
         /// quasi-static path).
         #[arg(long)]
@@ -494,6 +499,10 @@ struct StaticsJson {
 
 fn run(cli: Cli) -> Result<(), String> {
     match cli.command {
+        Command::Fields => {
+            emit(&scene::reference::markdown());
+            Ok(())
+        }
         Command::Check { scene } => {
             let model = load(&scene)?;
             let s = report::summary(&model);
@@ -632,6 +641,10 @@ fn run(cli: Cli) -> Result<(), String> {
         }
         Command::Study { scene, ramp_times, point, settle, dynamics, out } => {
             let model = load(&scene)?;
+            let ramp_times = match ramp_times {
+                Some(t) => t,
+                None => study::default_ramp_times(&model)?,
+            };
             let result = study::deployment_study(
                 &model,
                 &ramp_times,
@@ -777,7 +790,7 @@ fn format_statics(
             out,
             "{:<14} {:>12.6} {:>12.6} {:>12.6} {:>12.4e} {:>12}  {}",
             c.name,
-            c.tension,
+            Num(c.tension),
             c.length,
             c.rest_length,
             c.strain,
@@ -785,19 +798,51 @@ fn format_statics(
             if c.slack { "yes" } else { "no" }
         );
     }
+    // sliding cables: where the cable runs and how far it has passed through each pulley
+    let sliding: Vec<&report::CableReport> = cables.iter().filter(|c| c.segment_lengths.len() > 1).collect();
+    if !sliding.is_empty() {
+        let _ =
+            writeln!(out, "\n{:<14} {:>8}  {:>12} {:>12}", "sliding cable", "segment", "length m", "slip m");
+        const SHOWN: usize = 12;
+        for c in sliding {
+            let m = c.segment_lengths.len();
+            for (k, l) in c.segment_lengths.iter().enumerate().take(SHOWN) {
+                // slip is at the pulley that ends segment k (the last segment ends at the anchor)
+                let slip = c.pulley_slip.get(k).map_or("-".to_string(), |s| format!("{:.6}", Num(*s)));
+                let name = if k == 0 { c.name.as_str() } else { "" };
+                let _ = writeln!(out, "{:<14} {:>8} {:>12.6} {:>12}", name, k + 1, l, slip);
+            }
+            if m > SHOWN {
+                let _ = writeln!(
+                    out,
+                    "{:<14} {:>8}  ({} more segments: --json lists them all)",
+                    "",
+                    "...",
+                    m - SHOWN
+                );
+            }
+        }
+    }
     let _ =
         writeln!(out, "\n{:<14} {:>12} {:>12} {:>12}   quaternion (w x y z)", "body", "x m", "y m", "z m");
     for b in report::body_reports(model, state) {
-        let q = b.orientation;
+        let (p, q) = (b.position, b.orientation);
         let _ = writeln!(
             out,
             "{:<14} {:>12.6} {:>12.6} {:>12.6}   {:.6} {:.6} {:.6} {:.6}",
-            b.name, b.position[0], b.position[1], b.position[2], q[0], q[1], q[2], q[3]
+            b.name,
+            Num(p[0]),
+            Num(p[1]),
+            Num(p[2]),
+            Num(q[0]),
+            Num(q[1]),
+            Num(q[2]),
+            Num(q[3])
         );
     }
     let _ = writeln!(out, "\n{:<20} {:>12} {:>12} {:>12}", "point", "x m", "y m", "z m");
     for (name, p) in report::point_positions(model, ws) {
-        let _ = writeln!(out, "{:<20} {:>12.6} {:>12.6} {:>12.6}", name, p[0], p[1], p[2]);
+        let _ = writeln!(out, "{:<20} {:>12.6} {:>12.6} {:>12.6}", name, Num(p[0]), Num(p[1]), Num(p[2]));
     }
     out
 }

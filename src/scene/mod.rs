@@ -9,6 +9,7 @@
 
 mod build;
 pub mod generate;
+pub mod reference;
 
 use std::collections::BTreeMap;
 use std::path::Path;

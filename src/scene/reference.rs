@@ -1,0 +1,215 @@
+//! The scene-file field reference: takes nothing, gives every field of every table with its
+//! format, unit, default and allowed range (ranges from `limits`, so they cannot drift from what
+//! validation enforces), and the Markdown table that the README carries and `tensegrity fields`
+//! prints. `tests/readme.rs` checks that the README holds exactly this table and that its field
+//! names are exactly the ones the scene parser accepts.
+
+use super::limits;
+
+/// One field of a scene table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldDoc {
+    /// Table as written in the file: `(top level)`, `[[bodies]]`, `[solver]`, ...
+    pub table: &'static str,
+    /// Key.
+    pub field: &'static str,
+    /// Format: `string`, `number`, `[x, y, z]`, ...
+    pub format: &'static str,
+    /// SI unit, or `-`.
+    pub unit: &'static str,
+    /// Default, or `required`.
+    pub default: String,
+    /// Allowed values and meaning.
+    pub range: String,
+}
+
+/// The tables in file order, with the key the parser reports them under (for tests).
+pub const TABLES: [(&str, &str); 8] = [
+    ("(top level)", ""),
+    ("[[bodies]]", "bodies"),
+    ("[[joints]]", "joints"),
+    ("[[cables]]", "cables"),
+    ("[[actuators]]", "actuators"),
+    ("[solver]", "solver"),
+    ("[deployment]", "deployment"),
+    ("[[deployment.ramps]]", "deployment.ramps"),
+];
+
+/// `0`, `0.1`, `1500`, `1e-9`, `1e12`: plain between 1e-3 and 1e4, scientific outside.
+fn num(v: f64) -> String {
+    if v == 0.0 || (1e-3..1e4).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+fn range((lo, hi): (f64, f64)) -> String {
+    format!("{} to {}", num(lo), num(hi))
+}
+
+/// Every field of every table, in file order.
+pub fn scene_fields() -> Vec<FieldDoc> {
+    let f = |table, field, format, unit, default: &str, range: String| FieldDoc {
+        table,
+        field,
+        format,
+        unit,
+        default: default.to_string(),
+        range,
+    };
+    let coord = format!("each within +-{}", num(limits::MAX_COORDINATE));
+    let top = TABLES[0].0;
+    let (bodies, joints, cables, actuators) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
+    let (solver, deployment, ramps) = (TABLES[5].0, TABLES[6].0, TABLES[7].0);
+    vec![
+        f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
+        f(top, "description", "string", "-", "empty", "free text".into()),
+        f(
+            top,
+            "gravity",
+            "[x, y, z]",
+            "m/s^2",
+            "[0, 0, 0]",
+            format!("world frame (z up; planar: y up), each within +-{}", num(limits::MAX_GRAVITY)),
+        ),
+        f(top, "planar", "boolean", "-", "false", "true: everything moves in the world xy plane".into()),
+        f(
+            top,
+            "physics_dt",
+            "number",
+            "s",
+            "0.001 (tools)",
+            format!("{}; step of dynamic runs and of the node", range(limits::PHYSICS_DT)),
+        ),
+        f(bodies, "name", "string", "-", "required", "unique; no dots or spaces".into()),
+        f(bodies, "kind", "string", "-", "required", "`node` (3 DOF), `bar` (5), `rigid` (6), `fixed` (0)".into()),
+        f(bodies, "mass", "number", "kg", "required (not fixed)", range(limits::MASS)),
+        f(
+            bodies,
+            "position",
+            "[x, y, z]",
+            "m",
+            "[0, 0, 0]",
+            format!("centre of mass (node, rigid) or frame origin (fixed); {coord}"),
+        ),
+        f(
+            bodies,
+            "rotation",
+            "[x, y, z]",
+            "rad",
+            "[0, 0, 0]",
+            format!("rotation vector body -> world (rigid, fixed), each within +-{}", num(limits::MAX_ROTATION)),
+        ),
+        f(bodies, "ends", "[[x, y, z], [x, y, z]]", "m", "required (bar)", format!("bar ends `a`, `b`; {coord}")),
+        f(
+            bodies,
+            "inertia",
+            "[numbers]",
+            "kg m^2",
+            "bar: m l^2 / 12",
+            format!(
+                "rigid: [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the COM in body axes; bar: [I]; {}",
+                range(limits::INERTIA)
+            ),
+        ),
+        f(
+            bodies,
+            "points",
+            "table name = [x, y, z] or fraction",
+            "m",
+            "none",
+            "named points: body coordinates, or for a bar the fraction along a -> b".into(),
+        ),
+        f(joints, "kind", "string", "-", "required", "`ball` (a on b) or `pin` (a on a world position)".into()),
+        f(joints, "a", "string", "-", "required", "point `body.point`, or `body` for its origin".into()),
+        f(joints, "b", "string", "-", "required (ball)", "second point of a ball joint".into()),
+        f(joints, "at", "[x, y, z]", "m", "where `a` starts", format!("pin position; {coord}")),
+        f(cables, "name", "string", "-", "required", "unique".into()),
+        f(
+            cables,
+            "route",
+            "[strings]",
+            "-",
+            "required",
+            format!(
+                "points from anchor to anchor, pulleys between; 2 to {} points; a closed ring repeats its first point",
+                limits::MAX_ROUTE_POINTS
+            ),
+        ),
+        f(cables, "ea", "number", "N", "required", format!("axial stiffness EA, {}", range(limits::EA))),
+        f(cables, "damping", "number", "N s/m", "0", format!("{}; excludes `damping_ratio`", range(limits::DAMPING))),
+        f(
+            cables,
+            "damping_ratio",
+            "number",
+            "-",
+            "none",
+            format!("{}; c = 2 zeta sqrt((EA/L0) m_eff)", range(limits::DAMPING_RATIO)),
+        ),
+        f(
+            cables,
+            "rest_length",
+            "number",
+            "m",
+            "form finding",
+            format!("{}; excludes `prestress`, `force_density`", range(limits::LENGTH)),
+        ),
+        f(
+            cables,
+            "prestress",
+            "number",
+            "N",
+            "none",
+            format!("target tension at the initial geometry (form finding), {}", range(limits::PRESTRESS)),
+        ),
+        f(
+            cables,
+            "force_density",
+            "number",
+            "N/m",
+            "none",
+            format!("target T/L at the initial geometry (form finding), {}", range(limits::FORCE_DENSITY)),
+        ),
+        f(actuators, "name", "string", "-", "required", "unique".into()),
+        f(actuators, "cable", "string", "-", "required", "the cable whose rest length it sets".into()),
+        f(actuators, "min_rest_length", "number", "m", "required", range(limits::LENGTH)),
+        f(actuators, "max_rest_length", "number", "m", "required", format!("{}, >= min", range(limits::LENGTH))),
+        f(actuators, "max_rate", "number", "m/s", "required", range(limits::RATE)),
+        f(solver, "tolerance", "number", "-", "1e-11", "relative residual of the quasi-static Newton, in (0, 1)".into()),
+        f(
+            solver,
+            "max_iterations",
+            "integer",
+            "-",
+            "60",
+            format!("Newton iterations per load step, 1 to {}", limits::MAX_SOLVER_ITERATIONS),
+        ),
+        f(
+            deployment,
+            "steps",
+            "integer",
+            "-",
+            "50",
+            format!("quasi-static load steps over the schedule, 1 to {}", limits::MAX_LOAD_STEPS),
+        ),
+        f(deployment, "ramps", "array of tables", "-", "none", "linear rest-length ramps, below".into()),
+        f(ramps, "actuator", "string", "-", "required", "actuator name".into()),
+        f(ramps, "start", "number", "s", "0", range(limits::TIME)),
+        f(ramps, "duration", "number", "s", "required", format!("> 0, up to {}; within the actuator's max_rate", num(limits::TIME.1))),
+        f(ramps, "rest_length", "number", "m", "required", "reached at start + duration, within the actuator's limits".into()),
+    ]
+}
+
+/// The reference as a Markdown table (the README's, verbatim).
+pub fn markdown() -> String {
+    let mut out = String::from("| table | field | format | unit | default | range and meaning |\n");
+    out.push_str("| --- | --- | --- | --- | --- | --- |\n");
+    for d in scene_fields() {
+        out.push_str(&format!(
+            "| `{}` | `{}` | {} | {} | {} | {} |\n",
+            d.table, d.field, d.format, d.unit, d.default, d.range
+        ));
+    }
+    out
+}
