@@ -1,8 +1,10 @@
 //! Invariant: `natural_modes` gives the small free oscillations about an equilibrium. The
 //! equal-mass elastic Atwood machine has its stretch mode at `sqrt(k (1/m1 + 1/m2))`, its four
 //! pendulum modes at `sqrt(T / (m l))`, and one zero-frequency sliding mode in which the cable's
-//! segments change while its length does not; a free prism has 6 zero-frequency modes; and the
-//! period of the bundled prism's lowest mode matches an undamped dynamic run started along it.
+//! segments change while its length does not; a free prism has 6 zero-frequency modes; the
+//! period of the bundled prism's lowest mode matches an undamped dynamic run started along it; and
+//! a point mass between two taut collinear cables (whose equilibrium solve used to panic: its
+//! spin about the cable line moves nothing) has its axial and string frequencies.
 
 use tensegrity::forces::{evaluate, Tangents, Workspace};
 use tensegrity::scene::generate::{atwood, AtwoodParams};
@@ -101,4 +103,56 @@ fn a_free_prism_has_six_zero_frequency_modes() {
     let modes = natural_modes(&model, &equilibrium(&model)).unwrap();
     assert_eq!(modes.iter().filter(|m| m.zero).count(), 6);
     assert!(modes.iter().all(|m| m.zero || m.frequency_hz > 0.5));
+}
+
+#[test]
+fn a_mass_between_two_taut_cables_has_its_axial_and_string_frequencies() {
+    // a knot of mass m between two collinear cables of length l, tension T, axial stiffness EA:
+    // along the cables k = 2 EA / L0 (each cable's dT/dL), across them the string stiffness 2 T / l
+    for (m, ea, t, l) in [(1.0f64, 1000.0f64, 50.0f64, 1.0f64), (0.2, 5e4, 300.0, 0.7), (3.0, 1e6, 10.0, 2.5)]
+    {
+        let text = format!(
+            r#"
+name = "knot"
+[[bodies]]
+name = "ground"
+kind = "fixed"
+points = {{ left = [{neg}, 0.0, 0.0], right = [{l}, 0.0, 0.0] }}
+[[bodies]]
+name = "knot"
+kind = "node"
+mass = {m}
+position = [0.0, 0.0, 0.0]
+[[cables]]
+name = "west"
+route = ["ground.left", "knot"]
+ea = {ea}
+prestress = {t}
+[[cables]]
+name = "east"
+route = ["knot", "ground.right"]
+ea = {ea}
+rest_length = {l0}
+"#,
+            neg = -l,
+            l0 = ea * l / (ea + t)
+        );
+        let model = tensegrity::scene::from_toml(&text, "knot.toml").unwrap_or_else(|e| panic!("{e}"));
+        let state = equilibrium(&model);
+        let modes = natural_modes(&model, &state).expect("modes");
+        assert_eq!(modes.len(), 3);
+        let two_pi = 2.0 * std::f64::consts::PI;
+        let l0 = ea * l / (ea + t);
+        let across = (2.0 * t / (m * l)).sqrt() / two_pi;
+        let along = (2.0 * ea / (l0 * m)).sqrt() / two_pi;
+        for (mode, f) in modes.iter().zip([across, across, along]) {
+            assert!(!mode.zero);
+            assert!((mode.frequency_hz - f).abs() <= 1e-8 * f, "{} Hz vs {f} Hz", mode.frequency_hz);
+        }
+        // the axial mode stretches one cable and shortens the other by the same amount
+        let axial = &modes[2];
+        assert!(
+            (axial.cable_stretch[0] + axial.cable_stretch[1]).abs() < 1e-9 * axial.cable_stretch[0].abs()
+        );
+    }
 }

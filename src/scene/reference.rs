@@ -84,14 +84,14 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         ),
         f(bodies, "name", "string", "-", "required", "unique; no dots or spaces".into()),
         f(bodies, "kind", "string", "-", "required", "`node` (3 DOF), `bar` (5), `rigid` (6), `fixed` (0)".into()),
-        f(bodies, "mass", "number", "kg", "required (not fixed)", range(limits::MASS)),
+        f(bodies, "mass", "number", "kg", "required (not fixed)", format!("{}; fixed bodies take none", range(limits::MASS))),
         f(
             bodies,
             "position",
             "[x, y, z]",
             "m",
-            "[0, 0, 0]",
-            format!("centre of mass (node, rigid) or frame origin (fixed); {coord}"),
+            "required (node, rigid); fixed: [0, 0, 0]",
+            format!("centre of mass (node, rigid) or frame origin (fixed); not for bars; {coord}"),
         ),
         f(
             bodies,
@@ -107,7 +107,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "inertia",
             "[numbers]",
             "kg m^2",
-            "bar: m l^2 / 12",
+            "required (rigid); bar: m l^2 / 12",
             format!(
                 "rigid: [Ixx, Iyy, Izz] or [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] about the COM in body axes; bar: [I]; {}",
                 range(limits::INERTIA)
@@ -119,7 +119,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "table name = [x, y, z] or fraction",
             "m",
             "none",
-            "named points: body coordinates, or for a bar the fraction along a -> b".into(),
+            "named points (not for nodes): body coordinates, or for a bar the fraction along a -> b".into(),
         ),
         f(joints, "kind", "string", "-", "required", "`ball` (a on b) or `pin` (a on a world position)".into()),
         f(joints, "a", "string", "-", "required", "point `body.point`, or `body` for its origin".into()),

@@ -190,6 +190,11 @@ pub fn rigid_body_motions(model: &Model, state: &State, ws: &Workspace) -> DMatr
         .filter(|&i| effect.eigenvalues[i] > 1e-10 * scale)
         .map(|i| &basis * effect.eigenvectors.column(i))
         .collect();
+    if combos.is_empty() {
+        // free combinations that move nothing: a node on the line through its anchors spinning
+        // about that line
+        return DMatrix::zeros(n, 0);
+    }
     DMatrix::from_columns(&combos.iter().map(|a| &local * a).collect::<Vec<_>>())
 }
 
