@@ -32,18 +32,21 @@ pub struct CableReport {
     pub pulley_slip: Vec<f64>,
 }
 
-/// Displays a number as `f64` does (honouring width, alignment and precision), except that a
-/// value that rounds to zero never shows a sign: `-0.000000` prints as `0.000000`.
+/// Displays a number as `f64` does (honouring width, alignment, precision and `+`), except that a
+/// value that rounds to zero never shows a sign: `-0.000000` and `+0.000` print as `0.000000` and
+/// `0.000`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Num(pub f64);
 
 impl std::fmt::Display for Num {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let mut s = match f.precision() {
-            Some(p) => format!("{:.*}", p, self.0),
-            None => format!("{}", self.0),
+        let mut s = match (f.precision(), f.sign_plus()) {
+            (Some(p), false) => format!("{:.*}", p, self.0),
+            (Some(p), true) => format!("{:+.*}", p, self.0),
+            (None, false) => format!("{}", self.0),
+            (None, true) => format!("{:+}", self.0),
         };
-        if s.starts_with('-') && s[1..].chars().all(|c| c == '0' || c == '.') {
+        if s.starts_with(['-', '+']) && s[1..].chars().all(|c| c == '0' || c == '.') {
             s.remove(0);
         }
         match (f.width(), f.align()) {
@@ -237,4 +240,20 @@ pub fn unheld_bodies_note(model: &Model) -> Option<String> {
         if unheld.len() == 1 { "s" } else { "ve" },
         if unheld.len() == 1 { "it" } else { "them" },
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Num;
+
+    #[test]
+    fn zero_never_shows_a_sign() {
+        assert_eq!(format!("{:.6}", Num(-1e-9)), "0.000000");
+        assert_eq!(format!("{:>10.3}|", Num(-1e-9)), "     0.000|");
+        assert_eq!(format!("{:+.3}", Num(4e-4)), "0.000");
+        assert_eq!(format!("{:+.3}", Num(-4e-4)), "0.000");
+        assert_eq!(format!("{:+.3}", Num(0.25)), "+0.250");
+        assert_eq!(format!("{:+.3}", Num(-0.25)), "-0.250");
+        assert_eq!(format!("{:<8.2}|", Num(-1.5)), "-1.50   |");
+    }
 }

@@ -5,6 +5,8 @@
 use std::path::PathBuf;
 use std::process::Command;
 
+mod common;
+
 use tensegrity::scene::generate;
 
 fn root() -> PathBuf {
@@ -171,7 +173,7 @@ fn deploy_writes_a_row_for_t_zero_and_can_write_to_standard_output() {
 fn check_of_a_999_strut_clustered_prism_finds_its_form() {
     // form finding on 4995 coordinates and 2994 unknowns takes the sparse path (a dense SVD of
     // that size took minutes); its cost is tested in tests/formfind.rs
-    let dir = tempfile_dir("check999");
+    let dir = common::scratch("check999");
     let scene = dir.join("prism999.toml");
     let out = tensegrity(&["generate", "prism", "--n", "999", "--cluster", "--out", scene.to_str().unwrap()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -199,12 +201,6 @@ fn output_into_a_closed_pipe_ends_quietly() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!err.contains("panicked"), "{err}");
     assert!(out.status.code().is_some_and(|c| c == 0), "status {:?}: {err}", out.status);
-}
-
-fn tempfile_dir(name: &str) -> PathBuf {
-    let dir = root().join("target").join("test-output").join(name);
-    std::fs::create_dir_all(&dir).expect("temporary directory");
-    dir
 }
 
 #[test]

@@ -6,9 +6,12 @@
 
 use std::path::Path;
 
+mod common;
+use common::{knot_between_cables, model_from_toml};
+
 use tensegrity::forces::{evaluate_forces, Workspace};
 use tensegrity::scene::generate::{prism, tower, PrismParams, TowerParams};
-use tensegrity::scene::{build_model, from_toml, load, SceneSpec};
+use tensegrity::scene::{build_model, load, SceneSpec};
 use tensegrity::solve::formfind::{find_rest_lengths_with, FormFindingMethod, RestLengthSpec};
 use tensegrity::{Model, State};
 
@@ -150,32 +153,8 @@ fn dense_and_sparse_agree_on_generated_structures() {
 
 /// A knot between two collinear ropes (rest lengths given, so that the scene builds; the tests
 /// ask form finding again with other specifications).
-const ROPE: &str = r#"
-name = "rope"
-gravity = [0.0, 0.0, GRAVITY]
-[[bodies]]
-name = "ground"
-kind = "fixed"
-points = { left = [-1.0, 0.0, 0.0], right = [1.0, 0.0, 0.0] }
-[[bodies]]
-name = "knot"
-kind = "node"
-mass = 1.0
-position = [0.0, 0.0, 0.0]
-[[cables]]
-name = "west"
-route = ["ground.left", "knot"]
-ea = 1000.0
-rest_length = 0.9
-[[cables]]
-name = "east"
-route = ["knot", "ground.right"]
-ea = 1000.0
-rest_length = 0.9
-"#;
-
 fn rope(gravity: f64) -> Model {
-    from_toml(&ROPE.replace("GRAVITY", &gravity.to_string()), "rope.toml").unwrap_or_else(|e| panic!("{e}"))
+    knot_between_cables(1.0, 1.0, 1000.0, gravity, "rest_length = 0.9", "rest_length = 0.9")
 }
 
 #[test]
@@ -225,7 +204,7 @@ route = ["knot", "ground.below"]
 ea = 1000.0
 rest_length = 0.9
 "#;
-    let model = from_toml(text, "push.toml").unwrap_or_else(|e| panic!("{e}"));
+    let model = model_from_toml(text);
     assert!(!agree(&model, &[RestLengthSpec::Free], "pushing rope"));
     let err = find_rest_lengths_with(&model, &[RestLengthSpec::Free], FormFindingMethod::Sparse).unwrap_err();
     assert_eq!(err.0, Some(0));

@@ -14,6 +14,9 @@ use tensegrity::solve::modes::natural_modes;
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::{Model, State};
 
+mod common;
+use common::knot_between_cables;
+
 fn equilibrium(model: &Model) -> State {
     let mut state = State::initial(model);
     let mut ws = Workspace::new(model);
@@ -111,38 +114,13 @@ fn a_mass_between_two_taut_cables_has_its_axial_and_string_frequencies() {
     // along the cables k = 2 EA / L0 (each cable's dT/dL), across them the string stiffness 2 T / l
     for (m, ea, t, l) in [(1.0f64, 1000.0f64, 50.0f64, 1.0f64), (0.2, 5e4, 300.0, 0.7), (3.0, 1e6, 10.0, 2.5)]
     {
-        let text = format!(
-            r#"
-name = "knot"
-[[bodies]]
-name = "ground"
-kind = "fixed"
-points = {{ left = [{neg}, 0.0, 0.0], right = [{l}, 0.0, 0.0] }}
-[[bodies]]
-name = "knot"
-kind = "node"
-mass = {m}
-position = [0.0, 0.0, 0.0]
-[[cables]]
-name = "west"
-route = ["ground.left", "knot"]
-ea = {ea}
-prestress = {t}
-[[cables]]
-name = "east"
-route = ["knot", "ground.right"]
-ea = {ea}
-rest_length = {l0}
-"#,
-            neg = -l,
-            l0 = ea * l / (ea + t)
-        );
-        let model = tensegrity::scene::from_toml(&text, "knot.toml").unwrap_or_else(|e| panic!("{e}"));
+        let l0 = ea * l / (ea + t);
+        let model =
+            knot_between_cables(l, m, ea, 0.0, &format!("prestress = {t}"), &format!("rest_length = {l0}"));
         let state = equilibrium(&model);
         let modes = natural_modes(&model, &state).expect("modes");
         assert_eq!(modes.len(), 3);
         let two_pi = 2.0 * std::f64::consts::PI;
-        let l0 = ea * l / (ea + t);
         let across = (2.0 * t / (m * l)).sqrt() / two_pi;
         let along = (2.0 * ea / (l0 * m)).sqrt() / two_pi;
         for (mode, f) in modes.iter().zip([across, across, along]) {

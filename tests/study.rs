@@ -7,6 +7,9 @@
 use std::path::PathBuf;
 use std::process::Command;
 
+mod common;
+use common::scratch;
+
 use tensegrity::study::one_percent_threshold;
 
 fn root() -> PathBuf {
@@ -15,12 +18,6 @@ fn root() -> PathBuf {
 
 fn tensegrity(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_tensegrity")).args(args).current_dir(root()).output().expect("runs")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("tensegrity-{name}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 #[test]

@@ -319,7 +319,7 @@ fn format_modes(
             .filter(|(_, s)| *s >= 1e-3 * top)
             .map(|&(c, seg)| {
                 let total = m.cable_stretch[c];
-                let total = if total.abs() < 5e-4 { "0.000".to_string() } else { format!("{total:+.3}") };
+                let total = format!("{:+.3}", Num(total));
                 if seg > 2.0 * m.cable_stretch[c].abs() + 1e-9 * top {
                     format!("{} {total} (slides: segments {seg:.3})", model.cable_names[c])
                 } else {

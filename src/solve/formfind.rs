@@ -440,7 +440,8 @@ fn solve_sparse(model: &Model, sys: &EquilibriumSystem) -> Result<(DVector<f64>,
             && sys.targets.iter().all(|&(j, t)| (x[j] - t).abs() <= 1e-6 * sys.scale)
     };
     if !meets(&x) {
-        let targeted: Vec<bool> = (0..p).map(|j| sys.targets.iter().any(|t| t.0 == j)).collect();
+        let mut targeted = vec![false; p];
+        sys.targets.iter().for_each(|&(j, _)| targeted[j] = true);
         let weights: Vec<f64> = targeted.iter().map(|&t| if t { a_max } else { 0.0 }).collect();
         let extra: Vec<f64> =
             targeted.iter().map(|&t| if t { 0.0 } else { UNTARGETED_WEIGHT * a_max }).collect();

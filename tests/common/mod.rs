@@ -1,5 +1,5 @@
-//! Shared helpers for the integration tests: scene construction from specs and finite differences
-//! along the group retraction.
+//! Shared helpers for the integration tests: scene construction from specs and TOML (and a knot
+//! between two cables), finite differences along the group retraction, scratch directories.
 #![allow(dead_code)]
 
 use nalgebra::{DMatrix, DVector};
@@ -68,4 +68,51 @@ pub fn rel_err(a: &DMatrix<f64>, b: &DMatrix<f64>, floor: f64) -> f64 {
 /// Parses a spec from TOML text (for tests that edit a scene before building it).
 pub fn spec_from_toml(text: &str) -> SceneSpec {
     tensegrity::scene::parse(text, "<test>").unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// A point mass `mass` (kg) at the origin between two collinear cables `west` and `east` from
+/// anchors at x = -`half_span` and +`half_span` (m), both of axial stiffness `ea` (N), gravity
+/// `(0, 0, gravity_z)`; `west` and `east` are each cable's rest-length line (`rest_length = ...`,
+/// `prestress = ...` or empty).
+pub fn knot_between_cables(
+    half_span: f64,
+    mass: f64,
+    ea: f64,
+    gravity_z: f64,
+    west: &str,
+    east: &str,
+) -> Model {
+    model_from_toml(&format!(
+        r#"
+name = "knot"
+gravity = [0.0, 0.0, {gravity_z}]
+[[bodies]]
+name = "ground"
+kind = "fixed"
+points = {{ left = [{neg}, 0.0, 0.0], right = [{half_span}, 0.0, 0.0] }}
+[[bodies]]
+name = "knot"
+kind = "node"
+mass = {mass}
+position = [0.0, 0.0, 0.0]
+[[cables]]
+name = "west"
+route = ["ground.left", "knot"]
+ea = {ea}
+{west}
+[[cables]]
+name = "east"
+route = ["knot", "ground.right"]
+ea = {ea}
+{east}
+"#,
+        neg = -half_span
+    ))
+}
+
+/// An empty-or-new directory under the system temporary directory for one test's files.
+pub fn scratch(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("tensegrity-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
 }
