@@ -210,6 +210,83 @@ pub fn write(chart: &Chart, base: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// A straight segment of a structure drawing, in plot coordinates (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Segment {
+    /// Start point.
+    pub from: (f64, f64),
+    /// End point.
+    pub to: (f64, f64),
+    /// A strut (drawn thick) rather than a cable (thin).
+    pub strut: bool,
+}
+
+/// One panel of a structure drawing: a reference configuration drawn grey and a displaced one
+/// drawn in colour on top.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StructurePanel {
+    /// Panel title.
+    pub title: String,
+    /// The reference configuration (e.g. the equilibrium).
+    pub reference: Vec<Segment>,
+    /// The displaced configuration (e.g. a mode shape at a visible amplitude).
+    pub displaced: Vec<Segment>,
+}
+
+/// Writes `panels` side by side (at most 3 per row, equal scales on both axes and in every
+/// panel) to `base.png` and `base.svg`, with `title` above them.
+pub fn write_structure_panels(title: &str, panels: &[StructurePanel], base: &Path) -> Result<(), String> {
+    let cols = panels.len().clamp(1, 3);
+    let rows = panels.len().div_ceil(cols).max(1);
+    let size = ((400 * cols) as u32, (400 * rows + 40) as u32);
+    let png = base.with_extension("png");
+    let svg = base.with_extension("svg");
+    render_panels(BitMapBackend::new(&png, size).into_drawing_area(), title, panels, (rows, cols))
+        .map_err(|e| format!("{}: {e}", png.display()))?;
+    render_panels(SVGBackend::new(&svg, size).into_drawing_area(), title, panels, (rows, cols))
+        .map_err(|e| format!("{}: {e}", svg.display()))?;
+    Ok(())
+}
+
+fn render_panels<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    title: &str,
+    panels: &[StructurePanel],
+    (rows, cols): (usize, usize),
+) -> Result<(), String> {
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(title, ("sans-serif", 22)).map_err(err)?;
+    // one square window for all panels, so that shapes compare
+    let all = panels.iter().flat_map(|p| p.reference.iter().chain(&p.displaced)).flat_map(|s| [s.from, s.to]);
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (x, y) in all.filter(|p| p.0.is_finite() && p.1.is_finite()) {
+        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
+    }
+    if x0 > x1 {
+        (x0, x1, y0, y1) = (-1.0, 1.0, -1.0, 1.0);
+    }
+    let half = 0.55 * (x1 - x0).max(y1 - y0).max(1e-9);
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let areas = root.split_evenly((rows, cols));
+    for (area, panel) in areas.iter().zip(panels) {
+        let mut c = ChartBuilder::on(area)
+            .caption(&panel.title, ("sans-serif", 16))
+            .margin(8)
+            .build_cartesian_2d(cx - half..cx + half, cy - half..cy + half)
+            .map_err(err)?;
+        let grey = RGBColor(170, 170, 170);
+        for (segments, color) in [(&panel.reference, grey), (&panel.displaced, PALETTE[0])] {
+            c.draw_series(segments.iter().map(|s| {
+                PathElement::new(vec![s.from, s.to], color.stroke_width(if s.strut { 4 } else { 1 }))
+            }))
+            .map_err(err)?;
+        }
+    }
+    root.present().map_err(err)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::tick_label;

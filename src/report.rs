@@ -138,7 +138,7 @@ pub fn point_positions(model: &Model, ws: &Workspace) -> Vec<(String, [f64; 3])>
 /// CSV header of a deployment path: step, time, solver columns, every actuated cable's rest
 /// length, every cable's tension, every point's position.
 pub fn path_csv_header(model: &Model) -> String {
-    let mut cols: Vec<String> = ["step", "time_s", "newton_iterations", "residual_N", "stable"]
+    let mut cols: Vec<String> = ["step", "time_s", "point", "newton_iterations", "residual_N", "stable"]
         .iter()
         .map(|s| s.to_string())
         .collect();
@@ -156,18 +156,25 @@ pub fn path_csv_header(model: &Model) -> String {
     cols.join(",")
 }
 
-/// One CSV row matching `path_csv_header`.
+/// One CSV row matching `path_csv_header`: the output step the row belongs to, the schedule
+/// time, what the row is (`load`, `arc` or `snap`, `crate::solve::statics::PathKind`), the
+/// solve's iterations, residual and stability, then the state.
 pub fn path_csv_row(
     model: &Model,
     state: &State,
     ws: &Workspace,
-    step: usize,
-    iterations: usize,
-    residual: f64,
-    stable: bool,
+    step: &crate::solve::statics::PathStep,
 ) -> String {
     use std::fmt::Write;
-    let mut row = format!("{step},{:.9},{iterations},{residual:.3e},{}", state.time, stable as u8);
+    let mut row = format!(
+        "{},{:.9},{},{},{:.3e},{}",
+        step.index,
+        state.time,
+        step.kind.as_str(),
+        step.report.iterations,
+        step.report.residual,
+        step.report.stable as u8
+    );
     for a in &model.actuators {
         let _ = write!(row, ",{:.12}", state.rest_lengths[a.cable.0]);
     }

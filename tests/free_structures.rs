@@ -90,10 +90,11 @@ fn a_free_prism_deploys_in_a_few_newton_iterations_per_load_step() {
     let mut state = State::initial(&model);
     let mut ws = Workspace::new(&model);
     let path = deploy_quasi_static(&model, &mut state, &mut ws, |_, _, _| {}).expect("deployment");
-    let iterations: usize = path.iter().map(|p| p.report.iterations).sum();
-    let per_step = iterations as f64 / (path.len() - 1) as f64;
+    let iterations: usize = path.steps.iter().map(|p| p.report.iterations).sum();
+    let per_step = iterations as f64 / (path.steps.len() - 1) as f64;
     assert!(per_step <= 4.0, "{per_step} Newton iterations per load step");
-    assert!(path.iter().all(|p| p.report.stable && p.report.rigid_modes == 6));
+    assert!(path.snaps.is_empty() && path.output_steps().count() == path.steps.len(), "plain load steps");
+    assert!(path.steps.iter().all(|p| p.report.stable && p.report.rigid_modes == 6));
 }
 
 #[test]
@@ -129,5 +130,22 @@ fn a_free_prism_deployment_study_compares_shapes_and_converges_as_actuation_slow
         r.rows.iter().map(|row| row.displacement_deviation.abs().max(row.tension_deviation.abs())).collect();
     assert!(dev[0] > dev[1] && dev[1] > dev[2], "deviations shrink as actuation slows: {dev:?}");
     assert!(dev[2] < 1e-3, "a 5 s actuation is quasi-static: {dev:?}");
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn the_work_precision_bench_compares_a_free_structures_shapes_and_says_so() {
+    let model = free_prism();
+    let out = std::env::temp_dir().join(format!("tensegrity-free-wp-{}", std::process::id()));
+    let ga = tensegrity::solve::dynamics::Integrator::GeneralizedAlpha { rho_inf: 0.8 };
+    let rows = tensegrity::study::work_precision(&model, &[(ga, vec![4e-3, 2e-3, 1e-3])], 1e-4, 0.3, 1, &out)
+        .unwrap();
+    assert!(rows.windows(2).all(|w| w[1].error < w[0].error), "errors fall with the step: {rows:?}");
+    let md = std::fs::read_to_string(out.join("work_precision.md")).unwrap();
+    assert!(md.contains("after the optimal rigid alignment"), "{md}");
+    // a held structure's table makes no such claim
+    let pinned = tensegrity::scene::build_model(&prism(&PrismParams::default()), "<prism>", None).unwrap();
+    tensegrity::study::work_precision(&pinned, &[(ga, vec![2e-3])], 1e-3, 0.05, 1, &out).unwrap();
+    assert!(!std::fs::read_to_string(out.join("work_precision.md")).unwrap().contains("alignment"));
     std::fs::remove_dir_all(&out).ok();
 }

@@ -134,3 +134,54 @@ fn a_mass_between_two_taut_cables_has_its_axial_and_string_frequencies() {
         );
     }
 }
+
+/// The mode-shape drawing shows each vibrating mode at the same visible amplitude (a tenth of the
+/// structure's size at its farthest point) over the equilibrium, and `tensegrity modes --plot`
+/// writes it as PNG and SVG with the frequencies in the panel titles.
+#[test]
+fn mode_shapes_are_drawn_at_a_tenth_of_the_structures_size() {
+    use tensegrity::solve::modes::{mode_panels, MODE_DRAWING_AMPLITUDE};
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let model = tensegrity::scene::load(&root.join("config/scenes/prism3.toml")).unwrap();
+    let state = equilibrium(&model);
+    let modes = natural_modes(&model, &state).unwrap();
+    let panels = mode_panels(&model, &state, &modes, 4);
+    assert_eq!(panels.len(), 4);
+    // bars drawn thick, cables thin, the same segments in both configurations
+    let struts = panels[0].reference.iter().filter(|s| s.strut).count();
+    assert_eq!(struts, 3, "three bars");
+    assert_eq!(panels[0].reference.len(), panels[0].displaced.len());
+    let ends = |p: &tensegrity::plot::StructurePanel| -> Vec<(f64, f64)> {
+        p.displaced.iter().flat_map(|s| [s.from, s.to]).collect()
+    };
+    let rest: Vec<(f64, f64)> = panels[0].reference.iter().flat_map(|s| [s.from, s.to]).collect();
+    let span = rest
+        .iter()
+        .flat_map(|a| rest.iter().map(move |b| ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()))
+        .fold(0.0, f64::max);
+    for (panel, mode) in panels.iter().zip(modes.iter().filter(|m| !m.zero)) {
+        assert!(panel.title.contains(&format!("{:.4} Hz", mode.frequency_hz)), "{}", panel.title);
+        let moved = ends(panel)
+            .iter()
+            .zip(&rest)
+            .map(|(a, b)| ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt())
+            .fold(0.0, f64::max);
+        // projected displacements are at most the 3-D ones, and visible
+        assert!(
+            moved > 0.02 * span && moved <= 1.01 * MODE_DRAWING_AMPLITUDE * span * 2.0,
+            "{moved} of {span}"
+        );
+    }
+    let dir = common::scratch("modes_plot");
+    let base = dir.join("modes");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tensegrity"))
+        .args(["modes", "config/scenes/prism3.toml", "--count", "3", "--plot"])
+        .arg(&base)
+        .current_dir(root)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let svg = std::fs::read_to_string(base.with_extension("svg")).unwrap();
+    assert!(svg.contains("mode 1: 1.1603 Hz") && svg.contains("mode 3:"), "panel titles");
+    assert!(std::fs::metadata(base.with_extension("png")).unwrap().len() > 1000);
+}

@@ -326,6 +326,66 @@ fn a_repeated_joint_is_refused_as_redundant() {
     assert!(e.field == "joints[1].a" && e.reason.contains("joints[0] already holds these points"), "{e}");
 }
 
+/// Joints that repeat what earlier joints impose, without being the same joint: the joint
+/// Jacobian loses rank at the initial pose, and the message names the joint and the ones it
+/// repeats (the statics issue's cases: a bar pinned at both ends, and at its middle too; three
+/// bars joined pairwise at one point).
+#[test]
+fn joints_that_repeat_earlier_joints_are_refused_by_name() {
+    let bar = |pins: &[&str]| {
+        let mut text = String::from(
+            "[[bodies]]\nname = \"rod\"\nkind = \"bar\"\nmass = 1.0\nends = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]\npoints = { mid = 0.5 }\n",
+        );
+        for p in pins {
+            text += &format!("\n[[joints]]\nkind = \"pin\"\na = \"rod.{p}\"\n");
+        }
+        text
+    };
+    // pinned at both ends: the bar's length already fixes one of the second pin's equations
+    let e = error_of(&bar(&["a", "b"]));
+    assert_eq!(e.field, "joints[1].a", "{e}");
+    assert_eq!(e.line, Some(14), "{e}");
+    assert!(e.reason.contains("redundant: 1 of its 3 equations is implied by joints[0]"), "{e}");
+    // ... and at its middle: refused at the first joint that repeats anything
+    let e = error_of(&bar(&["a", "mid", "b"]));
+    assert!(e.field == "joints[1].a" && e.reason.contains("implied by joints[0]"), "{e}");
+    // a middle pin after two end pins repeats all three of its equations, implied by both
+    let e = error_of(
+        &bar(&["a", "b", "mid"])
+            .replace(
+                "kind = \"bar\"",
+                "kind = \"rigid\"\ninertia = [1.0, 1.0, 1.0]\nposition = [1.0, 0.0, 0.0]",
+            )
+            .replace(
+                "ends = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]\npoints = { mid = 0.5 }",
+                "points = { a = [-1.0, 0.0, 0.0], b = [1.0, 0.0, 0.0], mid = [0.0, 0.0, 0.0] }",
+            ),
+    );
+    assert!(
+        e.field == "joints[1].a" && e.reason.contains("1 of its 3 equations is implied by joints[0]"),
+        "{e}"
+    );
+    // three bars meeting at one point, joined pairwise: the third joint closes a loop
+    let mut three =
+        String::from("[[bodies]]\nname = \"g\"\nkind = \"fixed\"\npoints = { p = [0.0, 0.0, 0.0] }\n");
+    for (name, end) in [("x", "[1.0, 0.0, 0.0]"), ("y", "[0.0, 1.0, 0.0]"), ("z", "[0.0, 0.0, 1.0]")] {
+        three += &format!(
+            "\n[[bodies]]\nname = \"{name}\"\nkind = \"bar\"\nmass = 1.0\nends = [[0.0, 0.0, 0.0], {end}]\n"
+        );
+    }
+    three += "\n[[joints]]\nkind = \"pin\"\na = \"x.a\"\n";
+    for (a, b) in [("x", "y"), ("y", "z"), ("z", "x")] {
+        three += &format!("\n[[joints]]\nkind = \"ball\"\na = \"{a}.a\"\nb = \"{b}.a\"\n");
+    }
+    let e = error_of(&three);
+    assert_eq!(e.field, "joints[3].a", "{e}");
+    assert!(e.reason.contains("3 of its 3 equations are implied by joints[1] and joints[2]"), "{e}");
+    // the same structures without the repeats are fine
+    assert!(from_toml(&bar(&["a"]), "scene.toml").is_ok());
+    let open_loop = three.rsplit_once("\n[[joints]]").unwrap().0.to_string();
+    assert!(from_toml(&open_loop, "scene.toml").is_ok());
+}
+
 #[test]
 fn a_route_of_more_than_a_thousand_points_is_refused() {
     let long: Vec<&str> = std::iter::repeat_n(["\"ground.top\"", "\"pole.b\""], 501).flatten().collect();

@@ -52,6 +52,10 @@ enum Command {
         /// How many modes to list, lowest first (zero-frequency modes are listed besides).
         #[arg(long, default_value_t = 10)]
         count: usize,
+        /// Also draw the shapes of the lowest vibrating modes (at most 6 of the listed ones) to
+        /// PLOT.png and PLOT.svg.
+        #[arg(long, value_name = "PLOT")]
+        plot: Option<PathBuf>,
     },
     /// Follow the scene's deployment schedule: a path of equilibria (--quasi-static, one CSV row per
     /// load step) or a time history (--dynamic, one CSV row per step).
@@ -492,6 +496,8 @@ struct StaticsJson {
     negative_stiffness_modes: usize,
     zero_stiffness_modes: usize,
     min_stiffness_eigenvalue: f64,
+    potential_energy_j: f64,
+    largest_move_from_scene_m: f64,
     bodies: Vec<report::BodyReport>,
     points: Vec<(String, [f64; 3])>,
     cables: Vec<report::CableReport>,
@@ -528,7 +534,7 @@ fn run(cli: Cli) -> Result<(), String> {
             }
             Ok(())
         }
-        Command::Modes { scene, json, count } => {
+        Command::Modes { scene, json, count, plot } => {
             let model = load_for_statics(&scene)?;
             let mut state = State::initial(&model);
             let mut ws = Workspace::new(&model);
@@ -544,6 +550,19 @@ fn run(cli: Cli) -> Result<(), String> {
                 format!("{}: the mass matrix is singular on the joints' null space", scene.display())
             })?;
             emit(&format_modes(&model, &r, &modes, count, json)?);
+            if let Some(base) = plot {
+                let panels = tensegrity::solve::modes::mode_panels(&model, &state, &modes, count.min(6));
+                if panels.is_empty() {
+                    return Err(format!("{}: no vibrating mode to draw", scene.display()));
+                }
+                let title = format!("{}: mode shapes (grey: equilibrium)", model.name);
+                tensegrity::plot::write_structure_panels(&title, &panels, &base)?;
+                say!(
+                    "mode shapes drawn to {} and {}",
+                    base.with_extension("png").display(),
+                    base.with_extension("svg").display()
+                );
+            }
             Ok(())
         }
         Command::Statics { scene, json } => {
@@ -563,6 +582,16 @@ fn run(cli: Cli) -> Result<(), String> {
                 })?;
             evaluate(&model, &state, &mut ws, Tangents::None);
             let cables = report::cable_reports(&model, &state, &ws, &reference);
+            // how far the equilibrium lies from the pose the scene sketched, and where
+            let sketched = State::initial(&model);
+            let largest_move = model
+                .points
+                .iter()
+                .map(|p| {
+                    let at = |s: &State| s.poses[p.body.0].transform_point(&p.local);
+                    ((at(&state) - at(&sketched)).norm(), p.name.as_str())
+                })
+                .fold((0.0, ""), |a, b| if b.0 > a.0 { b } else { a });
             if json {
                 let out = StaticsJson {
                     scene: model.name.clone(),
@@ -573,13 +602,15 @@ fn run(cli: Cli) -> Result<(), String> {
                     negative_stiffness_modes: r.negative_modes,
                     zero_stiffness_modes: r.zero_modes,
                     min_stiffness_eigenvalue: r.min_stiffness_eigenvalue,
+                    potential_energy_j: r.potential_energy,
+                    largest_move_from_scene_m: largest_move.0,
                     bodies: report::body_reports(&model, &state),
                     points: report::point_positions(&model, &ws),
                     cables,
                 };
                 emit(&(serde_json::to_string_pretty(&out).map_err(|e| e.to_string())? + "\n"));
             } else {
-                emit(&format_statics(&model, &state, &ws, &r, &cables));
+                emit(&format_statics(&model, &state, &ws, &r, &cables, largest_move));
             }
             Ok(())
         }
@@ -605,15 +636,7 @@ fn run(cli: Cli) -> Result<(), String> {
             let mut ws = Workspace::new(&model);
             let mut io_error = None;
             let path = deploy_quasi_static(&model, &mut state, &mut ws, |step, st, w| {
-                let row = report::path_csv_row(
-                    &model,
-                    st,
-                    w,
-                    step.index,
-                    step.report.iterations,
-                    step.report.residual,
-                    step.report.stable,
-                );
+                let row = report::path_csv_row(&model, st, w, step);
                 if let Err(e) = writeln!(file, "{row}") {
                     io_error.get_or_insert(e);
                 }
@@ -625,18 +648,42 @@ fn run(cli: Cli) -> Result<(), String> {
                 return Err(write_error(&out, e));
             }
             file.flush().map_err(|e| e.to_string())?;
-            let unstable = path.iter().filter(|p| !p.report.stable).count();
-            let worst = path.iter().map(|p| p.report.residual / p.report.force_scale).fold(0.0, f64::max);
+            let outputs: Vec<_> = path.output_steps().collect();
+            let unstable = outputs.iter().filter(|p| !p.report.stable).count();
+            let worst =
+                path.steps.iter().map(|p| p.report.residual / p.report.force_scale).fold(0.0, f64::max);
+            let traced = path.steps.len() - outputs.len();
             say(
                 &out,
                 format!(
-                "{}: {} equilibria written to {} (worst relative residual {worst:.2e}, {} Newton iterations, {unstable} not stable)",
-                model.name,
-                path.len(),
-                out.display(),
-                path.iter().map(|p| p.report.iterations).sum::<usize>()
+                    "{}: {} equilibria written to {} (worst relative residual {worst:.2e}, {} Newton iterations, {unstable} not stable{})",
+                    model.name,
+                    outputs.len(),
+                    out.display(),
+                    path.steps.iter().map(|p| p.report.iterations).sum::<usize>(),
+                    if traced > 0 { format!("; {traced} more traced by arc length") } else { String::new() }
                 ),
             );
+            for snap in &path.snaps {
+                let landing = &path.steps[snap.landing_row];
+                say(
+                    &out,
+                    format!(
+                        "snap-through: limit point at t = {:.6} s (the stiffness loses definiteness there); \
+                         the structure jumps {:.6} m to another stable equilibrium at t = {:.6} s ({}; rows {}..{} of the CSV)",
+                        snap.limit_time,
+                        snap.jump,
+                        landing.time,
+                        if snap.followed_path {
+                            format!("path traced through the unstable branch, {} points", snap.traced_points)
+                        } else {
+                            "the traced branch ends; landing found by descending the energy from the limit point".into()
+                        },
+                        snap.from_row + 1,
+                        snap.landing_row + 1,
+                    ),
+                );
+            }
             Ok(())
         }
         Command::Study { scene, ramp_times, point, settle, dynamics, out } => {
@@ -766,6 +813,7 @@ fn format_statics(
     ws: &Workspace,
     r: &EquilibriumReport,
     cables: &[report::CableReport],
+    (moved, moved_point): (f64, &str),
 ) -> String {
     use std::fmt::Write as _;
     let mut out = String::new();
@@ -779,6 +827,13 @@ fn format_statics(
         r.force_scale,
         r.stability_words(),
         r.min_stiffness_eigenvalue
+    );
+    let _ = writeln!(
+        out,
+        "potential energy {:.6} J (elastic + gravitational); largest move from the scene's pose {:.6} m{}",
+        Num(r.potential_energy),
+        Num(moved),
+        if moved > 0.0 { format!(" ({moved_point})") } else { String::new() }
     );
     let _ = writeln!(
         out,

@@ -236,6 +236,23 @@ impl Schedule {
         }
         value
     }
+
+    /// Rate of change of `actuator`'s rest length at time `t` (m/s), the right derivative of
+    /// `rest_length`: the slope of the ramp running at `t` (a ramp that ends at `t` no longer
+    /// counts), 0 between and after ramps.
+    pub fn rest_rate(&self, actuator: ActuatorId, initial: f64, t: f64) -> f64 {
+        let mut value = initial;
+        for ramp in self.ramps.iter().filter(|r| r.actuator == actuator) {
+            if t < ramp.start {
+                return 0.0;
+            }
+            if t < ramp.start + ramp.duration {
+                return (ramp.target - value) / ramp.duration;
+            }
+            value = ramp.target;
+        }
+        0.0
+    }
 }
 
 /// Numerical settings of the quasi-static solver.
@@ -371,6 +388,16 @@ impl Model {
         for (i, act) in self.actuators.iter().enumerate() {
             let c = act.cable.0;
             out[c] = self.schedule.rest_length(ActuatorId(i), self.initial_rest_lengths[c], t);
+        }
+    }
+
+    /// Rates of change of all rest lengths at schedule time `t` (m/s, right derivative):
+    /// `Schedule::rest_rate` for actuated cables, 0 for the others.
+    pub fn scheduled_rest_rates(&self, t: f64, out: &mut [f64]) {
+        out.fill(0.0);
+        for (i, act) in self.actuators.iter().enumerate() {
+            let c = act.cable.0;
+            out[c] = self.schedule.rest_rate(ActuatorId(i), self.initial_rest_lengths[c], t);
         }
     }
 }

@@ -1,6 +1,8 @@
-//! Solvers: form finding (rest lengths from a prestressed geometry) and quasi-static equilibrium
-//! and deployment.
+//! Solvers: form finding (rest lengths from a prestressed geometry), quasi-static equilibrium
+//! and deployment (with continuation past limit points), natural modes, time integration and
+//! their linear algebra.
 
+pub mod continuation;
 pub mod dynamics;
 pub mod formfind;
 pub mod linear;

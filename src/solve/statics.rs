@@ -1,7 +1,9 @@
 //! Quasi-static equilibrium: takes a model and a state (rest lengths set), gives the equilibrium
 //! configuration and joint reactions by Newton's method with a backtracking line search, its
-//! residual and iteration count, and whether it is stable; and the quasi-static deployment path
-//! along the model's schedule by load stepping with step cutting.
+//! residual and iteration count, whether it is stable and its potential energy; and the
+//! quasi-static deployment path along the model's schedule by load stepping (a path-tangent
+//! predictor and Newton corrector, step cutting), continued past limit points by arc length
+//! (`crate::solve::continuation`) with the snap-throughs reported.
 //!
 //! Equations (inertia dropped): `F(q, lambda) = [Q(q) - Phi_q^T lambda; Phi(q)] = 0`.
 //! Newton step from the KKT system
@@ -19,7 +21,7 @@
 //! those eigen-directions are replaced by positive curvature (`convexity_correction`) and the step
 //! is a descent step of the potential energy, accepted when the energy falls after projecting back
 //! onto the joints (`project_onto_joints`); otherwise a Newton step is accepted when it lowers the
-//! residual norm or the energy. Translations are capped at half the structure's length scale (the
+//! residual norm or the energy. Translations are capped at the structure's length scale (the
 //! largest cable length or body size) per iteration, rotations at 0.5 rad.
 //!
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
@@ -59,6 +61,10 @@ pub struct EquilibriumReport {
     /// 6 for a structure held by nothing, 3 in a planar scene, fewer with partial supports or
     /// under gravity. Counted among `zero_modes`.
     pub rigid_modes: usize,
+    /// Total potential energy at the solution, J: the cables' elastic energy plus the
+    /// gravitational potential `-sum_b m_b g . x_b`. Of two stable equilibria of the same
+    /// rest lengths, the lower one is the deeper minimum.
+    pub potential_energy: f64,
 }
 
 impl EquilibriumReport {
@@ -221,20 +227,56 @@ pub struct StaticSolver {
     size: f64,
 }
 
-struct Residual {
-    force: f64,
-    constraint: f64,
-    force_scale: f64,
-    length_scale: f64,
+pub(crate) struct Residual {
+    pub(crate) force: f64,
+    pub(crate) constraint: f64,
+    pub(crate) force_scale: f64,
+    pub(crate) length_scale: f64,
     /// Round-off floor of the force residual: positions carry a relative error of about machine
     /// epsilon, so a cable's force is only known to `~eps EA L / L0`.
-    force_floor: f64,
+    pub(crate) force_floor: f64,
 }
 
 impl Residual {
+    /// True when this residual passes the convergence test of `StaticSolver::equilibrate`.
+    pub(crate) fn converged(&self, settings: &SolverSettings) -> bool {
+        self.force <= (settings.tolerance * self.force_scale).max(self.force_floor)
+            && self.force <= ROUND_OFF_CEILING * self.force_scale
+            && self.constraint <= settings.tolerance * self.length_scale
+    }
+
     fn merit(&self, f_scale: f64, l_scale: f64) -> f64 {
         (self.force / f_scale).powi(2) + (self.constraint / l_scale).powi(2)
     }
+}
+
+/// The derivative of the statics residual `r = [Q - Phi_q^T lambda; -Phi]` with respect to the
+/// schedule time, `out = [dQ/dt; 0]` (N/s): a taut cable's tension `T = EA (L/L0 - 1)` changes by
+/// `dT/dL0 = -EA L / L0^2` and its force `Q = -T g` by `EA L / L0^2 g` per metre of rest length,
+/// times the rest-length rate `rates[c]` (m/s, `Model::scheduled_rest_rates`). `ws` must hold the
+/// point kinematics and cable responses of `state` (its route scratch is overwritten).
+pub fn load_rate(model: &Model, state: &State, ws: &mut Workspace, rates: &[f64], out: &mut DVector<f64>) {
+    out.fill(0.0);
+    let mut dq = DVector::zeros(model.dof_count);
+    for (c, cable) in model.cables.iter().enumerate() {
+        let response = &ws.cables[c];
+        if rates[c] == 0.0 || response.length <= response.rest_length {
+            continue;
+        }
+        let route = model.route(crate::model::CableId(c));
+        crate::forces::cable::route_geometry(route, &ws.points, &mut ws.scratch);
+        let l0 = state.rest_lengths[c];
+        let coefficient = cable.axial_stiffness * response.length / (l0 * l0) * rates[c];
+        crate::forces::cable::add_length_gradient(
+            model,
+            route,
+            &ws.points,
+            &ws.scratch,
+            coefficient,
+            &mut dq,
+        );
+    }
+    out.rows_mut(0, model.dof_count).copy_from(&dq);
 }
 
 /// Largest residual, relative to the force scale, that may ever be called converged: the
@@ -248,7 +290,7 @@ pub fn body_size(model: &Model) -> f64 {
     model.points.iter().map(|p| 2.0 * p.local.norm()).fold(1e-3, f64::max)
 }
 
-fn residual_of(
+pub(crate) fn residual_of(
     model: &Model,
     state: &State,
     ws: &mut Workspace,
@@ -298,6 +340,55 @@ impl StaticSolver {
         }
     }
 
+    /// Fills the KKT matrix `[[K + H_lambda, Phi_q^T], [Phi_q, 0]]` at `state` from the tangents
+    /// last evaluated into `ws` (`Tangents::Stiffness`).
+    pub(crate) fn assemble_kkt(&mut self, model: &Model, state: &State, ws: &Workspace) {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        self.kkt.fill(0.0);
+        self.kkt.view_mut((0, 0), (n, n)).copy_from(&ws.stiffness);
+        if nc > 0 {
+            let mut h = DMatrix::zeros(n, n);
+            add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut h);
+            let mut top = self.kkt.view_mut((0, 0), (n, n));
+            top += &h;
+            self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
+            self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+        }
+    }
+
+    /// The KKT matrix last assembled by `assemble_kkt`.
+    pub(crate) fn kkt(&self) -> &DMatrix<f64> {
+        &self.kkt
+    }
+
+    /// The body size used for the length scale (`body_size`), m.
+    pub(crate) fn size(&self) -> f64 {
+        self.size
+    }
+
+    /// The constant mass matrix in local coordinates.
+    pub(crate) fn mass(&self) -> &DMatrix<f64> {
+        &self.mass
+    }
+
+    /// Tangent of the equilibrium path at the equilibrium `state`: `(dq/dt, dlambda/dt)` from
+    /// `A z = dr/dt` (see `load_rate`), with the regularized solve of the Newton steps (a free
+    /// rigid-body motion gets no component). `None` when the KKT matrix cannot be solved (a
+    /// limit point). Leaves `ws` evaluated at `state` with its stiffness.
+    pub fn path_tangent(&mut self, model: &Model, state: &State, ws: &mut Workspace) -> Option<DVector<f64>> {
+        evaluate(model, state, ws, Tangents::Stiffness);
+        self.assemble_kkt(model, state, ws);
+        let mut rates = vec![0.0; model.cables.len()];
+        model.scheduled_rest_rates(state.time, &mut rates);
+        let mut r_t = DVector::zeros(model.dof_count + model.constraint_count);
+        load_rate(model, state, ws, &rates, &mut r_t);
+        if r_t.amax() == 0.0 {
+            return Some(r_t);
+        }
+        solve_regularized(&self.kkt, &r_t, model.dof_count)
+    }
+
     /// Solves for equilibrium from `state` (its rest lengths fixed), updating its poses and
     /// multipliers; velocities are set to zero. On failure the state is restored.
     pub fn equilibrate(
@@ -333,39 +424,15 @@ impl StaticSolver {
             best = best.min(res.force);
             // the round-off floor may relax the tolerance, but never to a residual that is a
             // sizeable part of the forces themselves (ill-conditioned input: no claim is made)
-            if res.force <= (settings.tolerance * res.force_scale).max(res.force_floor)
-                && res.force <= ROUND_OFF_CEILING * res.force_scale
-                && res.constraint <= settings.tolerance * res.length_scale
-            {
-                let modes = self.stability(model, state, ws);
-                return Ok(EquilibriumReport {
-                    iterations,
-                    residual: res.force,
-                    force_scale: res.force_scale,
-                    constraint_residual: res.constraint,
-                    min_stiffness_eigenvalue: modes.min_eigenvalue,
-                    stable: modes.negative == 0 && modes.zero <= modes.rigid,
-                    negative_modes: modes.negative,
-                    zero_modes: modes.zero,
-                    rigid_modes: modes.rigid,
-                });
+            if res.converged(settings) {
+                return Ok(self.report(model, state, ws, &res, iterations));
             }
             if iterations >= settings.max_iterations {
                 break;
             }
             iterations += 1;
 
-            // KKT matrix
-            self.kkt.fill(0.0);
-            self.kkt.view_mut((0, 0), (n, n)).copy_from(&ws.stiffness);
-            if nc > 0 {
-                let mut h = DMatrix::zeros(n, n);
-                add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut h);
-                let mut top = self.kkt.view_mut((0, 0), (n, n));
-                top += &h;
-                self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
-                self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
-            }
+            self.assemble_kkt(model, state, ws);
             // where the reduced tangent is indefinite or singular (hanging masses, slack cables,
             // a structure tilted past a maximum of its energy), shift it by mu M: the step then
             // goes down the potential energy instead of towards the nearest stationary point
@@ -389,13 +456,14 @@ impl StaticSolver {
             }
             let Some(step) = solve_regularized(&self.kkt, &self.rhs, n) else { break };
             self.dq.copy_from(&step.rows(0, n));
-            // limit rotations to 0.5 rad and translations to half the length scale per iteration
+            // limit rotations to 0.5 rad and translations to STEP_CAP length scales per iteration
             let mut limit: f64 = 1.0;
             for b in &model.bodies {
                 for c in 0..b.dof_count {
                     let col = b.basis.column(c);
                     let x = self.dq[b.dof_offset + c].abs();
-                    let cap = if col.fixed_rows::<3>(3).norm() > 0.0 { 0.5 } else { 0.5 * res.length_scale };
+                    let cap =
+                        if col.fixed_rows::<3>(3).norm() > 0.0 { 0.5 } else { STEP_CAP * res.length_scale };
                     if x > cap {
                         limit = limit.min(cap / x);
                     }
@@ -465,6 +533,31 @@ impl StaticSolver {
         state.poses.copy_from_slice(&start_poses);
         state.multipliers.copy_from(&start_multipliers);
         Err((iterations, best))
+    }
+
+    /// The report of a converged equilibrium: `res` its residual, stability from the tangents
+    /// last evaluated into `ws`.
+    pub(crate) fn report(
+        &self,
+        model: &Model,
+        state: &State,
+        ws: &Workspace,
+        res: &Residual,
+        iterations: usize,
+    ) -> EquilibriumReport {
+        let modes = self.stability(model, state, ws);
+        EquilibriumReport {
+            iterations,
+            residual: res.force,
+            force_scale: res.force_scale,
+            constraint_residual: res.constraint,
+            min_stiffness_eigenvalue: modes.min_eigenvalue,
+            stable: modes.negative == 0 && modes.zero <= modes.rigid,
+            negative_modes: modes.negative,
+            zero_modes: modes.zero,
+            rigid_modes: modes.rigid,
+            potential_energy: ws.energies.elastic + ws.energies.gravitational,
+        }
     }
 
     /// The symmetric reduced tangent stiffness's smallest eigenvalue and its counts of negative
@@ -545,6 +638,9 @@ fn project_onto_joints(model: &Model, state: &mut State, ws: &mut Workspace, len
     evaluate(model, state, ws, Tangents::None);
 }
 
+/// Largest translation of a body per Newton iteration, as a fraction of the length scale.
+pub const STEP_CAP: f64 = 1.0;
+
 /// Largest system (coordinates) for which the reduced tangent's definiteness is checked each
 /// iteration (a dense eigenproblem); larger systems take plain Newton steps.
 pub const MAX_CONVEXITY_CHECK: usize = 600;
@@ -623,32 +719,128 @@ fn solve_regularized(kkt: &DMatrix<f64>, rhs: &DVector<f64>, n: usize) -> Option
     None
 }
 
+/// What a row of the quasi-static path is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PathKind {
+    /// The equilibrium at an output step's schedule time, reached by load stepping.
+    Load,
+    /// A point traced by arc-length continuation on the way to an output step (its time is
+    /// wherever the path passes; between two limit points the path runs back in time and the
+    /// equilibrium is unstable).
+    ArcLength,
+    /// The equilibrium at an output step's time reached after a snap-through (`SnapThrough`).
+    SnapThrough,
+}
+
+impl PathKind {
+    /// Lower-case name for tables: `load`, `arc`, `snap`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            PathKind::Load => "load",
+            PathKind::ArcLength => "arc",
+            PathKind::SnapThrough => "snap",
+        }
+    }
+}
+
 /// One row of a quasi-static deployment path.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PathStep {
-    /// Index of the output step (0 = initial equilibrium).
+    /// Index of the output step (0 = initial equilibrium) this row reaches or is on the way to.
     pub index: usize,
     /// Schedule time, s (the actuation parameter).
     pub time: f64,
-    /// The equilibrium solve that ended at this step.
+    /// The equilibrium solve that ended at this row.
     pub report: EquilibriumReport,
     /// Number of times a load step was halved on the way to this row.
     pub cuts: usize,
+    /// How the row was reached.
+    pub kind: PathKind,
 }
 
-/// Follows the deployment schedule by load stepping: `model.schedule.steps` output steps over its
-/// duration, each reached from the previous equilibrium; a step that fails is halved (up to
-/// `settings.max_step_cuts` times). Calls `on_step` at the initial equilibrium and after every
-/// output step with the state and the evaluated workspace.
+/// A snap-through on the path: past a limit point (the largest load the branch carries, where
+/// its stiffness loses definiteness) no equilibrium is near, and the structure jumps to another
+/// stable equilibrium at the same load.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SnapThrough {
+    /// Schedule time of the limit point, s: the largest time the branch reaches before the
+    /// path turns back.
+    pub limit_time: f64,
+    /// Row (in `QuasiStaticPath::steps`) of the last load step before the limit point.
+    pub from_row: usize,
+    /// Row of the equilibrium the structure lands on.
+    pub landing_row: usize,
+    /// Largest displacement of any point between those two equilibria, m.
+    pub jump: f64,
+    /// Points the arc-length continuation traced between them.
+    pub traced_points: usize,
+    /// True when the traced path itself came back to the landing's time on a stable branch;
+    /// false when it did not (a branch that ends, e.g. where a cable goes slack) and the landing
+    /// was found by descending the energy from the limit point.
+    pub followed_path: bool,
+}
+
+/// A quasi-static deployment path: every row in the order it was found, and the snap-throughs.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct QuasiStaticPath {
+    /// Rows: the initial equilibrium, every output step (`Load` or `SnapThrough`) and the
+    /// arc-length points between them.
+    pub steps: Vec<PathStep>,
+    /// Snap-throughs, in path order.
+    pub snaps: Vec<SnapThrough>,
+}
+
+impl QuasiStaticPath {
+    /// The rows at output steps (initial equilibrium, then one per load step), without the
+    /// arc-length points between them.
+    pub fn output_steps(&self) -> impl Iterator<Item = &PathStep> {
+        self.steps.iter().filter(|s| s.kind != PathKind::ArcLength)
+    }
+}
+
+/// Largest distance any attachment point moves between two sets of poses, m.
+pub fn largest_point_distance(model: &Model, a: &[Pose], b: &[Pose]) -> f64 {
+    model
+        .points
+        .iter()
+        .map(|p| {
+            let (pa, pb) = (&a[p.body.0], &b[p.body.0]);
+            (pa.transform_point(&p.local) - pb.transform_point(&p.local)).norm()
+        })
+        .fold(0.0, f64::max)
+}
+
+/// A predicted first-order step may move points by at most this fraction of the length scale.
+pub const PREDICTOR_CAP: f64 = 0.05;
+/// A load step whose Newton correction moves a point farther than its prediction did, and
+/// farther than this fraction of the length scale, jumped to another branch.
+pub const JUMP_FRACTION: f64 = 0.01;
+/// Halvings of a failing load step before continuation takes over.
+pub const CUTS_BEFORE_CONTINUATION: usize = 2;
+
+/// Follows the deployment schedule: `model.schedule.steps` output steps over its duration, each
+/// reached from the previous equilibrium by load stepping with a first-order predictor (the
+/// path tangent `StaticSolver::path_tangent`, capped at `PREDICTOR_CAP` of the length scale)
+/// and the Newton corrector of `StaticSolver::equilibrate`. A step that fails is halved (up to
+/// `settings.max_step_cuts` times). Past a limit point load stepping either fails or lands on
+/// another branch (a correction larger than its prediction and than `JUMP_FRACTION` of the
+/// length scale); then pseudo-arc-length continuation
+/// (`crate::solve::continuation`) traces the path through the limit point and back to the step's
+/// time on a stable branch, and the jump is reported as a `SnapThrough`; where the traced branch
+/// does not come back, the landing is found by descending the energy from the limit point.
+/// Calls `on_step` at every row (initial equilibrium, arc-length points, output steps) with the
+/// state and the evaluated workspace.
 pub fn deploy_quasi_static(
     model: &Model,
     state: &mut State,
     ws: &mut Workspace,
     mut on_step: impl FnMut(&PathStep, &State, &Workspace),
-) -> Result<Vec<PathStep>, SolveError> {
+) -> Result<QuasiStaticPath, SolveError> {
     let settings = model.solver;
+    let n = model.dof_count;
+    let nc = model.constraint_count;
     let mut solver = StaticSolver::new(model);
-    let mut path = Vec::new();
+    let mut path = QuasiStaticPath::default();
     let fail = |time, load_step, (iterations, residual): (usize, f64), cuts| SolveError::NoEquilibrium {
         time,
         load_step,
@@ -659,44 +851,144 @@ pub fn deploy_quasi_static(
     model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
     let report = solver.equilibrate(model, state, ws, &settings).map_err(|e| fail(state.time, 0, e, 0))?;
     evaluate(model, state, ws, Tangents::None);
-    let first = PathStep { index: 0, time: state.time, report, cuts: 0 };
+    let first = PathStep { index: 0, time: state.time, report, cuts: 0, kind: PathKind::Load };
     on_step(&first, state, ws);
-    path.push(first);
+    path.steps.push(first);
 
     let t0 = state.time;
     let t_end = model.schedule.end_time().max(t0);
     let steps = model.schedule.steps.max(1);
+    let load_step = (t_end - t0) / steps as f64;
+    let mut rhs = DVector::zeros(n + nc);
+    let mut tangent = solver.path_tangent(model, state, ws);
     for s in 1..=steps {
         let target = t0 + (t_end - t0) * s as f64 / steps as f64;
         let mut h = target - state.time;
         let mut cuts = 0;
-        let mut last;
-        loop {
+        let mut failures = 0;
+        let mut tried_continuation = false;
+        let mut last_error = (0, f64::NAN);
+        let (report, kind) = loop {
             let t_try = (state.time + h).min(target);
-            let saved_rest = state.rest_lengths.clone();
-            model.scheduled_rest_lengths(t_try, &mut state.rest_lengths);
-            match solver.equilibrate(model, state, ws, &settings) {
+            let dt = t_try - state.time;
+            evaluate(model, state, ws, Tangents::None);
+            let length_scale = residual_of(model, state, ws, &mut rhs, solver.size()).length_scale;
+            // first-order predictor along the path tangent, capped
+            let mut trial = state.clone();
+            model.scheduled_rest_lengths(t_try, &mut trial.rest_lengths);
+            let mut predicted_move = 0.0;
+            if let Some(z) = tangent.as_ref().filter(|z| z.iter().all(|v| v.is_finite())) {
+                let dq = z.rows(0, n) * dt;
+                retract(model, &mut trial.poses, &dq, 1.0);
+                let moved = largest_point_distance(model, &state.poses, &trial.poses);
+                let scale = if moved > PREDICTOR_CAP * length_scale {
+                    PREDICTOR_CAP * length_scale / moved
+                } else {
+                    1.0
+                };
+                if scale < 1.0 {
+                    trial.poses.copy_from_slice(&state.poses);
+                    retract(model, &mut trial.poses, &dq, scale);
+                }
+                trial.multipliers += z.rows(n, nc) * (dt * scale);
+                predicted_move = moved * scale;
+            }
+            let predicted = trial.poses.clone();
+            let jumped = match solver.equilibrate(model, &mut trial, ws, &settings) {
                 Ok(r) => {
-                    state.time = t_try;
-                    last = r;
-                    if t_try >= target {
-                        break;
+                    let correction = largest_point_distance(model, &predicted, &trial.poses);
+                    if correction <= predicted_move.max(JUMP_FRACTION * length_scale) {
+                        trial.time = t_try;
+                        *state = trial;
+                        tangent = solver.path_tangent(model, state, ws);
+                        if t_try >= target {
+                            break (r, PathKind::Load);
+                        }
+                        continue;
                     }
+                    true
                 }
                 Err(e) => {
-                    state.rest_lengths = saved_rest;
-                    cuts += 1;
-                    if cuts > settings.max_step_cuts {
-                        return Err(fail(t_try, s, e, cuts - 1));
+                    last_error = e;
+                    false
+                }
+            };
+            if !jumped {
+                failures += 1;
+            }
+            if !tried_continuation && (jumped || failures > CUTS_BEFORE_CONTINUATION) {
+                tried_continuation = true;
+                let before = state.clone();
+                let from_row = path.steps.len() - 1;
+                let mut traced = 0;
+                let outcome = crate::solve::continuation::continue_past_limit_points(
+                    model,
+                    &mut solver,
+                    state,
+                    ws,
+                    target,
+                    load_step,
+                    (t0, t_end),
+                    |point, st, w| {
+                        let row = PathStep {
+                            index: s,
+                            time: point.time,
+                            report: point.report,
+                            cuts,
+                            kind: PathKind::ArcLength,
+                        };
+                        on_step(&row, st, w);
+                        path.steps.push(row);
+                        traced += 1;
+                    },
+                );
+                use crate::solve::continuation::ArcOutcome;
+                let landed = match outcome {
+                    ArcOutcome::Landed { report, limit_time, .. } => Some((report, limit_time, true)),
+                    ArcOutcome::NoReturn { limit: Some((limit_time, at_limit)), .. } => {
+                        // the branch ends: descend the energy from the limit point at the target
+                        let mut trial = at_limit;
+                        trial.multipliers.fill(0.0);
+                        model.scheduled_rest_lengths(target, &mut trial.rest_lengths);
+                        match solver.equilibrate(model, &mut trial, ws, &settings) {
+                            Ok(r) if r.stable || r.negative_modes == 0 => {
+                                *state = trial;
+                                Some((r, Some(limit_time), false))
+                            }
+                            _ => None,
+                        }
                     }
-                    h *= 0.5;
+                    ArcOutcome::NoReturn { limit: None, .. } => None,
+                };
+                if let Some((report, limit_time, followed_path)) = landed {
+                    state.time = target;
+                    tangent = solver.path_tangent(model, state, ws);
+                    match limit_time {
+                        Some(limit_time) => {
+                            path.snaps.push(SnapThrough {
+                                limit_time,
+                                from_row,
+                                landing_row: path.steps.len(),
+                                jump: largest_point_distance(model, &before.poses, &state.poses),
+                                traced_points: traced,
+                                followed_path,
+                            });
+                            break (report, PathKind::SnapThrough);
+                        }
+                        None => break (report, PathKind::Load),
+                    }
                 }
             }
-        }
+            cuts += 1;
+            if cuts > settings.max_step_cuts {
+                return Err(fail(t_try, s, last_error, cuts - 1));
+            }
+            h *= 0.5;
+        };
         evaluate(model, state, ws, Tangents::None);
-        let row = PathStep { index: s, time: state.time, report: last, cuts };
+        let row = PathStep { index: s, time: state.time, report, cuts, kind };
         on_step(&row, state, ws);
-        path.push(row);
+        path.steps.push(row);
     }
     Ok(path)
 }
