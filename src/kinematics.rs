@@ -13,7 +13,7 @@
 //! All derivatives are with respect to the local increments of `crate::state::retract`, so a
 //! finite difference of the same quantities along `retract` reproduces them exactly.
 
-use nalgebra::{DVector, Matrix3, Matrix6, SMatrix, Vector3};
+use nalgebra::{DVector, Matrix6, SMatrix, Vector3};
 
 use crate::model::{skew, BodyId, Model, PointId, Pose};
 
@@ -33,26 +33,29 @@ pub struct PointKinematics {
     pub jacobian: PointJacobian,
 }
 
-/// The body-frame translation/rotation basis `[I, -R[p]x]` of a point (3 x 6, before `B`).
-fn raw_jacobian(pose: &Pose, p: &Vector3<f64>) -> PointJacobian {
-    let mut j = PointJacobian::zeros();
-    j.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-    let rot = pose.rotation.to_rotation_matrix();
-    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-(rot.matrix() * skew(p))));
-    j
-}
-
 /// Kinematics of point `pid` at `poses`, with local velocities `v` (length `model.dof_count`).
+///
+/// Column by column, `J = [I, -R [p]x] B` is `b_t + R (b_r x p)` for the basis column
+/// `(b_t, b_r)`: a pure translation column is copied, a rotation column costs one cross product
+/// and one rotation (the same numbers as the product, without the 3 x 6 times 6 x 6 one).
 pub fn point_kinematics(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: PointId) -> PointKinematics {
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];
     let pose = &poses[point.body.0];
-    let jacobian = raw_jacobian(pose, &point.local) * body.basis;
+    let rot = pose.rotation.to_rotation_matrix();
+    let mut jacobian = PointJacobian::zeros();
     let mut velocity = Vector3::zeros();
     for c in 0..body.dof_count {
-        velocity += jacobian.column(c) * v[body.dof_offset + c];
+        let b = body.basis.column(c);
+        let mut col = Vector3::new(b[0], b[1], b[2]);
+        let b_r = Vector3::new(b[3], b[4], b[5]);
+        if b_r != Vector3::zeros() {
+            col += rot * b_r.cross(&point.local);
+        }
+        jacobian.set_column(c, &col);
+        velocity += col * v[body.dof_offset + c];
     }
-    PointKinematics { body: point.body, position: pose.transform_point(&point.local), velocity, jacobian }
+    PointKinematics { body: point.body, position: pose.position + rot * point.local, velocity, jacobian }
 }
 
 /// `d(J^T f)/dq_b` for point `pid` at a fixed world force `f` (N): the point's share of the
@@ -66,9 +69,21 @@ pub fn force_jacobian_derivative(
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];
     let f_body = poses[point.body.0].rotation.inverse() * f_world;
-    let mut d = Matrix6::zeros();
-    d.fixed_view_mut::<3, 3>(3, 3).copy_from(&(skew(&point.local) * skew(&f_body)));
-    body.basis.transpose() * d * body.basis
+    // only the rotation rows of the basis meet the rotation block: B_r^T ([p]x [f]x) B_r
+    let d3 = skew(&point.local) * skew(&f_body);
+    let b_r = body.basis.fixed_view::<3, 6>(3, 0);
+    let d3_b = d3 * b_r;
+    let mut out = Matrix6::zeros();
+    for c in 0..body.dof_count {
+        let col = b_r.column(c);
+        if col[0] == 0.0 && col[1] == 0.0 && col[2] == 0.0 {
+            continue;
+        }
+        for r in 0..body.dof_count {
+            out[(c, r)] = col.dot(&d3_b.column(r));
+        }
+    }
+    out
 }
 
 /// `d(rdot)/dq_b` of point `pid` at fixed local velocities `v` (3 x 6, 1/s).
@@ -81,7 +96,6 @@ pub fn velocity_derivative(model: &Model, poses: &[Pose], v: &DVector<f64>, pid:
     let local = body.local_increment(v.as_slice(), 1.0);
     let omega = Vector3::new(local[3], local[4], local[5]);
     let rot = poses[point.body.0].rotation.to_rotation_matrix();
-    let mut d = PointJacobian::zeros();
-    d.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-(rot.matrix() * skew(&omega.cross(&point.local)))));
-    d * body.basis
+    let x = -(rot.matrix() * skew(&omega.cross(&point.local)));
+    x * body.basis.fixed_view::<3, 6>(3, 0)
 }

@@ -219,6 +219,10 @@ impl Simulator {
     pub fn linear_backend(&self) -> LinearBackend {
         self.dynamics.linear_backend()
     }
+    /// The Newton system of the implicit integrator (size, nonzeros, factor entries).
+    pub fn newton_system(&self) -> &crate::solve::linear::KktSystem {
+        self.dynamics.kkt()
+    }
     /// Current true acceleration (local coordinates).
     pub fn acceleration(&self) -> &nalgebra::DVector<f64> {
         &self.dynamics.acceleration
@@ -290,7 +294,9 @@ impl Simulator {
             match attempt {
                 Some(a) => {
                     debug_assert!(self.state.is_finite());
-                    evaluate_forces(&self.model, &self.state, &mut self.ws);
+                    if !self.dynamics.take_final_evaluation(&mut self.ws) {
+                        evaluate_forces(&self.model, &self.state, &mut self.ws);
+                    }
                     let (p_act1, p_loss1) = cable_powers(&self.model, &self.ws, &self.rest_rate);
                     self.energy.actuator_work += 0.5 * h_try * (p_act0 + p_act1);
                     self.energy.damping_loss += 0.5 * h_try * (p_loss0 + p_loss1);

@@ -679,7 +679,7 @@ pub struct ScalingRow {
     pub nonzeros: usize,
     /// Median wall time per step with the dense LU, s (`None`: not run, too large).
     pub dense_step: Option<f64>,
-    /// Median wall time per step with the sparse LU, s.
+    /// Median wall time per step with the sparse backend (`LDL^T` of the symmetric part, LU when that does not contract), s.
     pub sparse_step: f64,
     /// Newton iterations per step (sparse run).
     pub newton_per_step: f64,
@@ -725,6 +725,12 @@ pub struct StepTimes {
     pub factorizations_per_step: f64,
     /// The linear-solver backend `Auto` chose.
     pub backend: crate::solve::linear::LinearBackend,
+    /// Unknowns of the Newton system (coordinates, joint rows, bordered cables).
+    pub unknowns: usize,
+    /// Stored entries of the Newton matrix (`unknowns^2` when dense).
+    pub nonzeros: usize,
+    /// Stored entries of the sparse symmetric factor `L`, when the backend has one.
+    pub factor_entries: Option<usize>,
 }
 
 /// Times `steps` steps of `model` with `settings` after 10 untimed warm-up steps.
@@ -750,6 +756,9 @@ pub fn step_times(model: &Model, settings: SimSettings, steps: usize) -> Result<
         newton_per_step: newton as f64 / steps as f64,
         factorizations_per_step: factorizations as f64 / steps as f64,
         backend: sim.linear_backend(),
+        unknowns: sim.newton_system().size(),
+        nonzeros: sim.newton_system().nonzeros(),
+        factor_entries: sim.newton_system().symmetric_factor_entries(),
     })
 }
 
@@ -764,7 +773,7 @@ pub fn growth_exponent(points: &[(f64, f64)]) -> f64 {
 }
 
 /// Scaling benchmark: towers of 3-strut prisms with `stages` stages in the three
-/// `TowerFamily`s, `steps` generalized-alpha steps each with the sparse LU and (up to
+/// `TowerFamily`s, `steps` generalized-alpha steps each with the sparse backend and (up to
 /// `SCALING_DENSE_MAX_SIZE` unknowns) the dense LU; writes `scaling.csv`, `scaling.md` (with the
 /// fitted growth exponent of the sparse step time over the runs with 8 or more stages) and
 /// `scaling.{png,svg}`.
@@ -804,7 +813,7 @@ pub fn scaling(stages: &[usize], steps: usize, out_dir: &Path) -> Result<Vec<Sca
         "side_strings,stages,coordinates,constraints,sparse_unknowns,sparse_nonzeros,newton_per_step,factorizations_per_step,dense_step_us,sparse_step_us"
     );
     let mut md = format!(
-        "Towers of 3-strut prisms, generalized-alpha (rho_inf 0.8) at dt = 1 ms, median wall time per step over {steps} steps.\n\n| side strings | stages | coordinates | constraints | sparse unknowns | sparse nonzeros | Newton / step | factorizations / step | dense LU µs/step | sparse LU µs/step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
+        "Towers of 3-strut prisms, generalized-alpha (rho_inf 0.8) at dt = 1 ms, median wall time per step over {steps} steps.\n\n| side strings | stages | coordinates | constraints | sparse unknowns | sparse nonzeros | Newton / step | factorizations / step | dense LU µs/step | sparse µs/step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n"
     );
     for r in &rows {
         let dense = r.dense_step.map(|d| format!("{:.1}", 1e6 * d)).unwrap_or_else(|| "-".into());
@@ -851,7 +860,25 @@ pub fn scaling(stages: &[usize], steps: usize, out_dir: &Path) -> Result<Vec<Sca
                 fit.len()
             );
         }
-        series.push(Series::new(format!("{} (sparse LU)", family.name()), points, true));
+        series.push(Series::new(format!("{} (sparse)", family.name()), points, true));
+        if family == TowerFamily::Helical {
+            // the helical tower's cost beside the per-stage one's, at each size both ran
+            let per_stage = |s: usize| {
+                rows.iter()
+                    .find(|r| r.family == TowerFamily::PerStage && r.stages == s)
+                    .map(|r| r.sparse_step)
+            };
+            let ratios: Vec<String> = rows
+                .iter()
+                .filter(|r| r.family == family && r.stages >= 8)
+                .filter_map(|r| {
+                    per_stage(r.stages).map(|p| format!("{:.2} at {}", r.sparse_step / p, r.stages))
+                })
+                .collect();
+            if !ratios.is_empty() {
+                let _ = writeln!(md, "helical / per-stage step time: {} stages  ", ratios.join(", "));
+            }
+        }
         let dense: Vec<(f64, f64)> = rows
             .iter()
             .filter(|r| r.family == family)

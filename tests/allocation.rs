@@ -1,6 +1,7 @@
 //! Invariant: once running, a simulation step allocates no memory — generalized-alpha and
-//! symplectic Euler, dense LU (prism3) and sparse LU (tower), with joints, sliding cables,
-//! damping and actuation. A counting global allocator watches the stepping thread.
+//! symplectic Euler, dense (prism3: LU, and the joints' Schur complement for Euler) and sparse
+//! (tower: supernodal LDL^T of the symmetric part, and LU), with joints, sliding cables, damping
+//! and actuation. A counting global allocator watches the stepping thread.
 
 // A global allocator can only be written with `unsafe`; it forwards to `System` unchanged.
 #![allow(unsafe_code)]
@@ -74,6 +75,8 @@ fn stepping_allocates_nothing() {
         ("prism3.toml", euler(LinearBackend::Dense), "symplectic Euler, dense"),
         ("tower.toml", ga(LinearBackend::Sparse), "generalized-alpha, sparse"),
         ("tower.toml", euler(LinearBackend::Sparse), "symplectic Euler, sparse"),
+        ("tower.toml", ga(LinearBackend::SparseLu), "generalized-alpha, sparse LU only"),
+        ("tower.toml", euler(LinearBackend::SparseLu), "symplectic Euler, sparse LU only"),
     ] {
         let n = allocations_per_run(scene, settings);
         assert_eq!(n, 0, "{scene} with {what}: {n} allocations in 100 steps");

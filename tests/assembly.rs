@@ -310,3 +310,100 @@ fn a_reused_factorization_gives_the_same_trajectory_as_full_newton() {
     // both converge to the same residual tolerance (1e-9 of the force scale) every step
     assert!(worst < 1e-8, "positions differ by {worst:.2e} m after 0.3 s");
 }
+
+/// The sparse backend's modified Newton factors the symmetric part of the Newton matrix by
+/// `LDL^T` and turns to the exact LU when that does not contract; the converged steps must be
+/// the ones the exact LU gives (same residual test), also where the matrix is far from
+/// symmetric: damped cables sliding through a deploying helical tower, rigid bodies spinning fast
+/// (gyroscopic damping), and a large step where stiffness rivals inertia. Symplectic Euler's
+/// matrix is symmetric, so its `LDL^T` steps equal the LU's to round-off.
+#[test]
+fn the_symmetric_factorization_gives_the_exact_factorizations_trajectories() {
+    use tensegrity::sim::{SimSettings, Simulator};
+    use tensegrity::solve::dynamics::{Integrator, NewtonSettings};
+    let spinning = {
+        let spec = random_scene(
+            &[2, 2, 1, 2, 0, 2],
+            &[vec![0, 3, 5, 7], vec![1, 4, 9], vec![2, 6, 8, 10, 11]],
+            &[0.6, 0.9],
+            &[5.0, 0.0],
+        );
+        tensegrity::scene::build_model(&spec, "<spinning>", None).unwrap()
+    };
+    let mut spin_start = State::initial(&spinning);
+    for (i, v) in spin_start.velocities.iter_mut().enumerate() {
+        *v = if i % 6 >= 3 { 30.0 * ((i as f64) * 0.7).sin() } else { 0.2 * (i as f64).cos() };
+    }
+    let cases: Vec<(&str, Model, State, SimSettings, usize)> = vec![
+        (
+            "helical tower",
+            TowerFamily::Helical.model(4).unwrap(),
+            State::initial(&TowerFamily::Helical.model(4).unwrap()),
+            SimSettings { dt: 1e-3, ..Default::default() },
+            300,
+        ),
+        (
+            "spinning rigid bodies",
+            spinning.clone(),
+            spin_start,
+            SimSettings { dt: 1e-3, ..Default::default() },
+            200,
+        ),
+        (
+            "large steps",
+            TowerFamily::PerStage.model(4).unwrap(),
+            State::initial(&TowerFamily::PerStage.model(4).unwrap()),
+            SimSettings { dt: 2e-2, ..Default::default() },
+            50,
+        ),
+        (
+            "symplectic Euler",
+            TowerFamily::Helical.model(4).unwrap(),
+            State::initial(&TowerFamily::Helical.model(4).unwrap()),
+            SimSettings { dt: 1e-4, integrator: Integrator::SymplecticEuler, ..Default::default() },
+            300,
+        ),
+    ];
+    for (what, model, start, settings, steps) in cases {
+        let run = |linear| {
+            // converged far below the default tolerance, so that the comparison sees the
+            // factorizations and not two different points within the tolerance (the spinning
+            // bodies amplify differences: dense and sparse LU end 2e-11 m apart)
+            let newton = NewtonSettings { tolerance: 1e-13, max_iterations: 40, ..Default::default() };
+            let mut sim = Simulator::from_state(
+                model.clone(),
+                start.clone(),
+                SimSettings { linear, newton, ..settings },
+            )
+            .unwrap();
+            assert_eq!(sim.linear_backend(), linear);
+            for _ in 0..steps {
+                sim.step().unwrap_or_else(|e| panic!("{what}: {e}"));
+            }
+            sim
+        };
+        let (symmetric, exact) = (run(LinearBackend::Sparse), run(LinearBackend::SparseLu));
+        let dense = run(LinearBackend::Dense);
+        eprintln!(
+            "{what}: dense vs LU {:e}",
+            dense
+                .state()
+                .poses
+                .iter()
+                .zip(&exact.state().poses)
+                .map(|(a, b)| (a.position - b.position).norm())
+                .fold(0.0, f64::max)
+        );
+        assert!(symmetric.newton_system().symmetric_factor_entries().is_some(), "{what}");
+        assert!(exact.newton_system().symmetric_factor_entries().is_none(), "{what}");
+        let worst = symmetric
+            .state()
+            .poses
+            .iter()
+            .zip(&exact.state().poses)
+            .map(|(a, b)| (a.position - b.position).norm())
+            .fold(0.0, f64::max);
+        let bound = if settings.integrator == Integrator::SymplecticEuler { 1e-12 } else { 1e-8 };
+        assert!(worst < bound, "{what}: positions differ by {worst:.2e} m");
+    }
+}

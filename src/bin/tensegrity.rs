@@ -734,11 +734,15 @@ fn run(cli: Cli) -> Result<(), String> {
             };
             let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;
             say!(
-                "{}: {} dt {dt} s, {} unknowns ({:?} LU): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
+                "{}: {} dt {dt} s, {} unknowns ({}): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
                 model.name,
                 integrator.name(),
-                model.dof_count + model.constraint_count,
-                t.backend,
+                t.unknowns,
+                match (t.backend, t.factor_entries) {
+                    (tensegrity::solve::linear::LinearBackend::Dense, _) => "dense LU".to_string(),
+                    (_, Some(l)) => format!("sparse, {} nonzeros, LDL^T factor {l} entries", t.nonzeros),
+                    (_, None) => format!("sparse LU, {} nonzeros", t.nonzeros),
+                },
                 1e6 * t.median,
                 1e6 * t.mean,
                 1e6 * t.max,

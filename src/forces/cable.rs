@@ -232,10 +232,11 @@ pub fn add_cable_tangents<S: TangentSink + ?Sized>(
         let p = (Matrix3::identity() - e * e.transpose()) / l;
         let (ji, jj) = (&kin[route[k - 1].0].jacobian, &kin[route[k].0].jacobian);
         let (pji, pjj) = (p * ji, p * jj);
+        let cross = jj.transpose() * pji; // its transpose is ji^T P jj (P is symmetric)
         sink.stiffness(body_of(k), body_of(k), &(jj.transpose() * pjj), t);
         sink.stiffness(body_of(k - 1), body_of(k - 1), &(ji.transpose() * pji), t);
-        sink.stiffness(body_of(k), body_of(k - 1), &(jj.transpose() * pji), -t);
-        sink.stiffness(body_of(k - 1), body_of(k), &(ji.transpose() * pjj), -t);
+        sink.stiffness(body_of(k), body_of(k - 1), &cross, -t);
+        sink.stiffness(body_of(k - 1), body_of(k), &cross.transpose(), -t);
     }
     // T sum_i d(J_i^T n_i)/dq
     for i in 0..=m {

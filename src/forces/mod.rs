@@ -290,21 +290,18 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     }
 }
 
-/// Kinetic energy `v^T M v / 2` (J) of local velocities `v`.
+/// Kinetic energy `v^T M v / 2` (J) of local velocities `v`: per body
+/// `(m |dx|^2 + w^T J w) / 2` with `(dx, w) = B v_b` (translation and body-frame rotation rates).
 pub fn kinetic_energy(model: &Model, v: &DVector<f64>) -> f64 {
     let mut e = 0.0;
     for body in &model.bodies {
         if body.dof_count == 0 {
             continue;
         }
-        let m = body.mass_matrix();
-        let k = body.dof_count;
-        let vb = v.rows(body.dof_offset, k);
-        for r in 0..k {
-            for c in 0..k {
-                e += 0.5 * vb[r] * m[(r, c)] * vb[c];
-            }
-        }
+        let local = body.local_increment(v.as_slice(), 1.0);
+        let dx = Vector3::new(local[0], local[1], local[2]);
+        let w = Vector3::new(local[3], local[4], local[5]);
+        e += 0.5 * (body.mass * dx.norm_squared() + w.dot(&(body.inertia * w)));
     }
     e
 }

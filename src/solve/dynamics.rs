@@ -21,11 +21,22 @@
 //! Second order, A-stable, `rho = 1` has no numerical dissipation, `rho = 0` annihilates the
 //! highest frequencies in one step.
 //!
+//! Modified Newton: the factors of the Newton matrix are kept across iterations and steps while
+//! they contract the residual by at least `1 / REFACTOR_CONTRACTION` per iteration; on the sparse
+//! backend they are the `LDL^T` of the matrix's symmetric part, replaced by the exact LU for the
+//! rest of a step when fresh symmetric factors contract poorly (`crate::solve::linear`); a step
+//! that needed `SLOW_STEP_ITERATIONS` iterations on old factors makes the next one start with
+//! fresh factors. The convergence test is the residual test above either way. The workspace of
+//! the last (converged) evaluation is handed to the caller (`take_final_evaluation`), so a step
+//! evaluates the forces once per Newton iteration plus once to confirm convergence, no more.
+//!
 //! **Semi-implicit (symplectic) Euler**: `v_(n+1) = v_n + h M^-1 (Q(q_n, v_n, t_n) - gyro - Phi_q^T lambda)`
 //! with the constraints imposed on the new velocity (`Phi_q v_(n+1) = -Phi(q_n) / h`, which also
 //! removes position drift), then `q_(n+1) = q_n exp(h v_(n+1))`. First order, cheap, explicit in
 //! the forces; stable only for `h < 2 / omega_max` (`omega_max` the highest natural frequency of
-//! the linearized system, see `stability_limit`); stiff or damped cables shrink that limit.
+//! the linearized system, see `stability_limit`); stiff or damped cables shrink that limit. Its
+//! linear system is solved through the joints' Schur complement on the dense backend
+//! (`JointSchur`) and by the exact sparse `LDL^T` on the sparse one.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
 
@@ -33,7 +44,7 @@ use crate::constraints::{add_multiplier_hessian_to, add_reaction_force, evaluate
 use crate::forces::cable::{add_block, add_vector};
 use crate::forces::{add_tangents, evaluate, evaluate_forces, TangentSink, Tangents, Workspace};
 use crate::model::{BodyId, BodyKind, Model};
-use crate::solve::linear::{KktSystem, LinearBackend};
+use crate::solve::linear::{FactorKind, KktSystem, LinearBackend};
 use crate::state::{retract, State};
 
 /// Which integrator advances the dynamics.
@@ -110,6 +121,13 @@ pub struct NewtonSettings {
 pub const REFACTOR_CONTRACTION: f64 = 0.25;
 /// Iterations in a row on one reused factorization before it is replaced anyway.
 pub const MAX_STALE_ITERATIONS: usize = 4;
+/// A step that needed this many Newton iterations on factors from earlier steps makes the next
+/// step start with fresh factors. On a structure whose stiffness keeps changing (a 64-stage
+/// helical tower deploying through every stage) factors a step old already need 3 iterations
+/// and a factorization costs about 2.6 iterations: refreshing after 3-iteration steps cost
+/// 9.0e9 instructions per 1000 steps, after 4-iteration steps 7.1e9, never 7.7e9 (callgrind,
+/// `bench steps tower:helical:64 --steps 1000`).
+pub const SLOW_STEP_ITERATIONS: usize = 4;
 
 impl Default for NewtonSettings {
     fn default() -> Self {
@@ -138,12 +156,19 @@ pub struct Dynamics {
     /// Generalized-alpha pseudo-acceleration `a`.
     pub pseudo_acceleration: DVector<f64>,
     ws: Workspace,
+    /// The explicit integrator's joint projection on the dense backend (`JointSchur`).
+    schur: JointSchur,
     trial: State,
     rhs: DVector<f64>,
     residual: DVector<f64>,
     kkt: KktSystem,
     /// `(beta', gamma')` of the generalized-alpha matrix whose factors `kkt` holds.
     factored_for: Option<(f64, f64)>,
+    /// The last step needed `SLOW_STEP_ITERATIONS` or more iterations on reused factors: the
+    /// next step starts with fresh ones.
+    refresh: bool,
+    /// `ws` holds the evaluation of the state the last step committed.
+    final_evaluation: bool,
     // generalized-alpha iterates, preallocated so that a step never allocates
     vdot: DVector<f64>,
     a_next: DVector<f64>,
@@ -247,17 +272,33 @@ impl Dynamics {
             acceleration: DVector::zeros(n),
             pseudo_acceleration: DVector::zeros(n),
             ws: Workspace::for_forces(model),
+            schur: JointSchur::new(model),
             trial: State::initial(model),
             rhs: DVector::zeros(kkt.size()),
             residual: DVector::zeros(n),
             kkt,
             factored_for: None,
+            refresh: false,
+            final_evaluation: false,
             vdot: DVector::zeros(n),
             a_next: DVector::zeros(n),
             v: DVector::zeros(n),
             delta: DVector::zeros(n),
             lambda: DVector::zeros(model.constraint_count),
         }
+    }
+
+    /// Swaps `ws` with the workspace the last successful generalized-alpha step evaluated at the
+    /// state it committed (its convergence check), and returns true; false (nothing swapped)
+    /// after a symplectic Euler step, whose evaluation is of the state before the step. Saves the
+    /// caller a force evaluation per step.
+    pub fn take_final_evaluation(&mut self, ws: &mut Workspace) -> bool {
+        if !self.final_evaluation {
+            return false;
+        }
+        std::mem::swap(ws, &mut self.ws);
+        self.final_evaluation = false;
+        true
     }
 
     /// The linear-solver backend in use (dense or sparse).
@@ -364,10 +405,16 @@ impl Dynamics {
         self.trial.rest_lengths.copy_from_slice(rest_next);
         let mut stats = AttemptStats::default();
         let coefficients = (beta_p, gamma_p);
-        let mut reuse = newton.reuse_factorization && self.factored_for == Some(coefficients);
+        let mut reuse =
+            newton.reuse_factorization && self.factored_for == Some(coefficients) && !self.refresh;
         let mut previous = f64::INFINITY;
         let mut stale = 0;
         let mut factorizations = 0;
+        // full Newton factors the exact matrix; modified Newton starts from the symmetric part's
+        // LDL^T and turns to the exact LU for the rest of the step when fresh symmetric factors
+        // do not contract the residual well enough
+        let mut exact = !newton.reuse_factorization;
+        let mut fresh = false;
         for iter in 0..=newton.max_iterations {
             self.trial.poses.copy_from_slice(&state.poses);
             retract(model, &mut self.trial.poses, &self.delta, 1.0);
@@ -403,6 +450,7 @@ impl Dynamics {
             let contraction = r_norm.max(phi_norm * scale / length_scale);
             if reuse && (contraction > REFACTOR_CONTRACTION * previous || stale >= MAX_STALE_ITERATIONS) {
                 reuse = false;
+                exact |= fresh && self.kkt.factor_kind() == FactorKind::SymmetricLdlt;
             }
             previous = contraction;
             // [M + (gamma' C + K + H_lambda)/beta', Phi_q^T; Phi_q, 0] [d delta; d lambda / beta'] = [-r / beta'; -Phi]
@@ -411,13 +459,16 @@ impl Dynamics {
             self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
             if reuse && self.kkt.solve_factored(&mut self.rhs) {
                 stale += 1;
+                fresh = false;
             } else {
                 self.assemble_newton_matrix(model, beta_p, gamma_p);
                 factorizations += 1;
                 self.factored_for = None;
-                if !self.kkt.factor() {
+                let factored = if exact { self.kkt.factor() } else { self.kkt.factor_symmetric() };
+                if !factored {
                     return None;
                 }
+                fresh = true;
                 self.factored_for = Some(coefficients);
                 if reuse {
                     // the failed solve on the old factors overwrote the right-hand side
@@ -440,7 +491,9 @@ impl Dynamics {
                 self.lambda.axpy(beta_p, &self.rhs.rows(n, nc), 1.0);
             }
         }
-        // commit
+        // commit (the workspace holds the evaluation of exactly the committed state)
+        self.final_evaluation = true;
+        self.refresh = stats.iterations >= SLOW_STEP_ITERATIONS && factorizations == 0;
         self.update_pseudo_acceleration(&c);
         state.poses.copy_from_slice(&self.trial.poses);
         state.velocities.copy_from(&self.v);
@@ -490,14 +543,22 @@ impl Dynamics {
         self.mass_times(model, &state.velocities, &mut mv);
         self.vdot = mv;
         // [M Phi_q^T; Phi_q 0] [v+; h lambda] = [M v + h f; -Phi / h]
-        self.assemble_mass_and_joints(model);
         self.rhs.fill(0.0);
         self.rhs.rows_mut(0, n).copy_from(&self.vdot);
         self.rhs.rows_mut(0, n).axpy(h, &self.residual, 1.0);
         self.rhs.rows_mut(n, nc).axpy(-1.0 / h, &self.ws.constraint, 0.0);
-        self.factored_for = None;
-        if !self.kkt.solve(&mut self.rhs) {
-            return None;
+        if self.kkt.backend() == LinearBackend::Dense {
+            // small scenes: the joints' Schur complement (nc x nc) instead of the whole matrix
+            if !self.schur.solve(model, &self.ws, &mut self.rhs) {
+                return None;
+            }
+        } else {
+            self.assemble_mass_and_joints(model);
+            self.factored_for = None;
+            // the matrix is symmetric: its LDL^T (where the backend has one) is exact
+            if !(self.kkt.factor_symmetric() && self.kkt.solve_factored(&mut self.rhs)) {
+                return None;
+            }
         }
         self.v.copy_from(&self.rhs.rows(0, n));
         retract(model, &mut self.trial.poses, &self.v, h);
@@ -517,6 +578,185 @@ impl Dynamics {
         self.acceleration.copy_from(&self.vdot);
         self.pseudo_acceleration.copy_from(&self.vdot);
         Some(AttemptStats { iterations: 0, residual: 0.0, factorizations: 1 })
+    }
+}
+
+/// The explicit integrator's velocity step by the joints' Schur complement (dense backend): with
+/// the block-diagonal mass matrix inverted once per model,
+/// `[M, Phi_q^T; Phi_q, 0] [v; mu] = [p; c]` becomes `S mu = Phi_q M^-1 p - c` with
+/// `S = Phi_q M^-1 Phi_q^T` (nc x nc, symmetric positive definite for independent joints, which
+/// scenes guarantee), then `v = M^-1 (p - Phi_q^T mu)`: an `nc x nc` Cholesky per step instead of
+/// an `(n + nc)` LU, assembled from 3 x 3 blocks of the joint sides that share a body.
+struct JointSchur {
+    /// Per body: the inverse of its local mass matrix (top-left `k x k`).
+    mass_inverse: Vec<Matrix6<f64>>,
+    /// Per body: the joint sides on it, `(joint, point, sign)`.
+    sides: Vec<Vec<(usize, crate::model::PointId, f64)>>,
+    /// `S`, column-major, and its Cholesky factor in place.
+    s: Vec<f64>,
+    /// Per joint side in `sides` order: `M_b^-1 J^T` (k x 3 in a 6 x 3).
+    weighted: Vec<nalgebra::Matrix6x3<f64>>,
+    u: DVector<f64>,
+    b: DVector<f64>,
+    mem: faer::dyn_stack::MemBuffer,
+}
+
+impl std::fmt::Debug for JointSchur {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("JointSchur").field("rows", &self.b.len()).finish()
+    }
+}
+
+impl Clone for JointSchur {
+    fn clone(&self) -> Self {
+        Self {
+            mass_inverse: self.mass_inverse.clone(),
+            sides: self.sides.clone(),
+            s: self.s.clone(),
+            weighted: self.weighted.clone(),
+            u: self.u.clone(),
+            b: self.b.clone(),
+            mem: Self::scratch(self.b.len()),
+        }
+    }
+}
+
+impl JointSchur {
+    fn scratch(nc: usize) -> faer::dyn_stack::MemBuffer {
+        use faer::linalg::cholesky::llt;
+        faer::dyn_stack::MemBuffer::new(faer::dyn_stack::StackReq::or(
+            llt::factor::cholesky_in_place_scratch::<f64>(nc, faer::Par::Seq, Default::default()),
+            llt::solve::solve_in_place_scratch::<f64>(nc, 1, faer::Par::Seq),
+        ))
+    }
+
+    fn new(model: &Model) -> Self {
+        let nc = model.constraint_count;
+        let mass_inverse = model
+            .bodies
+            .iter()
+            .map(|b| {
+                let k = b.dof_count;
+                let m = b.mass_matrix();
+                let block = m.view((0, 0), (k, k)).into_owned().try_inverse();
+                let mut inv = Matrix6::zeros();
+                if let Some(block) = block {
+                    inv.view_mut((0, 0), (k, k)).copy_from(&block);
+                }
+                inv
+            })
+            .collect();
+        let mut sides = vec![Vec::new(); model.bodies.len()];
+        for (j, joint) in model.joints.iter().enumerate() {
+            for (p, sign) in joint_points(joint) {
+                let body = model.points[p.0].body;
+                if model.bodies[body.0].dof_count > 0 {
+                    sides[body.0].push((j, p, sign));
+                }
+            }
+        }
+        let count = sides.iter().map(|s: &Vec<_>| s.len()).sum();
+        Self {
+            mass_inverse,
+            sides,
+            s: vec![0.0; nc * nc],
+            weighted: vec![nalgebra::Matrix6x3::zeros(); count],
+            u: DVector::zeros(model.dof_count),
+            b: DVector::zeros(nc),
+            mem: Self::scratch(nc),
+        }
+    }
+
+    /// Solves `[M, Phi_q^T; Phi_q, 0] x = rhs` in place at the point kinematics in `ws`. False
+    /// when `S` is not positive definite or the result is not finite.
+    fn solve(&mut self, model: &Model, ws: &Workspace, rhs: &mut DVector<f64>) -> bool {
+        use faer::linalg::cholesky::llt;
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        let rows = model.joint_rows();
+        // u = M^-1 p
+        for (b, body) in model.bodies.iter().enumerate() {
+            let (o, k) = (body.dof_offset, body.dof_count);
+            for r in 0..k {
+                self.u[o + r] = (0..k).map(|c| self.mass_inverse[b][(r, c)] * rhs[o + c]).sum();
+            }
+        }
+        if nc > 0 {
+            // b = Phi_q u - c; S from the 3 x 3 blocks of the joint sides that share a body
+            self.b.copy_from(&rhs.rows(n, nc));
+            self.b.neg_mut();
+            self.s.fill(0.0);
+            let mut w = 0;
+            for (b, body) in model.bodies.iter().enumerate() {
+                let (o, k) = (body.dof_offset, body.dof_count);
+                let first = w;
+                for &(j, p, sign) in &self.sides[b] {
+                    let jac = &ws.points[p.0].jacobian;
+                    let mut m = nalgebra::Matrix6x3::zeros();
+                    for r in 0..k {
+                        for c in 0..rows {
+                            m[(r, c)] = sign
+                                * (0..k).map(|i| self.mass_inverse[b][(r, i)] * jac[(c, i)]).sum::<f64>();
+                        }
+                    }
+                    self.weighted[w] = m;
+                    let row0 = model.joints[j].row_offset;
+                    for r in 0..rows {
+                        self.b[row0 + r] += sign * (0..k).map(|c| jac[(r, c)] * self.u[o + c]).sum::<f64>();
+                    }
+                    w += 1;
+                }
+                for &(ja, pa, sa) in &self.sides[b] {
+                    let jac = &ws.points[pa.0].jacobian;
+                    let ra = model.joints[ja].row_offset;
+                    for (y, &(jb, _, _)) in self.sides[b].iter().enumerate() {
+                        let rb = model.joints[jb].row_offset;
+                        let wb = &self.weighted[first + y];
+                        for r in 0..rows {
+                            for c in 0..rows {
+                                let v: f64 = (0..k).map(|i| jac[(r, i)] * wb[(i, c)]).sum();
+                                self.s[(rb + c) * nc + ra + r] += sa * v;
+                            }
+                        }
+                    }
+                }
+            }
+            let mut s = faer::MatMut::from_column_major_slice_mut(&mut self.s, nc, nc);
+            let factored = llt::factor::cholesky_in_place(
+                s.as_mut(),
+                Default::default(),
+                faer::Par::Seq,
+                faer::dyn_stack::MemStack::new(&mut self.mem),
+                Default::default(),
+            );
+            if factored.is_err() {
+                return false;
+            }
+            let mu = faer::MatMut::from_column_major_slice_mut(self.b.as_mut_slice(), nc, 1);
+            llt::solve::solve_in_place_with_conj(
+                s.as_ref(),
+                faer::Conj::No,
+                mu,
+                faer::Par::Seq,
+                faer::dyn_stack::MemStack::new(&mut self.mem),
+            );
+            // v = u - M^-1 Phi_q^T mu (the weighted sides carry their signs)
+            let mut w = 0;
+            for (b, body) in model.bodies.iter().enumerate() {
+                let o = body.dof_offset;
+                for &(j, _, _) in &self.sides[b] {
+                    let row0 = model.joints[j].row_offset;
+                    for r in 0..body.dof_count {
+                        self.u[o + r] -=
+                            (0..rows).map(|c| self.weighted[w][(r, c)] * self.b[row0 + c]).sum::<f64>();
+                    }
+                    w += 1;
+                }
+            }
+            rhs.rows_mut(n, nc).copy_from(&self.b);
+        }
+        rhs.rows_mut(0, n).copy_from(&self.u);
+        rhs.iter().all(|x| x.is_finite())
     }
 }
 

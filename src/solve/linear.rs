@@ -1,6 +1,7 @@
 //! Newton systems of the implicit dynamics: takes a model, gives a `KktSystem` that the
 //! integrators assemble block by block (mass, tangent stiffness and damping, joint rows) and solve
-//! in place, with a dense LU or a sparse LU (faer) whose symbolic analysis is done once per model.
+//! in place, with a dense LU, or sparse factorizations (faer: `LDL^T` of the symmetric part, and
+//! LU) whose symbolic analysis is done once per model.
 //!
 //! # Assembly costs O(segments)
 //! Every contribution is a small fixed-size block (6 x 6 at most, `nalgebra` static sizes) of a
@@ -29,12 +30,30 @@
 //! Classical cables (two bodies) are added directly: their four blocks are already in the pattern.
 //!
 //! # Choice of factorization
-//! `LinearBackend::Auto` uses the dense LU below `SPARSE_MIN_SIZE` unknowns and the sparse LU
-//! above; `tensegrity bench scaling` (README) measured the crossover between about 100 and 200
-//! unknowns on the 2-core development machine. The sparse LU is faer's simplicial (left-looking,
-//! partial pivoting) LU with a COLAMD column order in which border columns count as dense (ordered
-//! last); its buffers are reused, so a factorization allocates nothing once warmed up.
-//! `crate::solve::dynamics` refactors only when reused factors stop contracting the residual.
+//! `LinearBackend::Auto` uses the dense LU below `SPARSE_MIN_SIZE` unknowns and the sparse
+//! backend above; `tensegrity bench scaling` (README) measured the crossover between about 100
+//! and 200 unknowns on the 2-core development machine.
+//!
+//! The sparse backend factors the **symmetric part** `(A + A^T) / 2` of the Newton matrix by a
+//! supernodal `LDL^T` (faer), and keeps an exact sparse LU (faer's simplicial LU, partial
+//! pivoting, COLAMD with the borders ordered last) for when that is not good enough. Why: the
+//! LU's pivoting spoils its fill-reducing order on these KKT matrices (the 64-stage helical
+//! tower spent two thirds of its step in the LU and its triangular solves), while the matrix is
+//! symmetric but for small terms (the dampers' `c g h^T`, gyroscopic and geometric terms of
+//! rotating bodies away from equilibrium, all small beside `M beta'` at usual steps). The
+//! symmetric part is quasi-definite (`+` on the coordinates, `-` on joint rows and borders), so
+//! `LDL^T` needs no pivoting and keeps its order: AMD on the pattern, with every joint row moved
+//! after all coordinates of the bodies it ties. Then the rows ordered so far only involve
+//! coordinates ordered so far, and since the joint Jacobian has full row rank (scenes with
+//! redundant joints are refused), every pivot is a true Schur complement, never a bare zero; a
+//! pivot of the wrong sign (an indefinite tangent at a very large step) is replaced by a tiny one
+//! of the right sign (faer's dynamic regularization). For the explicit integrator's symmetric
+//! `[M, Phi_q^T; Phi_q, 0]` the `LDL^T` is exact; for the Newton matrix it is a modified
+//! Newton's approximation, and `crate::solve::dynamics` turns to the exact LU for the rest of a
+//! step when fresh symmetric factors do not contract the residual (`tests/assembly.rs` compares
+//! the trajectories of both with damped sliding cables, fast-spinning rigid bodies and large
+//! steps). `LinearBackend::SparseLu` forces the LU, for comparison. Buffers are allocated once;
+//! a factorization allocates nothing (`tests/allocation.rs`).
 
 use std::collections::BTreeSet;
 
@@ -65,8 +84,12 @@ pub const BORDER_MIN_BODIES: usize = 3;
 pub enum LinearBackend {
     /// Dense LU with partial pivoting (faer, in place in a preallocated buffer).
     Dense,
-    /// Sparse LU (faer), symbolic analysis once per model; clustered cables bordered.
+    /// Sparse (faer), symbolic analysis once per model; clustered cables bordered; the modified
+    /// Newton factors the symmetric part by `LDL^T` and turns to LU where that does not
+    /// contract (module docs).
     Sparse,
+    /// Sparse as `Sparse`, but always LU (the exact factorization; for comparison).
+    SparseLu,
     /// Sparse from `SPARSE_MIN_SIZE` unknowns, else dense.
     Auto,
 }
@@ -160,7 +183,250 @@ enum Storage {
         symbolic: Box<SymbolicLu<usize>>,
         numeric: Box<NumericLu<usize, f64>>,
         mem: MemBuffer,
+        symmetric: Option<Box<SymmetricFactor>>,
     },
+}
+
+/// Which factorization the held factors are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FactorKind {
+    /// LU with partial pivoting of the assembled matrix: exact.
+    Lu,
+    /// `LDL^T` of the assembled matrix's symmetric part (module docs): exact for a symmetric
+    /// matrix, an approximation of a nonsymmetric one.
+    SymmetricLdlt,
+}
+
+/// The sparse `LDL^T` of the symmetric part `(A + A^T) / 2` of a `KktSystem`'s matrix
+/// (module docs): symbolic analysis once per model, numeric factorization into preallocated
+/// buffers.
+struct SymmetricFactor {
+    symbolic: SymbolicCholesky<usize>,
+    /// Upper-triangle pattern (compressed columns) and values.
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    values: Vec<f64>,
+    /// Per upper entry: positions of `A[r, c]` and `A[c, r]` in the full values.
+    from: Vec<[usize; 2]>,
+    /// The elimination order and its inverse.
+    order: Vec<usize>,
+    inv: Vec<usize>,
+    l_values: Vec<f64>,
+    /// `+1` for coordinates, `-1` for joint rows and borders (quasi-definite).
+    signs: Vec<i8>,
+    /// Positions of the coordinates' diagonal entries in `values` (regularization scale).
+    coordinate_diagonal: Vec<usize>,
+    mem: MemBuffer,
+}
+
+impl SymmetricFactor {
+    /// The symbolic analysis for the pattern of `index` (structurally symmetric): an AMD order in
+    /// which every joint row comes after all coordinates of one of its bodies, so that its pivot
+    /// is the negative Schur complement `-J A^-1 J^T` of those coordinates, never a bare zero.
+    /// `joint_bodies[r]`: the coordinate ranges of the moving bodies that joint row `r` ties.
+    fn new(
+        index: &SparseIndex,
+        joint_bodies: &[Vec<std::ops::Range<usize>>],
+        n: usize,
+        nc: usize,
+    ) -> Option<Self> {
+        let size = index.col_ptr.len() - 1;
+        let full = SymbolicSparseColMatRef::new_checked(size, size, &index.col_ptr, None, &index.row_idx);
+        let mut amd_perm = vec![0usize; size];
+        let mut amd_inv = vec![0usize; size];
+        let nnz_upper = (0..size)
+            .map(|j| {
+                index.row_idx[index.col_ptr[j]..index.col_ptr[j + 1]].iter().filter(|&&i| i <= j).count()
+            })
+            .sum::<usize>();
+        let mut mem = MemBuffer::new(faer::sparse::linalg::amd::order_scratch::<usize>(size, nnz_upper));
+        faer::sparse::linalg::amd::order(
+            &mut amd_perm,
+            &mut amd_inv,
+            full,
+            Default::default(),
+            MemStack::new(&mut mem),
+        )
+        .ok()?;
+        // defer each joint row until all coordinates of all its bodies are ordered: then the rows
+        // ordered so far involve only coordinates ordered so far, and since the joint Jacobian
+        // has full row rank (scenes with redundant joints are refused) every leading block
+        // `[M_CC, J_RC^T; J_RC, 0]` is regular and no pivot is a bare zero
+        let mut body_of_coordinate = vec![usize::MAX; n];
+        let mut remaining: Vec<usize> = Vec::new();
+        let mut ranges: Vec<std::ops::Range<usize>> = Vec::new();
+        for bodies in joint_bodies {
+            for r in bodies {
+                if !ranges.contains(r) {
+                    for c in r.clone() {
+                        body_of_coordinate[c] = ranges.len();
+                    }
+                    remaining.push(r.len());
+                    ranges.push(r.clone());
+                }
+            }
+        }
+        // per joint row: how many of its bodies are not complete yet; per body: rows waiting on it
+        let mut waiting_on: Vec<usize> = vec![0; nc];
+        let mut waiting: Vec<Vec<usize>> = vec![Vec::new(); ranges.len()];
+        for (r, bodies) in joint_bodies.iter().enumerate() {
+            for b in bodies {
+                let k = ranges.iter().position(|x| x == b).expect("listed");
+                waiting[k].push(n + r);
+                waiting_on[r] += 1;
+            }
+        }
+        let mut order = Vec::with_capacity(size);
+        let mut ready = vec![false; nc];
+        for &i in &amd_perm {
+            if i < n {
+                order.push(i);
+                let k = body_of_coordinate[i];
+                if k != usize::MAX {
+                    remaining[k] -= 1;
+                    if remaining[k] == 0 {
+                        for &row in &waiting[k] {
+                            waiting_on[row - n] -= 1;
+                            if waiting_on[row - n] == 0 && ready[row - n] {
+                                order.push(row);
+                            }
+                        }
+                    }
+                }
+            } else if i < n + nc {
+                // a row is placed when AMD reaches it or when its last body completes, whichever
+                // comes later
+                ready[i - n] = true;
+                if waiting_on[i - n] == 0 {
+                    order.push(i);
+                }
+            } else {
+                order.push(i);
+            }
+        }
+        if order.len() != size {
+            return None;
+        }
+        let mut inv = vec![0usize; size];
+        for (p, &i) in order.iter().enumerate() {
+            inv[i] = p;
+        }
+        // upper triangle of the pattern, and where each entry and its mirror live in the full values
+        let mut col_ptr = vec![0];
+        let mut row_idx = Vec::with_capacity(nnz_upper);
+        let mut from = Vec::with_capacity(nnz_upper);
+        for j in 0..size {
+            for k in index.col_ptr[j]..index.col_ptr[j + 1] {
+                let i = index.row_idx[k];
+                if i <= j {
+                    row_idx.push(i);
+                    from.push([k, index.position(j, i)]);
+                }
+            }
+            col_ptr.push(row_idx.len());
+        }
+        let symbolic = Self::analyse(&col_ptr, &row_idx, &order, &inv)?;
+        let signs = (0..size).map(|i| if i < n { 1 } else { -1 }).collect();
+        let coordinate_diagonal = (0..n).map(|i| index.diagonal[i]).collect();
+        let mem = Self::scratch(&symbolic);
+        Some(Self {
+            l_values: vec![0.0; symbolic.len_val()],
+            values: vec![0.0; row_idx.len()],
+            symbolic,
+            col_ptr,
+            row_idx,
+            from,
+            order,
+            inv,
+            signs,
+            coordinate_diagonal,
+            mem,
+        })
+    }
+
+    fn analyse(
+        col_ptr: &[usize],
+        row_idx: &[usize],
+        order: &[usize],
+        inv: &[usize],
+    ) -> Option<SymbolicCholesky<usize>> {
+        let size = col_ptr.len() - 1;
+        let upper = SymbolicSparseColMatRef::new_checked(size, size, col_ptr, None, row_idx);
+        let perm = faer::perm::PermRef::new_checked(order, inv, size);
+        let params = faer::sparse::linalg::cholesky::CholeskySymbolicParams {
+            supernodal_flop_ratio_threshold: faer::sparse::linalg::SupernodalThreshold::FORCE_SUPERNODAL,
+            ..Default::default()
+        };
+        factorize_symbolic_cholesky(upper, Side::Upper, SymmetricOrdering::Custom(perm), params).ok()
+    }
+
+    fn scratch(symbolic: &SymbolicCholesky<usize>) -> MemBuffer {
+        MemBuffer::new(StackReq::or(
+            symbolic.factorize_numeric_ldlt_scratch::<f64>(Par::Seq, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+        ))
+    }
+
+    /// Factors the symmetric part of the full matrix `full` (values in `SparseIndex` layout).
+    /// Pivots of the wrong sign, or below `1e-14` of the largest coordinate diagonal, become
+    /// that sign times `1e-10` of it. False when the factorization fails.
+    fn factor(&mut self, full: &[f64]) -> bool {
+        for (v, [a, b]) in self.values.iter_mut().zip(&self.from) {
+            *v = 0.5 * (full[*a] + full[*b]);
+        }
+        let size = self.col_ptr.len() - 1;
+        let scale = self.coordinate_diagonal.iter().map(|&k| full[k].abs()).fold(0.0, f64::max).max(1e-300);
+        let sym = SymbolicSparseColMatRef::new_checked(size, size, &self.col_ptr, None, &self.row_idx);
+        let mat = SparseColMatRef::new(sym, &self.values);
+        let ok = self
+            .symbolic
+            .factorize_numeric_ldlt(
+                &mut self.l_values,
+                mat,
+                Side::Upper,
+                LdltRegularization {
+                    dynamic_regularization_signs: Some(&self.signs),
+                    dynamic_regularization_delta: 1e-10 * scale,
+                    dynamic_regularization_epsilon: 1e-14 * scale,
+                },
+                Par::Seq,
+                MemStack::new(&mut self.mem),
+                Default::default(),
+            )
+            .is_ok();
+        ok && self.l_values.iter().all(|v| v.is_finite())
+    }
+
+    fn solve(&mut self, x: MatMut<'_, f64>) {
+        let ldlt = LdltRef::new(&self.symbolic, &self.l_values);
+        ldlt.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(&mut self.mem));
+    }
+
+    /// Stored entries of the factor `L`.
+    fn factor_entries(&self) -> usize {
+        self.l_values.len()
+    }
+}
+
+impl Clone for SymmetricFactor {
+    fn clone(&self) -> Self {
+        let symbolic = Self::analyse(&self.col_ptr, &self.row_idx, &self.order, &self.inv)
+            .expect("the pattern was analysed before");
+        let mem = Self::scratch(&symbolic);
+        Self {
+            symbolic,
+            order: self.order.clone(),
+            inv: self.inv.clone(),
+            col_ptr: self.col_ptr.clone(),
+            row_idx: self.row_idx.clone(),
+            values: self.values.clone(),
+            from: self.from.clone(),
+            l_values: self.l_values.clone(),
+            signs: self.signs.clone(),
+            coordinate_diagonal: self.coordinate_diagonal.clone(),
+            mem,
+        }
+    }
 }
 
 /// One model's Newton (KKT) matrix and its factorization. Unknowns: the `n` coordinates, the
@@ -181,6 +447,7 @@ pub struct KktSystem {
     slot_w: Vec<Vector6<f64>>,
     storage: Storage,
     factored: bool,
+    kind: FactorKind,
 }
 
 impl std::fmt::Debug for KktSystem {
@@ -211,9 +478,11 @@ impl KktSystem {
             LinearBackend::Auto => LinearBackend::Dense,
             b => b,
         };
+        let symmetric_wanted = backend == LinearBackend::Sparse;
+        let sparse = matches!(backend, LinearBackend::Sparse | LinearBackend::SparseLu);
         let mut border = vec![None; model.cables.len()];
         let mut border_slot_start = Vec::new();
-        if backend == LinearBackend::Sparse {
+        if sparse {
             let mut slot_total = 0;
             for (c, b) in border.iter_mut().enumerate() {
                 let count = slots.of(c).len();
@@ -227,13 +496,13 @@ impl KktSystem {
         let size = n + nc + border_slot_start.len();
         let max_slots = (0..model.cables.len()).map(|c| slots.of(c).len()).max().unwrap_or(0);
         let offsets = model.bodies.iter().map(|b| (b.dof_offset, b.dof_count)).collect();
-        let storage = if backend == LinearBackend::Sparse && size > 0 {
-            Self::sparse_storage(model, &slots, &border, size)
+        let storage = if sparse && size > 0 {
+            Self::sparse_storage(model, &slots, &border, size, symmetric_wanted)
         } else {
             None
         };
         let (backend, storage) = match storage {
-            Some(s) => (LinearBackend::Sparse, s),
+            Some(s) => (backend, s),
             None => {
                 // no sparse structure (or no unknowns): dense without borders
                 border.iter_mut().for_each(|b| *b = None);
@@ -267,6 +536,7 @@ impl KktSystem {
             slot_w: vec![Vector6::zeros(); max_slots],
             storage,
             factored: false,
+            kind: FactorKind::Lu,
         }
     }
 
@@ -284,12 +554,13 @@ impl KktSystem {
                     mem: MemBuffer::new(req),
                 }
             }
-            Storage::Sparse { index, values, symbolic, .. } => Storage::Sparse {
+            Storage::Sparse { index, values, symbolic, symmetric, .. } => Storage::Sparse {
                 mem: MemBuffer::new(sparse_scratch(symbolic)),
                 index: index.clone(),
                 values: values.clone(),
                 symbolic: symbolic.clone(),
                 numeric: Box::new(NumericLu::new()),
+                symmetric: symmetric.clone(),
             },
         };
         Self {
@@ -306,6 +577,7 @@ impl KktSystem {
             slot_w: self.slot_w.clone(),
             storage,
             factored: false,
+            kind: FactorKind::Lu,
         }
     }
 
@@ -314,6 +586,7 @@ impl KktSystem {
         slots: &CableSlots,
         border: &[Option<usize>],
         size: usize,
+        symmetric_wanted: bool,
     ) -> Option<Storage> {
         let n = model.dof_count;
         let nc = model.constraint_count;
@@ -447,12 +720,28 @@ impl KktSystem {
         // twice the longest ordinary column, so that eliminating it early cannot fill the factors.
         let ordinary = (0..n + nc).map(|j| index.col_ptr[j + 1] - index.col_ptr[j]).max().unwrap_or(1);
         let symbolic = factorize_symbolic_lu(sym, sparse_lu_params(2 * ordinary, size)).ok()?;
+        let mut row_bodies: Vec<Vec<std::ops::Range<usize>>> = vec![Vec::new(); nc];
+        for joint in &model.joints {
+            let ranges: Vec<std::ops::Range<usize>> = joint_points(joint)
+                .map(|(p, _)| dofs(model.points[p.0].body))
+                .filter(|r| !r.is_empty())
+                .collect();
+            for r in 0..rows {
+                row_bodies[joint.row_offset + r] = ranges.clone();
+            }
+        }
+        let symmetric = if symmetric_wanted {
+            SymmetricFactor::new(&index, &row_bodies, n, nc).map(Box::new)
+        } else {
+            None
+        };
         Some(Storage::Sparse {
             mem: MemBuffer::new(sparse_scratch(&symbolic)),
             values: vec![0.0; index.row_idx.len()],
             index: Box::new(index),
             symbolic: Box::new(symbolic),
             numeric: Box::new(NumericLu::new()),
+            symmetric,
         })
     }
 
@@ -476,14 +765,15 @@ impl KktSystem {
         }
     }
 
-    /// Zeroes the matrix; a bordered cable's row reads `dT = 0` until `cable_rank_one` fills it.
+    /// Zeroes the matrix; a bordered cable's row reads `-dT = 0` until `cable_rank_one` fills it
+    /// (negative, like every border pivot of the quasi-definite matrix).
     pub fn clear(&mut self) {
         match &mut self.storage {
             Storage::Dense { a, .. } => a.fill(0.0),
             Storage::Sparse { values, index, .. } => {
                 values.fill(0.0);
                 for k in self.n + self.nc..self.size {
-                    values[index.diagonal[k]] = 1.0;
+                    values[index.diagonal[k]] = -1.0;
                 }
             }
         }
@@ -569,6 +859,7 @@ impl KktSystem {
     pub fn factor(&mut self) -> bool {
         let size = self.size;
         self.factored = false;
+        self.kind = FactorKind::Lu;
         if size == 0 {
             self.factored = true;
             return true;
@@ -590,7 +881,7 @@ impl KktSystem {
                     d != 0.0 && d.is_finite()
                 })
             }
-            Storage::Sparse { index, values, symbolic, numeric, mem } => {
+            Storage::Sparse { index, values, symbolic, numeric, mem, .. } => {
                 let sym =
                     SymbolicSparseColMatRef::new_checked(size, size, &index.col_ptr, None, &index.row_idx);
                 let mat = SparseColMatRef::new(sym, values);
@@ -601,6 +892,37 @@ impl KktSystem {
         };
         self.factored = ok;
         ok
+    }
+
+    /// Factors the symmetric part `(A + A^T) / 2` of the assembled matrix by sparse `LDL^T`
+    /// where the backend has it (module docs), else exactly like `factor`. For a symmetric
+    /// matrix (the explicit integrator's `[M, Phi_q^T; Phi_q, 0]`) the factors are exact; for
+    /// the nonsymmetric Newton matrix they are a modified Newton's approximation, and the
+    /// caller watches the contraction. False when the factorization fails.
+    pub fn factor_symmetric(&mut self) -> bool {
+        let Storage::Sparse { values, symmetric: Some(sym), .. } = &mut self.storage else {
+            return self.factor();
+        };
+        self.factored = false;
+        if !sym.factor(values) {
+            return self.factor();
+        }
+        self.kind = FactorKind::SymmetricLdlt;
+        self.factored = true;
+        true
+    }
+
+    /// Which factorization the held factors are.
+    pub fn factor_kind(&self) -> FactorKind {
+        self.kind
+    }
+
+    /// Stored entries of the symmetric factor `L` (`factor_symmetric`), when the backend has one.
+    pub fn symmetric_factor_entries(&self) -> Option<usize> {
+        match &self.storage {
+            Storage::Sparse { symmetric: Some(sym), .. } => Some(sym.factor_entries()),
+            _ => None,
+        }
     }
 
     /// True when factors from a successful `factor` are held.
@@ -629,6 +951,9 @@ impl KktSystem {
                 let f = faer::MatRef::from_column_major_slice(lu, size, size);
                 let p = faer::perm::PermRef::new_checked(perm, perm_inv, size);
                 dense_lu::solve::solve_in_place(f, f, p, x, Par::Seq, MemStack::new(mem));
+            }
+            Storage::Sparse { symmetric: Some(sym), .. } if self.kind == FactorKind::SymmetricLdlt => {
+                sym.solve(x);
             }
             Storage::Sparse { symbolic, numeric, mem, .. } => {
                 let lu = faer::sparse::linalg::lu::LuRef::new_unchecked(symbolic, numeric);
