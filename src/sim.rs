@@ -11,7 +11,9 @@ use std::time::{Duration, Instant};
 use crate::control::{ActuatorCommand, CommandError, Control};
 use crate::forces::{evaluate_forces, Workspace};
 use crate::model::{ActuatorId, Model};
-use crate::solve::dynamics::{cable_powers, stability_limit, Dynamics, Integrator, NewtonSettings};
+use crate::solve::dynamics::{
+    cable_powers, explicit_stability_limit, AttemptFailure, Dynamics, Integrator, NewtonSettings,
+};
 use crate::solve::linear::LinearBackend;
 use crate::state::State;
 
@@ -28,6 +30,10 @@ pub struct SimSettings {
     pub min_dt: f64,
     /// Factorization of the Newton systems.
     pub linear: LinearBackend,
+    /// Local error tolerance, m (`None`: fixed steps). With a tolerance, `dt` is the output
+    /// interval: each `step` reaches `t + dt` exactly in sub-steps whose size the integrator's
+    /// local error estimate chooses (generalized-alpha and Dormand-Prince only).
+    pub tolerance: Option<f64>,
 }
 
 impl Default for SimSettings {
@@ -38,6 +44,7 @@ impl Default for SimSettings {
             newton: NewtonSettings::default(),
             min_dt: 1e-9,
             linear: LinearBackend::Auto,
+            tolerance: None,
         }
     }
 }
@@ -54,8 +61,15 @@ pub struct StepStats {
     pub residual: f64,
     /// Rejected attempts (each followed by a halved retry).
     pub rejected: usize,
-    /// Accepted sub-steps (1 when nothing was rejected).
+    /// Accepted sub-steps (1 when nothing was rejected and the step is fixed).
     pub substeps: usize,
+    /// Force evaluations over all attempts.
+    pub evaluations: usize,
+    /// Largest local error estimate of the accepted sub-steps, m (0 without an estimate).
+    pub error: f64,
+    /// Sub-steps accepted at the smallest error-controlled step (`MIN_CONTROLLED_STEP` of the
+    /// interval) without meeting the tolerance: where the motion jumps (a cable goes slack).
+    pub forced: usize,
     /// Wall-clock time spent in the step.
     pub wall_time: Duration,
 }
@@ -85,14 +99,38 @@ pub enum StepError {
     InvalidStep(f64),
     /// The explicit integrator would be unstable at this step size.
     #[error(
-        "symplectic Euler is unstable at dt = {dt:.3e} s: its stability limit here is {limit:.3e} s (2/omega_max); use a smaller step or generalized-alpha"
+        "{integrator} is unstable at dt = {dt:.3e} s: its stability limit here is {limit:.3e} s; use a smaller step, an error tolerance (dormand-prince) or generalized-alpha"
     )]
     UnstableExplicitStep {
+        /// The integrator's name.
+        integrator: String,
         /// Requested step, s.
         dt: f64,
         /// Stability limit at the initial state, s.
         limit: f64,
     },
+    /// An error tolerance was given to an integrator that cannot estimate its error.
+    #[error("{integrator} has no error estimate, so it cannot take a tolerance; use generalized-alpha or dormand-prince, or a fixed step")]
+    ToleranceNotSupported {
+        /// The integrator's name.
+        integrator: String,
+    },
+    /// The tolerance is not positive and finite.
+    #[error("invalid error tolerance {0} m")]
+    InvalidTolerance(f64),
+}
+
+/// An implicit integrator under error control grows its step only when the error estimate
+/// allows this factor or more (every new step size costs it a factorization).
+pub const GROWTH_THRESHOLD: f64 = 1.2;
+
+/// The smallest sub-step error control takes, as a fraction of the output interval; a sub-step
+/// this small is accepted whatever its error estimate (and counted, `StepStats::forced`).
+pub const MIN_CONTROLLED_STEP: f64 = 1e-5;
+
+/// The largest whole fraction `dt / k` of the output interval that is at most `h` (s).
+fn quantized(dt: f64, h: f64) -> f64 {
+    dt / (dt / h * (1.0 - 1e-12)).ceil().max(1.0)
 }
 
 /// Energies and cumulative works, J. With no numerical dissipation,
@@ -140,6 +178,10 @@ pub struct Simulator {
     initial: State,
     control: Control,
     rejected_commands: usize,
+    /// With a tolerance: the sub-step the error estimate proposes next, s.
+    next_h: f64,
+    /// With a tolerance: running mean of the accepted sub-steps, s.
+    mean_h: f64,
 }
 
 impl Simulator {
@@ -154,12 +196,26 @@ impl Simulator {
         if !(settings.dt.is_finite() && settings.dt > 0.0) {
             return Err(StepError::InvalidStep(settings.dt));
         }
+        if let Some(tol) = settings.tolerance {
+            if !(tol.is_finite() && tol > 0.0) {
+                return Err(StepError::InvalidTolerance(tol));
+            }
+            if !settings.integrator.estimates_error() {
+                return Err(StepError::ToleranceNotSupported { integrator: settings.integrator.name() });
+            }
+        }
         let mut dynamics = Dynamics::new(&model, settings.linear);
         model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
-        if settings.integrator == Integrator::SymplecticEuler {
-            let limit = stability_limit(&model, &state);
+        // an explicit integrator at a fixed step must stay below its stability limit (with a
+        // tolerance the error estimate cuts the step where it would not)
+        if settings.integrator.is_explicit() && settings.tolerance.is_none() {
+            let limit = explicit_stability_limit(&model, &state, settings.integrator);
             if settings.dt > limit {
-                return Err(StepError::UnstableExplicitStep { dt: settings.dt, limit });
+                return Err(StepError::UnstableExplicitStep {
+                    integrator: settings.integrator.name(),
+                    dt: settings.dt,
+                    limit,
+                });
             }
         }
         if !dynamics.initialize(&model, &mut state) {
@@ -190,6 +246,8 @@ impl Simulator {
             rest_rate: vec![0.0; nc],
             control,
             rejected_commands: 0,
+            next_h: settings.dt,
+            mean_h: settings.dt,
         })
     }
 
@@ -269,19 +327,48 @@ impl Simulator {
         *self = fresh;
     }
 
-    /// Advances by `settings.dt`, cutting the step in halves where an attempt fails.
+    /// Advances by `settings.dt`. Fixed steps: an attempt that fails is retried in halves (then
+    /// grown back). With a tolerance: sub-steps of the size the local error estimate proposes,
+    /// `h_new = h min(5, max(0.2, 0.9 ratio^(-e)))` with `ratio` the error over what the
+    /// tolerance allows (`AttemptStats::error_ratio`) and `e = Integrator::error_exponent`; a
+    /// sub-step whose ratio exceeds 1 is rejected and retried smaller, the last one clipped to end
+    /// exactly at `t + dt`.
     pub fn step(&mut self) -> Result<StepStats, StepError> {
         let start = Instant::now();
         let mut stats = StepStats::default();
-        let target = self.state.time + self.settings.dt;
-        let mut h = self.settings.dt;
-        while self.state.time < target - 1e-12 * self.settings.dt {
-            let h_try = h.min(target - self.state.time);
+        let dt = self.settings.dt;
+        let target = self.state.time + dt;
+        let tolerance = self.settings.tolerance;
+        let exponent = self.settings.integrator.error_exponent();
+        let implicit = !self.settings.integrator.is_explicit();
+        let mut h = if tolerance.is_some() { self.next_h.min(dt) } else { dt };
+        while self.state.time < target - 1e-12 * dt {
+            let remaining = target - self.state.time;
+            // a sub-step that would leave a sliver shares the rest with the next one instead
+            // (a fixed step is the whole interval, whatever the rounding of `target - time`)
+            let h_try = if h >= remaining * (1.0 - 1e-9) {
+                remaining
+            } else if h > 0.8 * remaining {
+                0.5 * remaining
+            } else {
+                h
+            };
             self.rest_now.copy_from_slice(&self.state.rest_lengths);
             self.control.advance(&self.model, self.state.time, h_try, &self.rest_now, &mut self.rest_next);
             Control::rates(&self.model, &self.rest_now, &self.rest_next, h_try, &mut self.rest_rate);
             // power at the start of the sub-step (the workspace holds the current state)
             let (p_act0, p_loss0) = cable_powers(&self.model, &self.ws, &self.rest_rate);
+            // at the smallest error-controlled sub-step the tolerance is not enforced: a jump of
+            // the acceleration (a cable going slack) would otherwise shrink the step without end
+            let forced = tolerance.is_some() && h_try <= dt * MIN_CONTROLLED_STEP;
+            // generalized-alpha gets the same share of the tolerance every step, scaled by the
+            // running mean step (`dynamics::TOLERANCE_TIME`); Dormand-Prince takes it per step
+            let step_tolerance = match (tolerance, implicit) {
+                (Some(tol), true) => {
+                    Some(tol * (self.mean_h / crate::solve::dynamics::TOLERANCE_TIME).min(1.0))
+                }
+                (t, _) => t,
+            };
             let attempt = self.dynamics.step(
                 &self.model,
                 self.settings.integrator,
@@ -290,10 +377,24 @@ impl Simulator {
                 &self.rest_now,
                 &self.rest_next,
                 h_try,
+                if forced { None } else { step_tolerance },
             );
             match attempt {
-                Some(a) => {
+                Ok(a) => {
                     debug_assert!(self.state.is_finite());
+                    stats.forced += usize::from(forced);
+                    // running mean of the accepted sub-steps (a clipped last one says little)
+                    if h_try >= 0.5 * h {
+                        self.mean_h += 0.1 * (h_try - self.mean_h);
+                    }
+                    if forced && implicit {
+                        // restart from consistent accelerations: the jump would otherwise ring in
+                        // generalized-alpha's spurious acceleration mode, decaying by rho_inf a
+                        // step, and keep the error estimate above the tolerance
+                        if !self.dynamics.initialize(&self.model, &mut self.state) {
+                            return Err(StepError::Initialization);
+                        }
+                    }
                     if !self.dynamics.take_final_evaluation(&mut self.ws) {
                         evaluate_forces(&self.model, &self.state, &mut self.ws);
                     }
@@ -302,15 +403,52 @@ impl Simulator {
                     self.energy.damping_loss += 0.5 * h_try * (p_loss0 + p_loss1);
                     stats.newton_iterations += a.iterations;
                     stats.factorizations += a.factorizations;
+                    stats.evaluations += a.evaluations;
                     stats.residual = stats.residual.max(a.residual);
+                    stats.error = stats.error.max(a.error.unwrap_or(0.0));
                     stats.substeps += 1;
-                    // after a cut, try to grow back
-                    h = (2.0 * h_try).min(self.settings.dt);
+                    h = match a.error_ratio {
+                        Some(ratio) => {
+                            let factor = if ratio > 0.0 { 0.9 * ratio.powf(-exponent) } else { 5.0 };
+                            let proposal = h_try * factor.clamp(0.2, 5.0);
+                            if implicit {
+                                // whole fractions of the interval, and no change for less than
+                                // GROWTH_THRESHOLD x
+                                // growth: every new step size costs the implicit integrator a
+                                // factorization
+                                if proposal >= GROWTH_THRESHOLD * h {
+                                    quantized(dt, proposal)
+                                } else {
+                                    h
+                                }
+                            } else if h_try < h {
+                                // a clipped sub-step says little about the step size
+                                proposal.max(h)
+                            } else {
+                                proposal
+                            }
+                        }
+                        // after a cut, try to grow back
+                        _ => (2.0 * h_try).min(dt),
+                    };
                 }
-                None => {
+                Err(failure) => {
                     stats.rejected += 1;
-                    h = 0.5 * h_try;
-                    if h < self.settings.min_dt {
+                    h = match failure {
+                        AttemptFailure::ErrorTooLarge(ratio) => {
+                            h_try * (0.9 * ratio.powf(-exponent)).clamp(0.1, 0.9)
+                        }
+                        AttemptFailure::Diverged => 0.5 * h_try,
+                    };
+                    if implicit && tolerance.is_some() {
+                        h = quantized(dt, h);
+                    }
+                    if tolerance.is_some() {
+                        h = h.max(dt * MIN_CONTROLLED_STEP);
+                    }
+                    if h < self.settings.min_dt
+                        && !(tolerance.is_some() && matches!(failure, AttemptFailure::ErrorTooLarge(_)))
+                    {
                         return Err(StepError::StepTooSmall {
                             time: self.state.time,
                             dt: h_try,
@@ -320,6 +458,9 @@ impl Simulator {
                     }
                 }
             }
+        }
+        if tolerance.is_some() {
+            self.next_h = h;
         }
         let e = self.ws.energies;
         self.energy.kinetic = e.kinetic;

@@ -6,8 +6,10 @@ use nalgebra::{DVector, UnitQuaternion, Vector3};
 
 use crate::model::{Model, Pose};
 
-/// Everything that changes during a run. Built from a `Model` with `State::initial`.
-#[derive(Debug, Clone, PartialEq)]
+/// Everything that changes during a run. Built from a `Model` with `State::initial`
+/// (`Default` is the empty state of a model with nothing in it: a placeholder that allocates
+/// nothing).
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct State {
     /// Simulation time, s.
     pub time: f64,
@@ -31,6 +33,15 @@ impl State {
             rest_lengths: model.initial_rest_lengths.clone(),
             multipliers: DVector::zeros(model.constraint_count),
         }
+    }
+
+    /// Copies `other` into `self` in place (same model: equal sizes), without allocating.
+    pub fn copy_from(&mut self, other: &State) {
+        self.time = other.time;
+        self.poses.copy_from_slice(&other.poses);
+        self.velocities.copy_from(&other.velocities);
+        self.rest_lengths.copy_from_slice(&other.rest_lengths);
+        self.multipliers.copy_from(&other.multipliers);
     }
 
     /// True if every number in the state is finite.

@@ -8,9 +8,12 @@
 //!   exceeds 1 %. For a free-floating structure (`Model::is_free_floating`) displacements are
 //!   measured after removing the rigid-body motion (`rigidly_aligned`): its shape is compared, not
 //!   its drift, and the summary says so.
-//! - `work_precision`: one deployment over integrators and step sizes; each run's error is the
-//!   largest distance of any named point from a converged reference run (much smaller step) over
-//!   samples every 10 ms, against its median wall time.
+//! - `work_precision`: one deployment over integrators, step sizes and error tolerances; each
+//!   run's error is the largest distance of any point from a converged reference run (much smaller
+//!   step) over regular samples, against its median wall time; the error runs go on all cores, the
+//!   timed runs one at a time.
+//! - `deployment_study` runs its dynamic deployments on all cores too (`jobs`), with the same
+//!   results as one at a time.
 
 use std::fmt::Write as _;
 use std::io::Write as _;
@@ -25,7 +28,7 @@ use crate::plot::{self, Chart, Series};
 use crate::report;
 use crate::report::Num;
 use crate::sim::{SimSettings, Simulator, StepStats};
-use crate::solve::dynamics::{stability_limit, Integrator};
+use crate::solve::dynamics::Integrator;
 use crate::solve::statics::deploy_quasi_static;
 use crate::state::State;
 
@@ -87,6 +90,8 @@ pub struct RunTotals {
     pub newton_iterations: usize,
     /// Rejected attempts.
     pub rejected: usize,
+    /// Accepted sub-steps (equal to `steps` for fixed steps without rejections).
+    pub substeps: usize,
     /// Wall time of the stepping (callbacks excluded).
     pub wall_time: Duration,
 }
@@ -106,6 +111,7 @@ pub fn run_dynamic(
         totals.steps += 1;
         totals.newton_iterations += stats.newton_iterations;
         totals.rejected += stats.rejected;
+        totals.substeps += stats.substeps;
         totals.wall_time += stats.wall_time;
         each(&sim, &stats)?;
     }
@@ -295,6 +301,7 @@ pub fn deployment_study(
     point: Option<&str>,
     settings: SimSettings,
     settle: f64,
+    jobs: usize,
     out_dir: &Path,
 ) -> Result<StudyResult, String> {
     std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
@@ -367,9 +374,9 @@ pub fn deployment_study(
         crate::forces::evaluate(model, &State::initial(model), &mut s0, crate::forces::Tangents::None);
         s0.points.iter().map(|p| p.position).collect()
     };
-    let mut rows = Vec::new();
-    let mut histories = vec![Series { reference: true, ..Series::new("quasi-static", qs_tension, false) }];
-    for &t_ramp in &times {
+    // one dynamic deployment per actuation time, on `jobs` threads (each run is independent and
+    // deterministic: the same rows whatever the thread count)
+    let run_one = |&t_ramp: &f64| -> Result<(StudyRow, Series), String> {
         let mut m = model.clone();
         scale_schedule(&mut m, t_ramp);
         let within_rate = within_rate_limits(&m);
@@ -397,7 +404,7 @@ pub fn deployment_study(
         })
         .map_err(|e| format!("actuation time {t_ramp} s: {e}"))?;
         file.flush().map_err(|e| e.to_string())?;
-        rows.push(StudyRow {
+        let row = StudyRow {
             ramp_time: t_ramp,
             peak_tension: peak_t,
             tension_deviation: (peak_t - qs_peak_tension) / qs_peak_tension,
@@ -409,8 +416,15 @@ pub fn deployment_study(
             },
             within_rate,
             wall_time: totals.wall_time.as_secs_f64(),
-        });
-        histories.push(Series::new(format!("T = {t_ramp} s"), history, false));
+        };
+        Ok((row, Series::new(format!("T = {t_ramp} s"), history, false)))
+    };
+    let runs = parallel_map(&times, jobs, run_one)?;
+    let mut histories = vec![Series { reference: true, ..Series::new("quasi-static", qs_tension, false) }];
+    let mut rows = Vec::new();
+    for (row, history) in runs {
+        rows.push(row);
+        histories.push(history);
     }
     let worst: Vec<f64> =
         rows.iter().map(|r| r.tension_deviation.abs().max(r.displacement_deviation.abs())).collect();
@@ -478,12 +492,46 @@ pub fn deployment_study(
     Ok(result)
 }
 
+/// One run of the work-precision benchmark: an integrator at a fixed step, or under error
+/// control with a tolerance (then it steps between samples as its estimate decides).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunConfig {
+    /// Integrator.
+    pub integrator: Integrator,
+    /// Fixed step, s (`None`: error-controlled).
+    pub dt: Option<f64>,
+    /// Local error tolerance, m (error-controlled runs).
+    pub tolerance: Option<f64>,
+}
+
+impl RunConfig {
+    /// A fixed-step run.
+    pub fn fixed(integrator: Integrator, dt: f64) -> Self {
+        Self { integrator, dt: Some(dt), tolerance: None }
+    }
+    /// An error-controlled run.
+    pub fn controlled(integrator: Integrator, tolerance: f64) -> Self {
+        Self { integrator, dt: None, tolerance: Some(tolerance) }
+    }
+    /// Simulator settings with `sample` (s) the output interval of an error-controlled run.
+    fn settings(&self, sample: f64) -> SimSettings {
+        SimSettings {
+            dt: self.dt.unwrap_or(sample),
+            integrator: self.integrator,
+            tolerance: self.tolerance,
+            ..Default::default()
+        }
+    }
+}
+
 /// One row of the work-precision table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WorkPrecisionRow {
     /// Integrator name.
     pub integrator: String,
-    /// Step, s.
+    /// The run.
+    pub config: RunConfig,
+    /// Step, s (fixed runs).
     pub dt: f64,
     /// Largest point distance from the reference over the samples, m.
     pub error: f64,
@@ -491,6 +539,8 @@ pub struct WorkPrecisionRow {
     pub wall_time: f64,
     /// Newton iterations per step.
     pub newton_per_step: f64,
+    /// Steps taken (sub-steps of an error-controlled run).
+    pub steps: usize,
     /// Rejected attempts in the run.
     pub rejected: usize,
 }
@@ -518,91 +568,235 @@ fn sampled_positions(
     Ok((out, totals))
 }
 
-/// Runs the work-precision benchmark (see the module docs): every `(integrator, steps)` pair
-/// against a reference run at `reference_dt` with generalized-alpha (rho_inf 0.8), `repeats`
-/// timings each (median reported). Steps of symplectic Euler above its stability limit are
-/// skipped. Writes `work_precision.csv`, `work_precision.md` and `work_precision.{png,svg}`.
+/// Runs `f` over `items` on `jobs` threads (0: one per core), results in the items' order.
+fn parallel_map<T: Sync, R: Send>(
+    items: &[T],
+    jobs: usize,
+    f: impl Fn(&T) -> Result<R, String> + Sync,
+) -> Result<Vec<R>, String> {
+    use rayon::prelude::*;
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build().map_err(|e| e.to_string())?;
+    pool.install(|| items.par_iter().map(&f).collect())
+}
+
+/// Work-precision settings besides the runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorkPrecisionSettings {
+    /// Fixed step of the Dormand-Prince reference run, s.
+    pub reference_dt: f64,
+    /// Simulated time, s.
+    pub duration: f64,
+    /// Sample interval of the error (and output interval of error-controlled runs), s.
+    pub sample: f64,
+    /// Timed repeats per run (the median is reported).
+    pub repeats: usize,
+    /// Threads for the error runs (0: one per core); timing runs one at a time.
+    pub jobs: usize,
+}
+
+/// Runs the work-precision benchmark: every run of `configs` against a Dormand-Prince reference
+/// at `reference_dt`; error = largest point distance from the reference over the samples (after
+/// the optimal rigid alignment onto it for a free-floating structure). The error runs go on
+/// `jobs` threads, then each run is timed `repeats` times one at a time (so that the timings do
+/// not share the cores); results are the same whatever `jobs` is. Fixed-step explicit runs
+/// above their stability limit, and fixed steps that do not divide the sample interval, are left
+/// out. Writes `work_precision.csv`, `work_precision.md`
+/// (with, for each accuracy of 1e-4 and 1e-6 m, the cheapest run that meets it, and for each
+/// error-controlled run its cost against the cheapest fixed-step run at least as accurate) and
+/// `work_precision.{png,svg}`.
 pub fn work_precision(
     model: &Model,
-    configs: &[(Integrator, Vec<f64>)],
-    reference_dt: f64,
-    duration: f64,
-    repeats: usize,
+    configs: &[RunConfig],
+    bench: WorkPrecisionSettings,
     out_dir: &Path,
 ) -> Result<Vec<WorkPrecisionRow>, String> {
     std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
-    let sample = 0.01;
-    let reference_settings = SimSettings {
-        dt: reference_dt,
-        integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
-        ..Default::default()
-    };
-    let (reference, _) = sampled_positions(model, reference_settings, duration, sample)?;
-    let limit = stability_limit(model, &State::initial(model));
-    let free = model.is_free_floating();
-    let mut rows = Vec::new();
-    for (integrator, dts) in configs {
-        for &dt in dts {
-            if *integrator == Integrator::SymplecticEuler && dt > limit {
-                continue;
-            }
-            let settings = SimSettings { dt, integrator: *integrator, ..Default::default() };
-            let mut walls = Vec::new();
-            let mut result = None;
-            for _ in 0..repeats.max(1) {
-                let start = Instant::now();
-                let r = sampled_positions(model, settings, duration, sample)?;
-                walls.push(start.elapsed().as_secs_f64());
-                result = Some(r);
-            }
-            walls.sort_by(f64::total_cmp);
-            let (samples, totals) = result.expect("at least one repeat");
-            let error = samples
-                .iter()
-                .zip(&reference)
-                .flat_map(|(a, b)| {
-                    // a structure held by nothing drifts differently under each integrator: compare
-                    // shapes, after the optimal rigid alignment onto the reference
-                    let a = if free { rigidly_aligned(a, b) } else { a.clone() };
-                    a.iter().zip(b).map(|(p, q)| (p - q).norm()).collect::<Vec<_>>()
-                })
-                .fold(0.0, f64::max);
-            rows.push(WorkPrecisionRow {
-                integrator: integrator.name(),
-                dt,
-                error,
-                wall_time: walls[walls.len() / 2],
-                newton_per_step: totals.newton_iterations as f64 / totals.steps.max(1) as f64,
-                rejected: totals.rejected,
-            });
-        }
+    let WorkPrecisionSettings { reference_dt, duration, sample, repeats, jobs } = bench;
+    if !(sample > 0.0 && reference_dt > 0.0 && reference_dt <= sample && duration >= sample) {
+        return Err(format!(
+            "the reference step ({reference_dt} s) must be positive and at most the sample interval ({sample} s), itself at most the duration ({duration} s)"
+        ));
     }
+    let reference_settings =
+        SimSettings { dt: reference_dt, integrator: Integrator::DormandPrince, ..Default::default() };
+    let (reference, _) = sampled_positions(model, reference_settings, duration, sample)
+        .map_err(|e| format!("reference run (Dormand-Prince at {reference_dt} s): {e}"))?;
+    let start = State::initial(model);
+    let limit = |i: Integrator| crate::solve::dynamics::explicit_stability_limit(model, &start, i);
+    let runs: Vec<RunConfig> = configs
+        .iter()
+        .copied()
+        .filter(|c| match c.dt {
+            // a step must divide the sample interval, so that samples fall at the reference's times
+            Some(dt) => {
+                let per_sample = sample / dt;
+                dt <= sample * (1.0 + 1e-9)
+                    && (per_sample - per_sample.round()).abs() <= 1e-6 * per_sample
+                    && !(c.integrator.is_explicit() && dt > limit(c.integrator))
+            }
+            None => true,
+        })
+        .collect();
+    let free = model.is_free_floating();
+    let error_of = |samples: &[PointSample]| {
+        samples
+            .iter()
+            .zip(&reference)
+            .flat_map(|(a, b)| {
+                // a structure held by nothing drifts differently under each integrator: compare
+                // shapes, after the optimal rigid alignment onto the reference
+                let a = if free { rigidly_aligned(a, b) } else { a.clone() };
+                a.iter().zip(b).map(|(p, q)| (p - q).norm()).collect::<Vec<_>>()
+            })
+            .fold(0.0, f64::max)
+    };
+    // errors on all cores
+    let accuracy = parallel_map(&runs, jobs, |c| {
+        let (samples, totals) = sampled_positions(model, c.settings(sample), duration, sample)
+            .map_err(|e| format!("{}: {e}", c.integrator.name()))?;
+        Ok((error_of(&samples), totals))
+    })?;
+    // timings one at a time
+    let mut rows = Vec::new();
+    for (c, (error, totals)) in runs.iter().zip(accuracy) {
+        let mut walls = Vec::new();
+        for _ in 0..repeats.max(1) {
+            let begin = Instant::now();
+            sampled_positions(model, c.settings(sample), duration, sample)?;
+            walls.push(begin.elapsed().as_secs_f64());
+        }
+        walls.sort_by(f64::total_cmp);
+        rows.push(WorkPrecisionRow {
+            integrator: match c.tolerance {
+                Some(_) => format!("{} (tol)", c.integrator.name()),
+                None => c.integrator.name(),
+            },
+            config: *c,
+            dt: c.dt.unwrap_or(0.0),
+            error,
+            wall_time: walls[walls.len() / 2],
+            newton_per_step: totals.newton_iterations as f64 / totals.substeps.max(1) as f64,
+            steps: totals.substeps,
+            rejected: totals.rejected,
+        });
+    }
+    write_work_precision(model, &rows, bench, free, out_dir)?;
+    Ok(rows)
+}
+
+/// The work-precision table, its verdicts and its plot.
+fn write_work_precision(
+    model: &Model,
+    rows: &[WorkPrecisionRow],
+    bench: WorkPrecisionSettings,
+    free: bool,
+    out_dir: &Path,
+) -> Result<(), String> {
+    let WorkPrecisionSettings { reference_dt, duration, sample, repeats, .. } = bench;
+    let start = State::initial(model);
     let mut csv = create(&out_dir.join("work_precision.csv"))?;
-    let _ = writeln!(csv, "integrator,dt_s,max_point_error_m,median_wall_time_s,newton_per_step,rejected");
+    let _ = writeln!(
+        csv,
+        "integrator,dt_s,tolerance_m,max_point_error_m,median_wall_time_s,steps,rejected,newton_per_step"
+    );
+    let limits: Vec<String> = [Integrator::SymplecticEuler, Integrator::Rk4, Integrator::DormandPrince]
+        .iter()
+        .map(|&i| {
+            format!(
+                "{} {:.3e} s",
+                i.name(),
+                crate::solve::dynamics::explicit_stability_limit(model, &start, i)
+            )
+        })
+        .collect();
     let mut md = format!(
-        "Reference: generalized-alpha (rho_inf 0.8) at dt = {reference_dt:e} s; error = largest distance of any point from the reference{}, sampled every {sample} s over {duration} s; wall time = median of {repeats} runs. Symplectic Euler stability limit here: {limit:.3e} s.\n\n| integrator | dt s | max point error m | median wall time s | Newton iterations / step |\n| --- | ---: | ---: | ---: | ---: |\n",
+        "Reference: dormand-prince at dt = {reference_dt:e} s; error = largest distance of any point from the reference{}, sampled every {sample} s over {duration} s; wall time = median of {repeats} runs, one at a time; error-controlled runs (tol) step between samples as their estimate decides. Stability limits of the explicit integrators at the start: {}.\n\n| integrator | dt s | tolerance m | max point error m | median wall time s | steps | rejected | Newton iterations / step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
         if free {
             " after the optimal rigid alignment of each sample onto it (the structure floats free: shapes are compared, not drift)"
         } else {
             ""
-        }
+        },
+        limits.join(", ")
     );
-    for r in &rows {
+    let fmt_opt = |x: Option<f64>| x.map(|v| format!("{v:e}")).unwrap_or_else(|| "-".into());
+    for r in rows {
         let _ = writeln!(
             csv,
-            "{},{},{:.6e},{:.6},{:.3},{}",
-            r.integrator, r.dt, r.error, r.wall_time, r.newton_per_step, r.rejected
+            "{},{},{},{:.6e},{:.6},{},{},{:.3}",
+            r.integrator,
+            r.config.dt.map(|d| d.to_string()).unwrap_or_default(),
+            r.config.tolerance.map(|t| t.to_string()).unwrap_or_default(),
+            r.error,
+            r.wall_time,
+            r.steps,
+            r.rejected,
+            r.newton_per_step
         );
         let _ = writeln!(
             md,
-            "| {} | {} | {:.3e} | {:.4} | {:.2} |",
-            r.integrator, r.dt, r.error, r.wall_time, r.newton_per_step
+            "| {} | {} | {} | {:.3e} | {:.4} | {} | {} | {:.2} |",
+            r.integrator,
+            fmt_opt(r.config.dt),
+            fmt_opt(r.config.tolerance),
+            r.error,
+            r.wall_time,
+            r.steps,
+            r.rejected,
+            r.newton_per_step
+        );
+    }
+    // verdicts: the cheapest run at each accuracy, and each error-controlled run's cost
+    md.push('\n');
+    for target in [1e-4, 1e-6] {
+        match rows.iter().filter(|r| r.error <= target).min_by(|a, b| a.wall_time.total_cmp(&b.wall_time)) {
+            Some(best) => {
+                let _ = writeln!(
+                    md,
+                    "Cheapest run with at most {target:e} m error: {} at {}, {:.3e} m in {:.4} s.  ",
+                    best.integrator,
+                    best.config
+                        .dt
+                        .map(|d| format!("dt = {d} s"))
+                        .unwrap_or_else(|| format!("tolerance {} m", fmt_opt(best.config.tolerance))),
+                    best.error,
+                    best.wall_time
+                );
+            }
+            None => {
+                let _ = writeln!(md, "No run reached {target:e} m.  ");
+            }
+        }
+    }
+    for r in rows.iter().filter(|r| r.config.tolerance.is_some()) {
+        let cheapest = |same: bool| {
+            rows.iter()
+                .filter(|f| f.config.tolerance.is_none() && f.error <= r.error)
+                .filter(|f| !same || f.config.integrator == r.config.integrator)
+                .min_by(|a, b| a.wall_time.total_cmp(&b.wall_time))
+        };
+        let versus = |f: Option<&WorkPrecisionRow>, what: &str| match f {
+            Some(f) => format!(
+                "{:.2} x the cheapest fixed-step run of {what} at least as accurate ({} at dt = {} s)",
+                r.wall_time / f.wall_time,
+                f.integrator,
+                f.dt
+            ),
+            None => format!("no fixed-step run of {what} here is as accurate"),
+        };
+        let tol = r.config.tolerance.unwrap_or(0.0);
+        let _ = writeln!(
+            md,
+            "{} at tolerance {tol:e} m: error {:.2} x the tolerance; wall time {}; {}.  ",
+            r.integrator,
+            r.error / tol,
+            versus(cheapest(true), "the same integrator"),
+            versus(cheapest(false), "any integrator"),
         );
     }
     csv.flush().map_err(|e| e.to_string())?;
     std::fs::write(out_dir.join("work_precision.md"), &md).map_err(|e| e.to_string())?;
     let mut series: Vec<Series> = Vec::new();
-    for r in &rows {
+    for r in rows {
         match series.iter_mut().find(|s| s.name == r.integrator) {
             Some(s) => s.points.push((r.wall_time, r.error.max(1e-16))),
             None => {
@@ -622,7 +816,7 @@ pub fn work_precision(
         },
         &out_dir.join("work_precision"),
     )?;
-    Ok(rows)
+    Ok(())
 }
 
 /// Side strings of a scaling-benchmark tower (`crate::scene::generate::TowerParams`).

@@ -209,8 +209,9 @@ fn explicit_step_above_the_stability_limit_is_refused_and_really_unstable() {
             &rest,
             &rest,
             1.1 * limit,
+            None,
         ) {
-            Some(_) if state.velocities.amax() < 1e6 => {}
+            Ok(_) if state.velocities.amax() < 1e6 => {}
             _ => {
                 grew = true;
                 break;

@@ -5,32 +5,16 @@
 //! Newton iterations per load step, and a start moved as a whole and disturbed comes back to the
 //! same self-stress.
 
+mod common;
+
 use nalgebra::DVector;
 use tensegrity::forces::{evaluate, Tangents, Workspace};
 use tensegrity::scene::generate::{prism, PrismParams};
-use tensegrity::scene::{build_model, CableSpec};
 use tensegrity::solve::statics::{deploy_quasi_static, EquilibriumReport, StaticSolver};
 use tensegrity::state::retract;
 use tensegrity::{Model, State};
 
-/// The bundled prism without its pins and with a bottom ring: held by nothing.
-fn free_prism() -> Model {
-    let mut spec = prism(&PrismParams::default());
-    spec.name = "free prism".into();
-    spec.joints.clear();
-    let template = spec.cables[0].clone();
-    for i in 0..3 {
-        spec.cables.push(CableSpec {
-            name: format!("bottom{i}"),
-            route: vec![format!("bar0_{i}.a"), format!("bar0_{}.a", (i + 1) % 3)],
-            prestress: None,
-            rest_length: None,
-            force_density: None,
-            ..template.clone()
-        });
-    }
-    build_model(&spec, "<free prism>", None).unwrap_or_else(|e| panic!("{e}"))
-}
+use common::free_prism;
 
 fn solve(model: &Model, state: &mut State) -> EquilibriumReport {
     let mut ws = Workspace::new(model);
@@ -124,7 +108,8 @@ fn a_free_prism_deployment_study_compares_shapes_and_converges_as_actuation_slow
     assert!(model.is_free_floating());
     let out = std::env::temp_dir().join(format!("tensegrity-free-study-{}", std::process::id()));
     let settings = tensegrity::sim::SimSettings::default();
-    let r = tensegrity::study::deployment_study(&model, &[0.2, 1.0, 5.0], None, settings, 0.5, &out).unwrap();
+    let r =
+        tensegrity::study::deployment_study(&model, &[0.2, 1.0, 5.0], None, settings, 0.5, 0, &out).unwrap();
     assert!(r.rigid_motion_removed && r.markdown().contains("optimal rigid alignment"));
     let dev: Vec<f64> =
         r.rows.iter().map(|row| row.displacement_deviation.abs().max(row.tension_deviation.abs())).collect();
@@ -138,14 +123,17 @@ fn the_work_precision_bench_compares_a_free_structures_shapes_and_says_so() {
     let model = free_prism();
     let out = std::env::temp_dir().join(format!("tensegrity-free-wp-{}", std::process::id()));
     let ga = tensegrity::solve::dynamics::Integrator::GeneralizedAlpha { rho_inf: 0.8 };
-    let rows = tensegrity::study::work_precision(&model, &[(ga, vec![4e-3, 2e-3, 1e-3])], 1e-4, 0.3, 1, &out)
-        .unwrap();
+    use tensegrity::study::{RunConfig, WorkPrecisionSettings};
+    let settings =
+        |duration| WorkPrecisionSettings { reference_dt: 1e-4, duration, sample: 0.01, repeats: 1, jobs: 0 };
+    let runs = [RunConfig::fixed(ga, 4e-3), RunConfig::fixed(ga, 2e-3), RunConfig::fixed(ga, 1e-3)];
+    let rows = tensegrity::study::work_precision(&model, &runs, settings(0.3), &out).unwrap();
     assert!(rows.windows(2).all(|w| w[1].error < w[0].error), "errors fall with the step: {rows:?}");
     let md = std::fs::read_to_string(out.join("work_precision.md")).unwrap();
     assert!(md.contains("after the optimal rigid alignment"), "{md}");
     // a held structure's table makes no such claim
     let pinned = tensegrity::scene::build_model(&prism(&PrismParams::default()), "<prism>", None).unwrap();
-    tensegrity::study::work_precision(&pinned, &[(ga, vec![2e-3])], 1e-3, 0.05, 1, &out).unwrap();
+    tensegrity::study::work_precision(&pinned, &[RunConfig::fixed(ga, 2e-3)], settings(0.05), &out).unwrap();
     assert!(!std::fs::read_to_string(out.join("work_precision.md")).unwrap().contains("alignment"));
     std::fs::remove_dir_all(&out).ok();
 }

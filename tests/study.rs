@@ -186,19 +186,32 @@ fn work_precision_bench_writes_a_table_with_converging_errors() {
     ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let table = std::fs::read_to_string(dir.join("work_precision.csv")).unwrap();
-    let ga: Vec<(f64, f64, f64)> = table
-        .lines()
-        .skip(1)
-        .filter(|l| l.starts_with("generalized-alpha(rho=0.8)"))
-        .map(|l| {
-            let f: Vec<&str> = l.split(',').collect();
-            (f[1].parse().unwrap(), f[2].parse().unwrap(), f[3].parse().unwrap())
-        })
-        .collect();
+    let header: Vec<&str> = table.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (dt, error, wall) = (column("dt_s"), column("max_point_error_m"), column("median_wall_time_s"));
+    let rows = |prefix: &str| -> Vec<(f64, f64, f64)> {
+        table
+            .lines()
+            .skip(1)
+            .filter(|l| l.starts_with(prefix))
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (f[dt].parse().unwrap_or(0.0), f[error].parse().unwrap(), f[wall].parse().unwrap())
+            })
+            .collect()
+    };
+    let ga = rows("generalized-alpha(rho=0.8),");
     assert_eq!(ga.len(), 6);
     assert!(ga.windows(2).all(|w| w[1].1 < w[0].1), "errors fall as the step falls: {ga:?}");
     assert!(ga.iter().all(|r| r.2 > 0.0), "every run was timed");
-    assert!(table.lines().any(|l| l.starts_with("symplectic-euler")));
+    // every integrator, and the error-controlled runs, whose errors fall as the tolerance does
+    for name in ["symplectic-euler,", "rk4,", "dormand-prince,"] {
+        assert!(!rows(name).is_empty(), "{name}");
+    }
+    let controlled = rows("dormand-prince (tol),");
+    assert!(controlled.len() >= 5 && controlled.windows(2).all(|w| w[1].1 <= w[0].1), "{controlled:?}");
+    let md = std::fs::read_to_string(dir.join("work_precision.md")).unwrap();
+    assert!(md.contains("Cheapest run with at most 1e-4 m error") && md.contains("x the tolerance"), "{md}");
     for f in ["work_precision.md", "work_precision.png", "work_precision.svg"] {
         assert!(dir.join(f).exists(), "missing {f}");
     }
@@ -241,4 +254,68 @@ fn step_and_scaling_benches_time_real_steps_and_refuse_bad_targets() {
     let md = std::fs::read_to_string(dir.join("scaling.md")).unwrap();
     assert_eq!(md.matches("sparse step time ~ stages^").count(), 3, "{md}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Parallel studies and benchmarks give exactly the serial results: every run is independent and
+/// deterministic, so only the wall-time columns may differ (the files are compared with them
+/// blanked out).
+#[test]
+fn parallel_runs_give_exactly_the_serial_results() {
+    use tensegrity::sim::SimSettings;
+    use tensegrity::solve::dynamics::Integrator;
+    use tensegrity::study::{work_precision, RunConfig, WorkPrecisionSettings};
+    let model = tensegrity::scene::load(&root().join("config/scenes/tbar.toml")).unwrap();
+    // blank the named columns of a CSV
+    let without = |text: &str, drop: &[&str]| -> Vec<String> {
+        let header: Vec<&str> = text.lines().next().unwrap().split(',').collect();
+        let keep: Vec<usize> = (0..header.len()).filter(|i| !drop.contains(&header[*i])).collect();
+        text.lines()
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                keep.iter().map(|&i| f[i]).collect::<Vec<_>>().join(",")
+            })
+            .collect()
+    };
+    let (serial, parallel) = (scratch("study-serial"), scratch("study-parallel"));
+    let times = [0.05, 0.2, 0.5, 1.0];
+    let settings = SimSettings { dt: 2e-3, ..Default::default() };
+    let a = tensegrity::study::deployment_study(&model, &times, None, settings, 0.2, 1, &serial).unwrap();
+    let b = tensegrity::study::deployment_study(&model, &times, None, settings, 0.2, 2, &parallel).unwrap();
+    for (x, y) in a.rows.iter().zip(&b.rows) {
+        assert_eq!((x.peak_tension, x.peak_displacement), (y.peak_tension, y.peak_displacement));
+    }
+    let read = |d: &PathBuf, f: &str| std::fs::read_to_string(d.join(f)).unwrap();
+    assert_eq!(
+        without(&read(&serial, "summary.csv"), &["wall_time_s"]),
+        without(&read(&parallel, "summary.csv"), &["wall_time_s"])
+    );
+    for t in times {
+        let f = format!("dynamic_T{t}.csv");
+        assert_eq!(
+            without(&read(&serial, &f), &["wall_us"]),
+            without(&read(&parallel, &f), &["wall_us"]),
+            "{f}"
+        );
+    }
+    let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };
+    let configs = [
+        RunConfig::fixed(ga, 2e-3),
+        RunConfig::fixed(Integrator::Rk4, 1e-3),
+        RunConfig::controlled(Integrator::DormandPrince, 1e-6),
+        RunConfig::controlled(ga, 1e-4),
+    ];
+    let bench = |jobs, dir: &PathBuf| {
+        let s = WorkPrecisionSettings { reference_dt: 1e-4, duration: 0.5, sample: 0.01, repeats: 1, jobs };
+        work_precision(&model, &configs, s, dir).unwrap()
+    };
+    let (x, y) = (bench(1, &serial), bench(2, &parallel));
+    for (p, q) in x.iter().zip(&y) {
+        assert_eq!((p.error, p.steps, p.rejected), (q.error, q.steps, q.rejected), "{}", p.integrator);
+    }
+    assert_eq!(
+        without(&read(&serial, "work_precision.csv"), &["median_wall_time_s"]),
+        without(&read(&parallel, "work_precision.csv"), &["median_wall_time_s"])
+    );
+    std::fs::remove_dir_all(&serial).ok();
+    std::fs::remove_dir_all(&parallel).ok();
 }

@@ -99,6 +99,10 @@ enum Command {
         settle: f64,
         #[command(flatten)]
         dynamics: DynamicArgs,
+        /// Threads for the dynamic runs (default: one per core); the results are the same
+        /// whatever the count.
+        #[arg(long, default_value_t = 0)]
+        jobs: usize,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -120,15 +124,21 @@ enum Command {
 
 #[derive(clap::Args, Clone, Copy)]
 struct DynamicArgs {
-    /// Integrator: generalized-alpha (ga) or symplectic-euler (euler).
+    /// Integrator: generalized-alpha (ga; implicit, any step), symplectic-euler (euler), rk4 or
+    /// dormand-prince (dopri5) (explicit: refused above their stability limit).
     #[arg(long, default_value = "generalized-alpha")]
     integrator: IntegratorName,
-    /// Physics step, s (default: the scene's physics_dt, else 0.001).
+    /// Physics step, s (default: the scene's physics_dt, else 0.001); with --tol the output
+    /// interval, the sub-steps inside it chosen by the error estimate.
     #[arg(long)]
     dt: Option<f64>,
     /// Spectral radius at infinity of generalized-alpha, in [0, 1].
     #[arg(long, default_value_t = 0.8)]
     rho_inf: f64,
+    /// Local error tolerance per step, m: error-controlled steps (generalized-alpha,
+    /// dormand-prince).
+    #[arg(long)]
+    tol: Option<f64>,
 }
 
 #[derive(clap::ValueEnum, Clone, Copy)]
@@ -137,6 +147,21 @@ enum IntegratorName {
     GeneralizedAlpha,
     #[value(name = "symplectic-euler", alias = "euler")]
     SymplecticEuler,
+    #[value(name = "rk4")]
+    Rk4,
+    #[value(name = "dormand-prince", alias = "dopri5")]
+    DormandPrince,
+}
+
+impl IntegratorName {
+    fn integrator(self, rho_inf: f64) -> Integrator {
+        match self {
+            IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf },
+            IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
+            IntegratorName::Rk4 => Integrator::Rk4,
+            IntegratorName::DormandPrince => Integrator::DormandPrince,
+        }
+    }
 }
 
 impl DynamicArgs {
@@ -148,11 +173,13 @@ impl DynamicArgs {
         if !(dt.is_finite() && dt > 0.0) {
             return Err(format!("--dt must be positive, got {dt}"));
         }
-        let integrator = match self.integrator {
-            IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf: self.rho_inf },
-            IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
-        };
-        Ok(SimSettings { dt, integrator, ..Default::default() })
+        if let Some(tol) = self.tol {
+            if !(tol.is_finite() && tol > 0.0) {
+                return Err(format!("--tol must be positive, got {tol}"));
+            }
+        }
+        let integrator = self.integrator.integrator(self.rho_inf);
+        Ok(SimSettings { dt, integrator, tolerance: self.tol, ..Default::default() })
     }
 }
 
@@ -191,7 +218,7 @@ enum BenchKind {
     WorkPrecision {
         /// Scene file (TOML).
         scene: PathBuf,
-        /// Step of the reference run (generalized-alpha, rho_inf 0.8), s.
+        /// Step of the reference run (dormand-prince, fixed), s.
         #[arg(long, default_value_t = 1e-5)]
         reference_dt: f64,
         /// Timed repeats per run (the median is reported).
@@ -200,6 +227,12 @@ enum BenchKind {
         /// Simulated time, s (default: the schedule's end + 0.5 s).
         #[arg(long)]
         duration: Option<f64>,
+        /// Sample interval of the error, s (also the output interval of error-controlled runs).
+        #[arg(long, default_value_t = 0.01)]
+        sample: f64,
+        /// Threads for the error runs (default: one per core); the timed runs go one at a time.
+        #[arg(long, default_value_t = 0)]
+        jobs: usize,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -686,7 +719,7 @@ fn run(cli: Cli) -> Result<(), String> {
             }
             Ok(())
         }
-        Command::Study { scene, ramp_times, point, settle, dynamics, out } => {
+        Command::Study { scene, ramp_times, point, settle, dynamics, jobs, out } => {
             let model = load(&scene)?;
             let ramp_times = match ramp_times {
                 Some(t) => t,
@@ -698,6 +731,7 @@ fn run(cli: Cli) -> Result<(), String> {
                 point.as_deref(),
                 dynamics.settings(&model)?,
                 settle,
+                jobs,
                 &out,
             )?;
             emit(&result.markdown());
@@ -728,10 +762,7 @@ fn run(cli: Cli) -> Result<(), String> {
             if !(dt.is_finite() && dt > 0.0) || steps == 0 {
                 return Err("--dt must be positive and --steps >= 1".into());
             }
-            let integrator = match integrator {
-                IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf: 0.8 },
-                IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
-            };
+            let integrator = integrator.integrator(0.8);
             let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;
             say!(
                 "{}: {} dt {dt} s, {} unknowns ({}): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
@@ -760,15 +791,31 @@ fn run(cli: Cli) -> Result<(), String> {
             say!("written to {}", out.display());
             Ok(())
         }
-        Command::Bench { kind: BenchKind::WorkPrecision { scene, reference_dt, repeats, duration, out } } => {
+        Command::Bench {
+            kind: BenchKind::WorkPrecision { scene, reference_dt, repeats, duration, sample, jobs, out },
+        } => {
             let model = load(&scene)?;
             let duration = duration.unwrap_or(model.schedule.end_time() + 0.5);
-            let configs = vec![
-                (Integrator::GeneralizedAlpha { rho_inf: 0.8 }, vec![1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]),
-                (Integrator::GeneralizedAlpha { rho_inf: 0.0 }, vec![1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]),
-                (Integrator::SymplecticEuler, vec![5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]),
-            ];
-            let rows = study::work_precision(&model, &configs, reference_dt, duration, repeats, &out)?;
+            let steps = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4];
+            let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };
+            let fixed = |i: Integrator, dts: &[f64]| {
+                dts.iter().map(move |&dt| study::RunConfig::fixed(i, dt)).collect::<Vec<_>>()
+            };
+            let mut configs = fixed(ga, &steps);
+            configs.extend(fixed(Integrator::GeneralizedAlpha { rho_inf: 0.0 }, &steps));
+            configs.extend(fixed(
+                Integrator::SymplecticEuler,
+                &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5],
+            ));
+            configs.extend(fixed(Integrator::Rk4, &[1e-2, 5e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
+            configs.extend(fixed(Integrator::DormandPrince, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
+            configs.extend(
+                [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
+                    .map(|t| study::RunConfig::controlled(Integrator::DormandPrince, t)),
+            );
+            configs.extend([1e-3, 1e-4, 1e-5, 1e-6].map(|t| study::RunConfig::controlled(ga, t)));
+            let settings = study::WorkPrecisionSettings { reference_dt, duration, sample, repeats, jobs };
+            let rows = study::work_precision(&model, &configs, settings, &out)?;
             emit(&std::fs::read_to_string(out.join("work_precision.md")).map_err(|e| e.to_string())?);
             say!("{} runs written to {}", rows.len(), out.display());
             Ok(())

@@ -267,7 +267,8 @@ impl NodeCore {
         let integrator = Integrator::parse(&params.integrator, params.rho_inf)
             .ok_or_else(|| CoreError::Params(format!("unknown integrator '{}'", params.integrator)))?;
         let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
-        let sim = Simulator::new(model, SimSettings { dt, integrator, ..Default::default() })?;
+        let tolerance = (params.tolerance > 0.0).then_some(params.tolerance);
+        let sim = Simulator::new(model, SimSettings { dt, integrator, tolerance, ..Default::default() })?;
         Ok(Self::with_simulator(sim, params))
     }
 

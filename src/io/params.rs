@@ -29,10 +29,15 @@ pub struct NodeParams {
     pub state_publish_rate: f64,
     /// Fixed frame of poses and transforms (`frame_id`, default `world`).
     pub frame_id: String,
-    /// Integrator name (`integrator`: generalized-alpha or symplectic-euler).
+    /// Integrator name (`integrator`: generalized-alpha, symplectic-euler, rk4 or
+    /// dormand-prince).
     pub integrator: String,
     /// Generalized-alpha spectral radius (`rho_inf`, default 0.8).
     pub rho_inf: f64,
+    /// Local error tolerance, m (`tolerance`, default 0 = fixed steps): error-controlled
+    /// sub-steps inside every `physics_dt`, so publish times stay regular (generalized-alpha
+    /// and dormand-prince).
+    pub tolerance: f64,
     /// Follow the scene's deployment schedule (`follow_schedule`, default false: actuators hold
     /// their initial rest lengths until commanded).
     pub follow_schedule: bool,
@@ -66,6 +71,7 @@ impl Default for NodeParams {
             frame_id: "world".into(),
             integrator: "generalized-alpha".into(),
             rho_inf: 0.8,
+            tolerance: 0.0,
             follow_schedule: false,
             markers_rate: 30.0,
             command_timeout: 0.0,
@@ -86,6 +92,8 @@ pub const REAL_TIME_FACTOR_RANGE: (f64, f64) = (0.0, 1e3);
 pub const PUBLISH_RATE_RANGE: (f64, f64) = (0.0, 1e6);
 /// Accepted `markers_rate`, Hz of sim time (0 = off).
 pub const MARKERS_RATE_RANGE: (f64, f64) = (0.0, 1e3);
+/// Accepted `tolerance`, m (0 = fixed steps).
+pub const TOLERANCE_RANGE: (f64, f64) = (0.0, 1.0);
 /// Accepted `command_timeout`, s of sim time (0 = never).
 pub const COMMAND_TIMEOUT_RANGE: (f64, f64) = (0.0, 1e6);
 
@@ -99,8 +107,9 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("state_publish_rate", "100.0", "state messages per second of sim time, 0 = every step"),
     ("follow_schedule", "false", "follow the scene's deployment schedule instead of holding"),
     ("frame_id", "world", "fixed frame of poses and transforms"),
-    ("integrator", "generalized-alpha", "generalized-alpha or symplectic-euler"),
+    ("integrator", "generalized-alpha", "generalized-alpha, symplectic-euler, rk4 or dormand-prince"),
     ("rho_inf", "0.8", "generalized-alpha spectral radius, 0 to 1"),
+    ("tolerance", "0.0", "local error tolerance, m, 0 = fixed steps (generalized-alpha, dormand-prince)"),
     ("markers_rate", "30.0", "RViz markers per second of sim time, 0 = off"),
     ("command_timeout", "0.0", "sim-time s without a command before the action, 0 = never"),
     ("command_timeout_action", "hold", "hold (winches stop) or initial (back to start)"),
@@ -170,6 +179,7 @@ impl NodeParams {
                 }
                 self.rho_inf = r;
             }
+            "tolerance" => self.tolerance = within(num(value)?, TOLERANCE_RANGE)?,
             "markers_rate" => self.markers_rate = within(num(value)?, MARKERS_RATE_RANGE)?,
             "command_timeout" => self.command_timeout = within(num(value)?, COMMAND_TIMEOUT_RANGE)?,
             "command_timeout_action" => {

@@ -47,6 +47,8 @@ use crate::model::{BodyId, BodyKind, Model};
 use crate::solve::linear::{FactorKind, KktSystem, LinearBackend};
 use crate::state::{retract, State};
 
+pub mod explicit;
+
 /// Which integrator advances the dynamics.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Integrator {
@@ -57,14 +59,22 @@ pub enum Integrator {
     },
     /// Semi-implicit (symplectic) Euler; conditionally stable.
     SymplecticEuler,
+    /// The classical explicit 4th-order Runge-Kutta method (`explicit`); conditionally stable.
+    Rk4,
+    /// The Dormand-Prince 5(4) explicit embedded pair (`explicit`): 5th order, with a local error
+    /// estimate for step-size control; conditionally stable.
+    DormandPrince,
 }
 
 impl Integrator {
-    /// Parses `generalized-alpha` / `ga` or `symplectic-euler` / `euler`.
+    /// Parses `generalized-alpha` / `ga`, `symplectic-euler` / `euler`, `rk4`,
+    /// `dormand-prince` / `dopri5`.
     pub fn parse(name: &str, rho_inf: f64) -> Option<Self> {
         match name {
             "generalized-alpha" | "ga" => Some(Integrator::GeneralizedAlpha { rho_inf }),
             "symplectic-euler" | "euler" => Some(Integrator::SymplecticEuler),
+            "rk4" => Some(Integrator::Rk4),
+            "dormand-prince" | "dopri5" => Some(Integrator::DormandPrince),
             _ => None,
         }
     }
@@ -73,6 +83,35 @@ impl Integrator {
         match self {
             Integrator::GeneralizedAlpha { rho_inf } => format!("generalized-alpha(rho={rho_inf})"),
             Integrator::SymplecticEuler => "symplectic-euler".into(),
+            Integrator::Rk4 => "rk4".into(),
+            Integrator::DormandPrince => "dormand-prince".into(),
+        }
+    }
+    /// Order of the local error of a step: `h^(order + 1)`.
+    pub fn order(&self) -> u32 {
+        match self {
+            Integrator::GeneralizedAlpha { .. } => 2,
+            Integrator::SymplecticEuler => 1,
+            Integrator::Rk4 => 4,
+            Integrator::DormandPrince => 5,
+        }
+    }
+    /// True for the explicit (conditionally stable) integrators.
+    pub fn is_explicit(&self) -> bool {
+        !matches!(self, Integrator::GeneralizedAlpha { .. })
+    }
+    /// True when the integrator estimates its local error, so that it can choose its steps
+    /// (`SimSettings::tolerance`).
+    pub fn estimates_error(&self) -> bool {
+        matches!(self, Integrator::GeneralizedAlpha { .. } | Integrator::DormandPrince)
+    }
+    /// How the error ratio of `AttemptStats::error_ratio` scales with the step, `ratio ~ h^(1/e)`:
+    /// the step that would meet the tolerance is `h ratio^(-e)`. Generalized-alpha's local error
+    /// goes like `h^3` (`e = 1/3`), Dormand-Prince's 4th-order estimate like `h^5` (`e = 1/5`).
+    pub fn error_exponent(&self) -> f64 {
+        match self {
+            Integrator::DormandPrince => 0.2,
+            _ => 1.0 / 3.0,
         }
     }
 }
@@ -121,6 +160,12 @@ pub struct NewtonSettings {
 pub const REFACTOR_CONTRACTION: f64 = 0.25;
 /// Iterations in a row on one reused factorization before it is replaced anyway.
 pub const MAX_STALE_ITERATIONS: usize = 4;
+/// Generalized-alpha's local errors add up over the steps: each step may make `tolerance
+/// h_avg / TOLERANCE_TIME` of it, `h_avg` the running mean step, so that a second's worth of
+/// steps adds up to about the tolerance, while each step gets the same share (equidistributed
+/// local errors take the fewest steps for a total), s.
+pub const TOLERANCE_TIME: f64 = 1.0;
+
 /// A step that needed this many Newton iterations on factors from earlier steps makes the next
 /// step start with fresh factors. On a structure whose stiffness keeps changing (a 64-stage
 /// helical tower deploying through every stage) factors a step old already need 3 iterations
@@ -138,12 +183,28 @@ impl Default for NewtonSettings {
 /// What one successful step attempt cost.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct AttemptStats {
-    /// Newton iterations (0 for the explicit integrator).
+    /// Newton iterations (0 for the explicit integrators).
     pub iterations: usize,
     /// Final residual max-norm, N.
     pub residual: f64,
     /// Newton-matrix factorizations (0 when every iteration reused older factors).
     pub factorizations: usize,
+    /// Force evaluations (stages of an explicit method, iterations plus one of an implicit one).
+    pub evaluations: usize,
+    /// The local error estimate of the step, m (`None` for integrators without one).
+    pub error: Option<f64>,
+    /// The error estimate over what the tolerance allows this step (`<= 1` when accepted;
+    /// `None` without a tolerance or an estimate).
+    pub error_ratio: Option<f64>,
+}
+
+/// Why a step attempt was refused. The state is unchanged either way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AttemptFailure {
+    /// Newton did not converge, a solve failed, or a number was not finite.
+    Diverged,
+    /// The local error estimate exceeded the tolerance by this factor (> 1).
+    ErrorTooLarge(f64),
 }
 
 /// Integrator memory and preallocated buffers for one model.
@@ -158,6 +219,11 @@ pub struct Dynamics {
     ws: Workspace,
     /// The explicit integrator's joint projection on the dense backend (`JointSchur`).
     schur: JointSchur,
+    /// Stage buffers of the Runge-Kutta integrators.
+    explicit: explicit::ExplicitBuffers,
+    /// Per body: the largest distance of its points from its origin (at least 1 mm), m; a
+    /// rotation error times this is a point error.
+    reach: Vec<f64>,
     trial: State,
     rhs: DVector<f64>,
     residual: DVector<f64>,
@@ -169,6 +235,10 @@ pub struct Dynamics {
     refresh: bool,
     /// `ws` holds the evaluation of the state the last step committed.
     final_evaluation: bool,
+    /// The acceleration before the last generalized-alpha step, and that step's size (`None`
+    /// after a restart): the central difference of the error estimate.
+    previous_acceleration: DVector<f64>,
+    previous_step: Option<f64>,
     // generalized-alpha iterates, preallocated so that a step never allocates
     vdot: DVector<f64>,
     a_next: DVector<f64>,
@@ -273,6 +343,8 @@ impl Dynamics {
             pseudo_acceleration: DVector::zeros(n),
             ws: Workspace::for_forces(model),
             schur: JointSchur::new(model),
+            explicit: explicit::ExplicitBuffers::new(model, n + model.constraint_count),
+            reach: body_reach(model),
             trial: State::initial(model),
             rhs: DVector::zeros(kkt.size()),
             residual: DVector::zeros(n),
@@ -280,6 +352,8 @@ impl Dynamics {
             factored_for: None,
             refresh: false,
             final_evaluation: false,
+            previous_acceleration: DVector::zeros(n),
+            previous_step: None,
             vdot: DVector::zeros(n),
             a_next: DVector::zeros(n),
             v: DVector::zeros(n),
@@ -350,6 +424,7 @@ impl Dynamics {
         }
         self.acceleration.copy_from(&self.rhs.rows(0, n));
         self.pseudo_acceleration.copy_from(&self.acceleration);
+        self.previous_step = None;
         state.multipliers.copy_from(&self.rhs.rows(n, nc));
         true
     }
@@ -367,15 +442,45 @@ impl Dynamics {
         rest_now: &[f64],
         rest_next: &[f64],
         h: f64,
-    ) -> Option<AttemptStats> {
+        tolerance: Option<f64>,
+    ) -> Result<AttemptStats, AttemptFailure> {
         match integrator {
-            Integrator::GeneralizedAlpha { rho_inf } => {
-                self.generalized_alpha(model, AlphaCoefficients::new(rho_inf), newton, state, rest_next, h)
+            Integrator::GeneralizedAlpha { rho_inf } => self.generalized_alpha(
+                model,
+                AlphaCoefficients::new(rho_inf),
+                newton,
+                state,
+                rest_next,
+                h,
+                tolerance,
+            ),
+            Integrator::SymplecticEuler => {
+                self.explicit.invalidate();
+                self.previous_step = None;
+                self.symplectic_euler(model, state, rest_now, rest_next, h).ok_or(AttemptFailure::Diverged)
             }
-            Integrator::SymplecticEuler => self.symplectic_euler(model, state, rest_now, rest_next, h),
+            Integrator::Rk4 | Integrator::DormandPrince => {
+                self.previous_step = None;
+                let tableau = if integrator == Integrator::Rk4 { &explicit::RK4 } else { &explicit::DOPRI5 };
+                // the local errors of a run add up to a few times each one's: aim at a third
+                let tolerance = tolerance.map(|t| t * explicit::LOCAL_TOLERANCE_SHARE);
+                match self.explicit_step(model, tableau, state, rest_now, rest_next, h, tolerance) {
+                    Ok(s) => Ok(AttemptStats {
+                        iterations: 0,
+                        residual: 0.0,
+                        factorizations: 0,
+                        evaluations: s.evaluations,
+                        error: s.error,
+                        error_ratio: s.error.zip(tolerance).map(|(e, t)| e / t),
+                    }),
+                    Err(ratio) if ratio.is_finite() => Err(AttemptFailure::ErrorTooLarge(ratio)),
+                    Err(_) => Err(AttemptFailure::Diverged),
+                }
+            }
         }
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn generalized_alpha(
         &mut self,
         model: &Model,
@@ -384,7 +489,9 @@ impl Dynamics {
         state: &mut State,
         rest_next: &[f64],
         h: f64,
-    ) -> Option<AttemptStats> {
+        tolerance: Option<f64>,
+    ) -> Result<AttemptStats, AttemptFailure> {
+        self.explicit.invalidate();
         let n = model.dof_count;
         let nc = model.constraint_count;
         let beta_p = (1.0 - c.alpha_m) / (h * h * c.beta * (1.0 - c.alpha_f));
@@ -431,13 +538,20 @@ impl Dynamics {
             add_reaction_force(model, &self.ws.points, &self.lambda, 1.0, &mut residual);
             self.residual = residual;
             if !all_finite(&self.residual) {
-                return None;
+                return Err(AttemptFailure::Diverged);
             }
             let r_norm = self.residual.amax();
             let phi_norm = if nc > 0 { self.ws.constraint.amax() } else { 0.0 };
             let scale = force_scale(model, &self.ws, inertial);
             let length_scale = self.ws.cables.iter().map(|c| c.length).fold(1e-3, f64::max);
-            stats = AttemptStats { iterations: iter, residual: r_norm, factorizations };
+            stats = AttemptStats {
+                iterations: iter,
+                residual: r_norm,
+                factorizations,
+                evaluations: iter + 1,
+                error: None,
+                error_ratio: None,
+            };
             if r_norm <= (newton.tolerance * scale).max(force_floor(model, &self.ws))
                 && phi_norm <= 1e-12 * length_scale
             {
@@ -445,7 +559,7 @@ impl Dynamics {
             }
             if iter == newton.max_iterations {
                 self.factored_for = None;
-                return None;
+                return Err(AttemptFailure::Diverged);
             }
             let contraction = r_norm.max(phi_norm * scale / length_scale);
             if reuse && (contraction > REFACTOR_CONTRACTION * previous || stale >= MAX_STALE_ITERATIONS) {
@@ -466,7 +580,7 @@ impl Dynamics {
                 self.factored_for = None;
                 let factored = if exact { self.kkt.factor() } else { self.kkt.factor_symmetric() };
                 if !factored {
-                    return None;
+                    return Err(AttemptFailure::Diverged);
                 }
                 fresh = true;
                 self.factored_for = Some(coefficients);
@@ -478,7 +592,7 @@ impl Dynamics {
                 }
                 if !self.kkt.solve_factored(&mut self.rhs) {
                     self.factored_for = None;
-                    return None;
+                    return Err(AttemptFailure::Diverged);
                 }
                 reuse = newton.reuse_factorization;
                 stale = 0;
@@ -491,6 +605,47 @@ impl Dynamics {
                 self.lambda.axpy(beta_p, &self.rhs.rows(n, nc), 1.0);
             }
         }
+        // local error estimate (after Zienkiewicz & Xie 1991): the displacement's truncation
+        // error (beta - 1/6) h^3 (jerk). The jerk is the central difference of the accelerations
+        // over this and the previous step, `(vdot_(n+1) - vdot_(n-1)) / (h + h_prev)`: a jump of the
+        // acceleration (an actuator starting) rings in generalized-alpha's spurious mode, which
+        // alternates in sign from step to step and cancels in this difference, where the plain
+        // `vdot_(n+1) - vdot_n` would keep the steps small long after. First step after a
+        // restart: the one-step difference. A rotation's error counts times the body's reach.
+        let weight = h * h * (c.beta - 1.0 / 6.0).abs();
+        let (older, span) = match self.previous_step {
+            Some(h_prev) => (&self.previous_acceleration, h / (h + h_prev)),
+            None => (&self.acceleration, 1.0),
+        };
+        let mut error: f64 = 0.0;
+        for (b, body) in model.bodies.iter().enumerate() {
+            for k in 0..body.dof_count {
+                let j = body.dof_offset + k;
+                let lever =
+                    if body.basis.column(k).fixed_rows::<3>(3).norm() > 0.0 { self.reach[b] } else { 1.0 };
+                error = error.max(weight * span * (self.vdot[j] - older[j]).abs() * lever);
+            }
+        }
+        // the joints hold to 1e-12 of the length scale at position level, so the accelerations
+        // carry a noise of that over beta h^2, which this estimate sees as a floor of
+        // 2 |beta - 1/6| / beta 1e-12 L whatever the step: below it the estimate says nothing
+        let length_scale = self.ws.cables.iter().map(|c| c.length).fold(1e-3, f64::max);
+        let noise =
+            if nc > 0 { 2.0 * (c.beta - 1.0 / 6.0).abs() / c.beta * 1e-12 * length_scale } else { 0.0 };
+        let error = (error - noise).max(0.0);
+        stats.error = Some(error);
+        if let Some(tol) = tolerance {
+            // the caller's per-step share of the tolerance (`Simulator::step`)
+            let allowed = tol;
+            stats.error_ratio = Some(error / allowed);
+            if error > allowed || error.is_nan() {
+                return Err(if error.is_finite() {
+                    AttemptFailure::ErrorTooLarge(error / allowed)
+                } else {
+                    AttemptFailure::Diverged
+                });
+            }
+        }
         // commit (the workspace holds the evaluation of exactly the committed state)
         self.final_evaluation = true;
         self.refresh = stats.iterations >= SLOW_STEP_ITERATIONS && factorizations == 0;
@@ -500,9 +655,11 @@ impl Dynamics {
         state.multipliers.copy_from(&self.lambda);
         state.rest_lengths.copy_from_slice(rest_next);
         state.time = self.trial.time;
+        self.previous_acceleration.copy_from(&self.acceleration);
+        self.previous_step = Some(h);
         self.acceleration.copy_from(&self.vdot);
         self.pseudo_acceleration.copy_from(&self.a_next);
-        Some(stats)
+        Ok(stats)
     }
 
     /// Assembles the generalized-alpha Newton matrix at the trial state.
@@ -577,7 +734,14 @@ impl Dynamics {
         state.time += h;
         self.acceleration.copy_from(&self.vdot);
         self.pseudo_acceleration.copy_from(&self.vdot);
-        Some(AttemptStats { iterations: 0, residual: 0.0, factorizations: 1 })
+        Some(AttemptStats {
+            iterations: 0,
+            residual: 0.0,
+            factorizations: 1,
+            evaluations: 1,
+            error: None,
+            error_ratio: None,
+        })
     }
 }
 
@@ -760,6 +924,15 @@ impl JointSchur {
     }
 }
 
+/// Per body: the largest distance of its points from its origin, at least 1 mm (m).
+fn body_reach(model: &Model) -> Vec<f64> {
+    let mut reach = vec![1e-3f64; model.bodies.len()];
+    for p in &model.points {
+        reach[p.body.0] = reach[p.body.0].max(p.local.norm());
+    }
+    reach
+}
+
 /// Zeroes `kkt` and adds `[M, Phi_q^T; Phi_q, 0]`: the body mass blocks `mass` (one 6 x 6 per
 /// body, `BodyModel::mass_matrix`) and the joint Jacobian rows at the point kinematics in `ws`.
 pub fn assemble_mass_and_joints(model: &Model, ws: &Workspace, mass: &[Matrix6<f64>], kkt: &mut KktSystem) {
@@ -797,6 +970,50 @@ pub fn assemble_newton_matrix(
     }
 }
 
+/// Largest stable step of an explicit integrator at `state` (infinite for generalized-alpha):
+/// symplectic Euler's `stability_limit`; for the Runge-Kutta methods the radius of the left
+/// half-disk inside their stability region (`explicit::RK4_STABILITY_RADIUS`,
+/// `explicit::DOPRI5_STABILITY_RADIUS`) over the largest eigenvalue modulus of the linearized
+/// system, bounded by `max(omega_max, c_max)` (`spectral_bounds`).
+pub fn explicit_stability_limit(model: &Model, state: &State, integrator: Integrator) -> f64 {
+    let radius = match integrator {
+        Integrator::GeneralizedAlpha { .. } => return f64::INFINITY,
+        Integrator::SymplecticEuler => return stability_limit(model, state),
+        Integrator::Rk4 => explicit::RK4_STABILITY_RADIUS,
+        Integrator::DormandPrince => explicit::DOPRI5_STABILITY_RADIUS,
+    };
+    let (w, c) = spectral_bounds(model, state);
+    let rho = w.max(c);
+    if rho > 0.0 {
+        radius / rho
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// `(omega_max, c_max)` at `state`: the highest natural frequency on the directions the joints
+/// allow (`Z^T K Z x = w^2 Z^T M Z x`, `Z` a null-space basis of `Phi_q`, rad/s) and the largest
+/// eigenvalue of the mass-normalized damping matrix there (1/s). `(0, 0)` without coordinates or
+/// freedom; `(inf, inf)` when the mass matrix there is singular.
+pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
+    let n = model.dof_count;
+    if n == 0 {
+        return (0.0, 0.0);
+    }
+    let mut ws = Workspace::new(model);
+    evaluate(model, state, &mut ws, Tangents::StiffnessAndDamping);
+    let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return (0.0, 0.0) };
+    let m = z.transpose() * mass_matrix(model) * &z;
+    let k = z.transpose() * ((&ws.stiffness + ws.stiffness.transpose()) * 0.5) * &z;
+    let c = z.transpose() * ((&ws.damping + ws.damping.transpose()) * 0.5) * &z;
+    // symmetric form L^-1 K L^-T with M = L L^T
+    let Some(chol) = m.cholesky() else { return (f64::INFINITY, f64::INFINITY) };
+    let l_inv = chol.l().try_inverse().unwrap_or_else(|| DMatrix::identity(z.ncols(), z.ncols()));
+    let w2 = SymmetricEigen::new(&l_inv * k * l_inv.transpose()).eigenvalues.max().max(0.0);
+    let c_max = SymmetricEigen::new(&l_inv * c * l_inv.transpose()).eigenvalues.max().max(0.0);
+    (w2.sqrt(), c_max)
+}
+
 /// Largest stable step of the symplectic Euler integrator at `state`: `2 / omega_max`, with
 /// `omega_max^2` the largest eigenvalue of `M^-1 K` on the directions the joints allow
 /// (`Z^T K Z x = w^2 Z^T M Z x`, `Z` a null-space basis of `Phi_q`), reduced for cable damping:
@@ -804,22 +1021,10 @@ pub fn assemble_newton_matrix(
 /// with `c` the largest eigenvalue of the mass-normalized damping matrix. Infinite without
 /// stiffness and damping.
 pub fn stability_limit(model: &Model, state: &State) -> f64 {
-    let n = model.dof_count;
-    if n == 0 {
-        return f64::INFINITY;
+    let (w, c_max) = spectral_bounds(model, state);
+    if w == f64::INFINITY {
+        return 0.0;
     }
-    let mut ws = Workspace::new(model);
-    evaluate(model, state, &mut ws, Tangents::StiffnessAndDamping);
-    let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return f64::INFINITY };
-    let m = z.transpose() * mass_matrix(model) * &z;
-    let k = z.transpose() * ((&ws.stiffness + ws.stiffness.transpose()) * 0.5) * &z;
-    let c = z.transpose() * ((&ws.damping + ws.damping.transpose()) * 0.5) * &z;
-    // symmetric form L^-1 K L^-T with M = L L^T
-    let Some(chol) = m.cholesky() else { return 0.0 };
-    let l_inv = chol.l().try_inverse().unwrap_or_else(|| DMatrix::identity(z.ncols(), z.ncols()));
-    let w2 = SymmetricEigen::new(&l_inv * k * l_inv.transpose()).eigenvalues.max().max(0.0);
-    let c_max = SymmetricEigen::new(&l_inv * c * l_inv.transpose()).eigenvalues.max().max(0.0);
-    let w = w2.sqrt();
     if w == 0.0 {
         return if c_max > 0.0 { 2.0 / c_max } else { f64::INFINITY };
     }

@@ -116,3 +116,22 @@ pub fn scratch(name: &str) -> std::path::PathBuf {
     std::fs::create_dir_all(&d).unwrap();
     d
 }
+
+/// The bundled prism without its pins and with a bottom ring: held by nothing.
+pub fn free_prism() -> Model {
+    let mut spec = tensegrity::scene::generate::prism(&tensegrity::scene::generate::PrismParams::default());
+    spec.name = "free prism".into();
+    spec.joints.clear();
+    let template = spec.cables[0].clone();
+    for i in 0..3 {
+        spec.cables.push(tensegrity::scene::CableSpec {
+            name: format!("bottom{i}"),
+            route: vec![format!("bar0_{i}.a"), format!("bar0_{}.a", (i + 1) % 3)],
+            prestress: None,
+            rest_length: None,
+            force_density: None,
+            ..template.clone()
+        });
+    }
+    build_model(&spec, "<free prism>", None).unwrap_or_else(|e| panic!("{e}"))
+}

@@ -1,0 +1,419 @@
+//! Explicit Runge-Kutta integrators for non-stiff scenes: takes a model, a state and a step; gives
+//! the state one step later by the classical 4th-order Runge-Kutta method or the Dormand-Prince
+//! 5(4) embedded pair (with its local error estimate), or refuses the step.
+//!
+//! # Equations
+//! The state is `(x_b, R_b, v)`: body positions, body rotations and the local velocities of
+//! `crate::model`. Per body `(dx, w) = B v_b` (world translation rate, body-frame angular
+//! velocity); then `xdot_b = dx`, and the rotation is integrated as a quaternion,
+//! `qdot = q (0, w) / 2`, in the embedding space R^4: Runge-Kutta on the embedded ODE keeps its
+//! order, and normalizing the quaternion after the step is a projection that changes the result
+//! at the order of the local error only. Accelerations solve
+//!
+//! ```text
+//! [ M      Phi_q^T ] [ vdot   ]   [ Q(q, v, t) - w x J w ]
+//! [ Phi_q  0       ] [ lambda ] = [ -Jdot v              ]
+//! ```
+//!
+//! (the joints at acceleration level; `Jdot v = R (w x (w x p))`, the centripetal acceleration of
+//! a joint point `p`), through the joints' Schur complement on the dense backend and the sparse
+//! `LDL^T` on the sparse one. The constraint drift this leaves at `O(h^(p+1))` per step is removed
+//! after every step: positions are moved back onto `Phi = 0` by the mass-weighted smallest
+//! correction (Gauss-Newton, `|Phi| <= 1e-12` of the length scale), velocities onto
+//! `Phi_q v = 0` (`[M, Phi_q^T; Phi_q, 0] [v'; mu] = [M v; 0]`). Rest lengths move linearly
+//! within a step, as the actuators move them.
+//!
+//! # Methods and stability
+//! `RK4`: 4 stages, order 4. Dormand-Prince 5(4) (Dormand & Prince 1980): 7 stages, the 5th-order
+//! solution propagated, `y5 - y4` the local error estimate; first-same-as-last reuses the last
+//! stage when no projection moved the state (scenes without joints). Both are explicit, so they
+//! are stable only for `h |lambda| <= r` over the linearized eigenvalues `lambda`: `r` is the
+//! radius of the left half-disk inside the method's stability region, 2.615 for RK4 and 0.997 for
+//! Dormand-Prince (whose region leaves the imaginary axis early: an undamped mode with
+//! `h omega = 2` grows 3 % per step), and `|lambda| <= max(omega_max, c_max)`
+//! (`super::spectral_bounds`).
+
+use nalgebra::{DVector, Quaternion, UnitQuaternion, Vector3, Vector4};
+
+use super::{add_gyroscopic, assemble_mass_and_joints, Dynamics};
+use crate::forces::evaluate_forces;
+use crate::model::{Model, Pose};
+use crate::solve::linear::LinearBackend;
+use crate::state::State;
+
+/// Dormand-Prince aims each step's local error at this share of the tolerance: the local errors
+/// of a run add up to a few times each one's (measured on the bundled scenes: at the full
+/// tolerance the runs' largest point error reached 4.4 times it).
+pub const LOCAL_TOLERANCE_SHARE: f64 = 1.0 / 3.0;
+
+/// Radius of the left half-disk in the classical Runge-Kutta method's stability region.
+pub const RK4_STABILITY_RADIUS: f64 = 2.615;
+/// Radius of the left half-disk in the Dormand-Prince 5(4) method's stability region.
+pub const DOPRI5_STABILITY_RADIUS: f64 = 0.997;
+
+/// An explicit Runge-Kutta tableau: `c`, `a` (lower triangle, row by row), the propagated
+/// weights `b` and, for an embedded pair, the error weights `e = b - b_hat`.
+pub struct Tableau {
+    /// Stage times as fractions of the step.
+    pub c: &'static [f64],
+    /// `a[i]` holds the `i` coefficients of stage `i`.
+    pub a: &'static [&'static [f64]],
+    /// Weights of the propagated solution.
+    pub b: &'static [f64],
+    /// `b - b_hat` (the embedded solution's weights), when the method estimates its error.
+    pub error: Option<&'static [f64]>,
+    /// Order of the propagated solution.
+    pub order: u32,
+    /// The last stage is evaluated at the propagated solution (first same as last).
+    pub fsal: bool,
+}
+
+/// The classical 4th-order Runge-Kutta method.
+pub const RK4: Tableau = Tableau {
+    c: &[0.0, 0.5, 0.5, 1.0],
+    a: &[&[], &[0.5], &[0.0, 0.5], &[0.0, 0.0, 1.0]],
+    b: &[1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0],
+    error: None,
+    order: 4,
+    fsal: false,
+};
+
+/// The Dormand-Prince 5(4) pair (Dormand & Prince 1980; Hairer, Norsett & Wanner, table II.5.2).
+pub const DOPRI5: Tableau = Tableau {
+    c: &[0.0, 1.0 / 5.0, 3.0 / 10.0, 4.0 / 5.0, 8.0 / 9.0, 1.0, 1.0],
+    a: &[
+        &[],
+        &[1.0 / 5.0],
+        &[3.0 / 40.0, 9.0 / 40.0],
+        &[44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0],
+        &[19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0],
+        &[9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0],
+        &[35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0],
+    ],
+    b: &[35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0, 0.0],
+    error: Some(&[
+        71.0 / 57600.0,
+        0.0,
+        -71.0 / 16695.0,
+        71.0 / 1920.0,
+        -17253.0 / 339200.0,
+        22.0 / 525.0,
+        -1.0 / 40.0,
+    ]),
+    order: 5,
+    fsal: true,
+};
+
+/// A point of the embedded state space: positions, quaternion coordinates, velocities (or their
+/// rates, for a stage derivative).
+#[derive(Debug, Clone)]
+pub(super) struct EmbeddedState {
+    positions: Vec<Vector3<f64>>,
+    rotations: Vec<Vector4<f64>>,
+    velocities: DVector<f64>,
+}
+
+impl EmbeddedState {
+    pub(super) fn new(model: &Model) -> Self {
+        Self {
+            positions: vec![Vector3::zeros(); model.bodies.len()],
+            rotations: vec![Vector4::zeros(); model.bodies.len()],
+            velocities: DVector::zeros(model.dof_count),
+        }
+    }
+
+    fn load(&mut self, state: &State) {
+        for (b, pose) in state.poses.iter().enumerate() {
+            self.positions[b] = pose.position;
+            self.rotations[b] = pose.rotation.quaternion().coords;
+        }
+        self.velocities.copy_from(&state.velocities);
+    }
+
+    /// `self = base + h sum_j weights_j k_j`.
+    fn combine(&mut self, base: &EmbeddedState, h: f64, weights: &[f64], k: &[EmbeddedState]) {
+        self.positions.copy_from_slice(&base.positions);
+        self.rotations.copy_from_slice(&base.rotations);
+        self.velocities.copy_from(&base.velocities);
+        for (&w, k) in weights.iter().zip(k) {
+            if w == 0.0 {
+                continue;
+            }
+            let w = h * w;
+            for (p, d) in self.positions.iter_mut().zip(&k.positions) {
+                *p += d * w;
+            }
+            for (q, d) in self.rotations.iter_mut().zip(&k.rotations) {
+                *q += d * w;
+            }
+            self.velocities.axpy(w, &k.velocities, 1.0);
+        }
+    }
+
+    /// Poses (quaternions normalized) and velocities into `state`.
+    fn store(&self, state: &mut State) {
+        for (b, pose) in state.poses.iter_mut().enumerate() {
+            *pose = Pose {
+                position: self.positions[b],
+                rotation: UnitQuaternion::new_normalize(Quaternion::from(self.rotations[b])),
+            };
+        }
+        state.velocities.copy_from(&self.velocities);
+    }
+}
+
+/// Stage buffers of the explicit integrators, sized once per model.
+#[derive(Debug, Clone)]
+pub(super) struct ExplicitBuffers {
+    start: EmbeddedState,
+    stage: EmbeddedState,
+    /// Stage derivatives `k_1 .. k_7`.
+    k: Vec<EmbeddedState>,
+    /// `k_last` of the previous step at the state it committed, valid for first-same-as-last.
+    fsal_valid: bool,
+    /// Constraint right-hand side and the KKT solution.
+    work: DVector<f64>,
+}
+
+impl ExplicitBuffers {
+    pub(super) fn new(model: &Model, size: usize) -> Self {
+        Self {
+            start: EmbeddedState::new(model),
+            stage: EmbeddedState::new(model),
+            k: (0..7).map(|_| EmbeddedState::new(model)).collect(),
+            fsal_valid: false,
+            work: DVector::zeros(size),
+        }
+    }
+
+    /// Forget the first-same-as-last stage (the state was changed from outside).
+    pub(super) fn invalidate(&mut self) {
+        self.fsal_valid = false;
+    }
+}
+
+/// The local error of one explicit step, m: the largest of the embedded pair's position
+/// differences (rotations times the body's reach) and its velocity differences times the step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct ExplicitStep {
+    pub(super) error: Option<f64>,
+    pub(super) evaluations: usize,
+}
+
+impl Dynamics {
+    /// `out = (xdot, qdot, vdot)` at `state` (poses, velocities, rest lengths, time): evaluates the
+    /// forces into `self.ws` and solves the acceleration system of the module docs.
+    fn explicit_rates(&mut self, model: &Model, state: &State, out_index: usize) -> bool {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        evaluate_forces(model, state, &mut self.ws);
+        // [Q - gyro; -Jdot v]
+        self.residual.fill(0.0);
+        add_gyroscopic(model, &state.velocities, &mut self.residual);
+        let work = &mut self.explicit.work;
+        work.fill(0.0);
+        for i in 0..n {
+            work[i] = self.ws.force[i] - self.residual[i];
+        }
+        if nc > 0 {
+            let rows = model.joint_rows();
+            for joint in &model.joints {
+                let mut bias = Vector3::zeros();
+                for (p, sign) in crate::constraints::joint_points(joint) {
+                    bias += centripetal(model, &state.poses, &state.velocities, p) * sign;
+                }
+                for r in 0..rows {
+                    work[n + joint.row_offset + r] = -bias[r];
+                }
+            }
+        }
+        if !self.solve_mass_and_joints(model) {
+            return false;
+        }
+        let k = &mut self.explicit.k[out_index];
+        for (b, body) in model.bodies.iter().enumerate() {
+            let local = body.local_increment(state.velocities.as_slice(), 1.0);
+            k.positions[b] = Vector3::new(local[0], local[1], local[2]);
+            let w = Quaternion::new(0.0, local[3], local[4], local[5]);
+            k.rotations[b] = (state.poses[b].rotation.quaternion() * w).coords * 0.5;
+        }
+        k.velocities.copy_from(&self.explicit.work.rows(0, n));
+        k.velocities.iter().all(|x| x.is_finite())
+    }
+
+    /// Solves `[M, Phi_q^T; Phi_q, 0] x = work` in place of `self.explicit.work` at the point
+    /// kinematics in `self.ws`.
+    fn solve_mass_and_joints(&mut self, model: &Model) -> bool {
+        if self.kkt.backend() == LinearBackend::Dense {
+            return self.schur.solve(model, &self.ws, &mut self.explicit.work);
+        }
+        assemble_mass_and_joints(model, &self.ws, &self.mass, &mut self.kkt);
+        self.factored_for = None;
+        let size = self.kkt.size();
+        self.rhs.fill(0.0);
+        let m = self.explicit.work.len().min(size);
+        self.rhs.rows_mut(0, m).copy_from(&self.explicit.work.rows(0, m));
+        if !(self.kkt.factor_symmetric() && self.kkt.solve_factored(&mut self.rhs)) {
+            return false;
+        }
+        self.explicit.work.rows_mut(0, m).copy_from(&self.rhs.rows(0, m));
+        true
+    }
+
+    /// One explicit Runge-Kutta step of `tableau` from `state` to `state.time + h`, rest lengths
+    /// moving linearly from `rest_now` to `rest_next`, constraints projected afterwards. With
+    /// `tolerance` (m) and an embedded pair, a step whose local error exceeds it is refused
+    /// (`Err(ratio)`, error / tolerance) and the state left unchanged. `Err(f64::INFINITY)` when
+    /// a stage is not finite or a solve fails.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn explicit_step(
+        &mut self,
+        model: &Model,
+        tableau: &Tableau,
+        state: &mut State,
+        rest_now: &[f64],
+        rest_next: &[f64],
+        h: f64,
+        tolerance: Option<f64>,
+    ) -> Result<ExplicitStep, f64> {
+        let stages = tableau.c.len();
+        self.explicit.start.load(state);
+        self.trial.copy_from(state);
+        let mut evaluations = 0;
+        for i in 0..stages {
+            if i == 0 && tableau.fsal && self.explicit.fsal_valid {
+                // the previous step's last stage was evaluated at exactly this state
+                self.explicit.k.swap(0, stages - 1);
+                continue;
+            }
+            let ExplicitBuffers { start, stage, k, .. } = &mut self.explicit;
+            stage.combine(start, h, tableau.a[i], k);
+            stage.store(&mut self.trial);
+            let c = tableau.c[i];
+            self.trial.time = state.time + c * h;
+            for (r, (a, b)) in self.trial.rest_lengths.iter_mut().zip(rest_now.iter().zip(rest_next)) {
+                *r = a + c * (b - a);
+            }
+            // the stage state leaves `self` while the rates borrow it (no allocation)
+            let trial = std::mem::take(&mut self.trial);
+            let ok = self.explicit_rates(model, &trial, i);
+            self.trial = trial;
+            evaluations += 1;
+            if !ok {
+                self.explicit.fsal_valid = false;
+                return Err(f64::INFINITY);
+            }
+        }
+        let error = tableau.error.map(|e| self.embedded_error(model, e, h));
+        if let (Some(err), Some(tol)) = (error, tolerance) {
+            if err > tol || err.is_nan() {
+                self.explicit.fsal_valid = false;
+                return Err(if err.is_finite() { err / tol } else { f64::INFINITY });
+            }
+        }
+        // the propagated solution
+        let ExplicitBuffers { start, stage, k, .. } = &mut self.explicit;
+        stage.combine(start, h, tableau.b, k);
+        stage.store(&mut self.trial);
+        self.trial.time = state.time + h;
+        self.trial.rest_lengths.copy_from_slice(rest_next);
+        self.trial.multipliers.copy_from(&state.multipliers);
+        if !self.trial.is_finite() {
+            self.explicit.fsal_valid = false;
+            return Err(f64::INFINITY);
+        }
+        let Some(moved) = self.project_onto_joints(model) else {
+            self.explicit.fsal_valid = false;
+            return Err(f64::INFINITY);
+        };
+        // commit; the acceleration is the last stage's (at the end point for first-same-as-last)
+        self.vdot.copy_from(&self.explicit.k[stages - 1].velocities);
+        self.acceleration.copy_from(&self.vdot);
+        self.pseudo_acceleration.copy_from(&self.vdot);
+        state.copy_from(&self.trial);
+        self.explicit.fsal_valid = tableau.fsal && !moved;
+        Ok(ExplicitStep { error, evaluations })
+    }
+
+    /// The local error estimate `h sum_i e_i k_i` of an embedded pair, m: translations as they
+    /// are, rotations (quaternion differences, twice their size in radians) times the body's
+    /// reach, velocities times the step.
+    fn embedded_error(&self, model: &Model, e: &[f64], h: f64) -> f64 {
+        let k = &self.explicit.k;
+        let mut err: f64 = 0.0;
+        for (b, body) in model.bodies.iter().enumerate() {
+            if body.dof_count == 0 {
+                continue;
+            }
+            let mut dx = Vector3::zeros();
+            let mut dq = Vector4::zeros();
+            for (i, &w) in e.iter().enumerate() {
+                dx += k[i].positions[b] * (h * w);
+                dq += k[i].rotations[b] * (h * w);
+            }
+            err = err.max(dx.norm()).max(2.0 * dq.norm() * self.reach[b]);
+            for c in 0..body.dof_count {
+                let j = body.dof_offset + c;
+                let dv: f64 = e.iter().enumerate().map(|(i, &w)| k[i].velocities[j] * (h * w)).sum();
+                let lever =
+                    if body.basis.column(c).fixed_rows::<3>(3).norm() > 0.0 { self.reach[b] } else { 1.0 };
+                err = err.max(dv.abs() * h * lever);
+            }
+        }
+        err
+    }
+
+    /// Moves `self.trial` back onto the joints: positions by mass-weighted Gauss-Newton
+    /// corrections until `|Phi| <= 1e-12` of the length scale (at most 5), velocities onto
+    /// `Phi_q v = 0`. Returns whether anything moved; `None` when a solve failed.
+    fn project_onto_joints(&mut self, model: &Model) -> Option<bool> {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        if nc == 0 {
+            return Some(false);
+        }
+        let length_scale = self.reach.iter().copied().fold(1e-3, f64::max);
+        let mut dq = std::mem::take(&mut self.delta);
+        for _ in 0..5 {
+            evaluate_forces(model, &self.trial, &mut self.ws);
+            if self.ws.constraint.amax() <= 1e-12 * length_scale {
+                break;
+            }
+            self.explicit.work.fill(0.0);
+            for r in 0..nc {
+                self.explicit.work[n + r] = -self.ws.constraint[r];
+            }
+            if !self.solve_mass_and_joints(model) {
+                self.delta = dq;
+                return None;
+            }
+            dq.copy_from(&self.explicit.work.rows(0, n));
+            crate::state::retract(model, &mut self.trial.poses, &dq, 1.0);
+        }
+        self.delta = dq;
+        // velocities: [M, Phi_q^T; Phi_q, 0] [v'; mu] = [M v; 0]
+        let mut mv = std::mem::take(&mut self.v);
+        self.mass_times(model, &self.trial.velocities, &mut mv);
+        self.explicit.work.fill(0.0);
+        self.explicit.work.rows_mut(0, n).copy_from(&mv);
+        self.v = mv;
+        if !self.solve_mass_and_joints(model) {
+            return None;
+        }
+        self.trial.velocities.copy_from(&self.explicit.work.rows(0, n));
+        Some(true)
+    }
+}
+
+/// `Jdot v` of point `pid`: the centripetal acceleration `R (w x (w x p))` of a point `p` on a
+/// rotating body (body-frame angular velocity `w` from the local velocities), m/s^2.
+fn centripetal(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: crate::model::PointId) -> Vector3<f64> {
+    let point = &model.points[pid.0];
+    let body = &model.bodies[point.body.0];
+    if body.dof_count == 0 {
+        return Vector3::zeros();
+    }
+    let local = body.local_increment(v.as_slice(), 1.0);
+    let w = Vector3::new(local[3], local[4], local[5]);
+    poses[point.body.0].rotation * w.cross(&w.cross(&point.local))
+}

@@ -1,0 +1,277 @@
+//! Invariants of the explicit Runge-Kutta integrators and of error-controlled stepping:
+//! - RK4 and Dormand-Prince converge at their orders, 4 and 5 (within 0.3), on a smooth non-stiff
+//!   motion (a free prism ringing about its self-stressed shape, every cable taut);
+//! - with joints they keep them closed to the projection tolerance after every step, positions and
+//!   velocities;
+//! - at a fixed step above their stability limit they are refused with the limit in the message,
+//!   and just below it they run without blowing up;
+//! - RK4 conserves the undamped Atwood machine's energy, with a drift that shrinks like h^4;
+//! - error-controlled runs (generalized-alpha and Dormand-Prince with a tolerance) meet it against
+//!   a fine reference on prism3, tbar and the Atwood machine (largest point error at most 3 times
+//!   the tolerance), with fewer steps than the fixed step of equal accuracy, and never leave a
+//!   non-finite number in the state or the outputs, rejected sub-steps or not.
+
+mod common;
+
+use nalgebra::Vector3;
+use tensegrity::sim::{SimSettings, Simulator, StepError};
+use tensegrity::solve::dynamics::{explicit_stability_limit, Integrator};
+use tensegrity::{Model, State};
+
+fn bundled(name: &str) -> Model {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
+    tensegrity::scene::load(&path).unwrap()
+}
+
+/// The free prism ringing: no actuation, a smooth velocity field that keeps every cable taut.
+fn ringing_prism() -> (Model, State) {
+    let mut model = common::free_prism();
+    model.schedule.ramps.clear();
+    let mut state = State::initial(&model);
+    for (i, v) in state.velocities.iter_mut().enumerate() {
+        *v = 0.3 * ((i as f64) * 1.3).sin();
+    }
+    (model, state)
+}
+
+/// Point positions every `every` steps of `dt` over `steps` steps.
+fn trajectory(
+    model: &Model,
+    start: &State,
+    settings: SimSettings,
+    steps: usize,
+    every: usize,
+) -> Vec<Vec<Vector3<f64>>> {
+    let mut sim = Simulator::from_state(model.clone(), start.clone(), settings).unwrap();
+    let mut out = Vec::new();
+    for k in 1..=steps {
+        sim.step().unwrap();
+        if k % every == 0 {
+            out.push(sim.workspace().points.iter().map(|p| p.position).collect());
+        }
+    }
+    out
+}
+
+fn largest_distance(a: &[Vec<Vector3<f64>>], b: &[Vec<Vector3<f64>>]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).flat_map(|(x, y)| x.iter().zip(y).map(|(p, q)| (p - q).norm())).fold(0.0, f64::max)
+}
+
+#[test]
+fn rk4_and_dormand_prince_converge_at_orders_4_and_5() {
+    let (model, start) = ringing_prism();
+    let duration = 0.16;
+    let fine = 1e-5;
+    let reference = trajectory(
+        &model,
+        &start,
+        SimSettings { dt: fine, integrator: Integrator::DormandPrince, ..Default::default() },
+        (duration / fine).round() as usize,
+        (0.04 / fine).round() as usize,
+    );
+    // from just below Dormand-Prince's stability limit down by halves, where both errors stay
+    // well above round-off
+    let limit = explicit_stability_limit(&model, &start, Integrator::DormandPrince);
+    let top = 0.01 / (0.01 / (0.9 * limit)).ceil();
+    let halves = |from: f64| [from, from / 2.0, from / 4.0, from / 8.0];
+    for (integrator, expected, dts) in
+        [(Integrator::Rk4, 4.0, halves(4e-3)), (Integrator::DormandPrince, 5.0, halves(top))]
+    {
+        let errors: Vec<f64> = dts
+            .iter()
+            .map(|&dt| {
+                let run = trajectory(
+                    &model,
+                    &start,
+                    SimSettings { dt, integrator, ..Default::default() },
+                    (duration / dt).round() as usize,
+                    (0.04 / dt).round() as usize,
+                );
+                largest_distance(&run, &reference)
+            })
+            .collect();
+        assert!(
+            errors.iter().all(|e| *e > 1e-13),
+            "{}: errors above round-off {errors:?}",
+            integrator.name()
+        );
+        // the observed order: the least-squares slope of log(error) against log(dt)
+        let points: Vec<(f64, f64)> = dts.iter().zip(&errors).map(|(&h, &e)| (h, e)).collect();
+        let order = tensegrity::study::growth_exponent(&points);
+        assert!(
+            (order - expected).abs() <= 0.3,
+            "{}: observed order {order:.2} (errors {errors:?})",
+            integrator.name()
+        );
+    }
+}
+
+#[test]
+fn explicit_integrators_keep_the_joints_closed() {
+    let model = bundled("prism3.toml");
+    for integrator in [Integrator::Rk4, Integrator::DormandPrince] {
+        let mut sim =
+            Simulator::new(model.clone(), SimSettings { dt: 1e-3, integrator, ..Default::default() })
+                .unwrap();
+        let length_scale = sim.workspace().cables.iter().map(|c| c.length).fold(1e-3, f64::max);
+        let mut gap: f64 = 0.0;
+        let mut velocity_gap: f64 = 0.0;
+        for _ in 0..1500 {
+            sim.step().unwrap();
+            gap = gap.max(sim.workspace().constraint.amax());
+            // Phi_q v = the joint points' relative velocity
+            for joint in &model.joints {
+                let v = sim.workspace().points[joint.point.0].velocity;
+                velocity_gap = velocity_gap.max(v.norm());
+            }
+        }
+        assert!(gap <= 1e-12 * length_scale, "{}: joint gap {gap:e} m", integrator.name());
+        assert!(velocity_gap <= 1e-10, "{}: pinned points move at {velocity_gap:e} m/s", integrator.name());
+    }
+}
+
+#[test]
+fn explicit_integrators_are_refused_above_their_stability_limit() {
+    let model = bundled("prism3.toml");
+    let state = State::initial(&model);
+    for integrator in [Integrator::Rk4, Integrator::DormandPrince] {
+        let limit = explicit_stability_limit(&model, &state, integrator);
+        assert!(limit.is_finite() && limit > 1e-5, "{}: limit {limit}", integrator.name());
+        let refused =
+            Simulator::new(model.clone(), SimSettings { dt: 1.1 * limit, integrator, ..Default::default() });
+        match refused {
+            Err(e @ StepError::UnstableExplicitStep { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains(&format!("{limit:.3e}")) && text.contains(&integrator.name()),
+                    "{text}"
+                );
+            }
+            other => panic!("{}: expected a refusal, got {other:?}", integrator.name()),
+        }
+        // just below the limit the deployment runs and stays bounded
+        let mut sim =
+            Simulator::new(model.clone(), SimSettings { dt: 0.95 * limit, integrator, ..Default::default() })
+                .unwrap();
+        while sim.state().time < 1.5 {
+            sim.step().unwrap();
+            assert!(
+                sim.state().velocities.amax() < 10.0,
+                "{}: runaway at t = {}",
+                integrator.name(),
+                sim.state().time
+            );
+        }
+    }
+}
+
+#[test]
+fn rk4_conserves_the_atwood_machines_energy_with_a_drift_like_h4() {
+    // the 2 kg / 1 kg elastic Atwood machine: no damping, no actuation; gravity and the rope
+    let model = bundled("atwood.toml");
+    let drift = |dt: f64| {
+        let mut sim = Simulator::new(
+            model.clone(),
+            SimSettings { dt, integrator: Integrator::Rk4, ..Default::default() },
+        )
+        .unwrap();
+        let e0 = sim.energy().total();
+        let scale = sim.energy().gravitational.abs().max(1.0);
+        let mut worst: f64 = 0.0;
+        while sim.state().time < 0.5 - 1e-12 {
+            sim.step().unwrap();
+            worst = worst.max((sim.energy().total() - e0).abs() / scale);
+        }
+        worst
+    };
+    let (coarse, fine) = (drift(4e-3), drift(2e-3));
+    assert!(coarse < 1e-4, "relative energy drift {coarse:e} at 4 ms");
+    assert!(fine < coarse / 8.0, "drift {fine:e} at 2 ms against {coarse:e} at 4 ms");
+}
+
+/// Largest point error of a run over 10 ms samples against `reference`, and its sub-steps.
+fn sampled(model: &Model, settings: SimSettings, duration: f64) -> (Vec<Vec<Vector3<f64>>>, usize) {
+    let sample = 0.01;
+    let every = (sample / settings.dt).round() as usize;
+    let mut sim = Simulator::new(model.clone(), settings).unwrap();
+    let mut out = Vec::new();
+    let mut substeps = 0;
+    for k in 1..=(duration / settings.dt).round() as usize {
+        let stats = sim.step().unwrap();
+        substeps += stats.substeps + stats.rejected;
+        // nothing non-finite reaches the outputs, rejected sub-steps or not
+        assert!(sim.state().is_finite());
+        let ws = sim.workspace();
+        assert!(ws.points.iter().all(|p| p.position.iter().chain(p.velocity.iter()).all(|x| x.is_finite())));
+        assert!(ws.cables.iter().all(|c| c.tension.is_finite() && c.length.is_finite()));
+        if k % every == 0 {
+            out.push(ws.points.iter().map(|p| p.position).collect());
+        }
+    }
+    (out, substeps)
+}
+
+#[test]
+fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
+    for (scene, duration) in [("prism3.toml", 1.5), ("tbar.toml", 1.5), ("atwood.toml", 0.5)] {
+        let model = bundled(scene);
+        let (reference, _) = sampled(
+            &model,
+            SimSettings { dt: 2e-5, integrator: Integrator::DormandPrince, ..Default::default() },
+            duration,
+        );
+        for integrator in [Integrator::GeneralizedAlpha { rho_inf: 0.8 }, Integrator::DormandPrince] {
+            for tol in [1e-4, 1e-6] {
+                let settings =
+                    SimSettings { dt: 0.01, integrator, tolerance: Some(tol), ..Default::default() };
+                let (run, substeps) = sampled(&model, settings, duration);
+                let error = largest_distance(&run, &reference);
+                let what = format!("{scene}, {} at tolerance {tol:e}", integrator.name());
+                assert!(error <= 3.0 * tol, "{what}: largest point error {error:e}");
+                // the fixed step of equal accuracy: the largest of 10 ms / k that is as accurate
+                let mut fixed_steps = None;
+                let mut k = 1usize;
+                while k <= 20000 {
+                    let dt = 0.01 / k as f64;
+                    k = (k as f64 * 1.15).ceil() as usize;
+                    let settings = SimSettings { dt, integrator, ..Default::default() };
+                    if Simulator::new(model.clone(), settings).is_err() {
+                        continue; // above an explicit method's stability limit
+                    }
+                    let (fixed, steps) = sampled(&model, settings, duration);
+                    if largest_distance(&fixed, &reference) <= error {
+                        fixed_steps = Some(steps);
+                        break;
+                    }
+                }
+                let fixed_steps = fixed_steps.unwrap_or(usize::MAX);
+                // Dormand-Prince: never more steps than the fixed step of equal accuracy;
+                // generalized-alpha: at most 1.5 times (its estimate keeps the steps small while a
+                // structure rings after an actuator starts or stops, where a uniform step would
+                // not need them: README, error-controlled steps)
+                let allowed =
+                    if integrator == Integrator::DormandPrince { fixed_steps } else { fixed_steps * 3 / 2 };
+                assert!(
+                    substeps <= allowed,
+                    "{what}: {substeps} attempted sub-steps, fixed step of equal error {fixed_steps}"
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn a_tolerance_is_refused_where_no_error_estimate_exists() {
+    let model = bundled("prism3.toml");
+    for integrator in [Integrator::SymplecticEuler, Integrator::Rk4] {
+        let e = Simulator::new(
+            model.clone(),
+            SimSettings { integrator, tolerance: Some(1e-6), dt: 1e-4, ..Default::default() },
+        )
+        .unwrap_err();
+        assert!(matches!(e, StepError::ToleranceNotSupported { .. }), "{e}");
+    }
+    let e = Simulator::new(model, SimSettings { tolerance: Some(-1.0), ..Default::default() }).unwrap_err();
+    assert!(matches!(e, StepError::InvalidTolerance(_)), "{e}");
+}
