@@ -44,7 +44,7 @@ impl NodeSink for MemorySink {
         self.published.push((topic, v.state.time));
         Ok(())
     }
-    fn step_request_done(&mut self, ticket: u64, result: msg::SimResult) {
+    fn step_request_done(&mut self, ticket: u64, result: msg::SimResult, _view: &NodeView<'_>) {
         self.answers.push((ticket, result));
     }
     fn commands_applied(&mut self, time: f64, _step: u64, commands: &[(ActuatorId, ActuatorCommand)]) {

@@ -3,7 +3,7 @@
 //! `-p` overriding the file), `-r __ns:=` and `-r __node:=`, `ROS_DOMAIN_ID`, `ROS_LOCALHOST_ONLY`
 //! and `ROS_AUTOMATIC_DISCOVERY_RANGE` — and refuses what it cannot honour with a reason.
 
-use tensegrity::io::params::NodeParams;
+use tensegrity::io::params::{NodeParams, TransportKind};
 
 fn args(s: &str) -> Vec<String> {
     s.split_whitespace().map(String::from).collect()
@@ -102,15 +102,62 @@ fn bad_parameters_are_refused_with_a_reason() {
 
 #[test]
 fn every_parameter_in_the_help_table_is_understood_with_its_default() {
+    let built = TransportKind::BUILT.iter().map(|t| t.name()).collect::<Vec<_>>().join(",");
     for (name, default, meaning) in tensegrity::io::params::PARAMETERS {
         assert!(!meaning.is_empty());
         let value = match *default {
             "(bundled prism3)" => "scene.toml",
             "(scene's, else 0.001)" => "0.001",
+            "(every one built)" if built.is_empty() => continue,
+            "(every one built)" => built.as_str(),
             d => d,
         };
         let mut p = NodeParams::default();
         p.set(name, value).unwrap_or_else(|e| panic!("{name} := {value}: {e}"));
     }
     assert!(NodeParams::default().set("no_such_parameter", "1").is_err());
+}
+
+#[test]
+fn transports_are_parsed_checked_and_default_to_every_one_built() {
+    assert_eq!(NodeParams::default().transports, TransportKind::BUILT.to_vec());
+    let mut p = NodeParams::default();
+    let mut bad = vec![(String::new(), "names no transport"), ("udp".into(), "unknown transport 'udp'")];
+    for kind in TransportKind::BUILT {
+        bad.push((format!("{0}, {0}", kind.name()), "named twice"));
+    }
+    for (text, needle) in bad {
+        let e = p.set("transports", &text).unwrap_err().to_string();
+        assert!(e.contains(needle), "'{text}' gave '{e}'");
+    }
+    for kind in [TransportKind::Dds, TransportKind::Shm] {
+        let built = TransportKind::BUILT.contains(&kind);
+        match p.set("transports", kind.name()) {
+            Ok(()) => {
+                assert!(built);
+                assert_eq!(p.transports, vec![kind]);
+            }
+            Err(e) => {
+                assert!(!built);
+                assert!(e.to_string().contains(kind.feature()), "{e}");
+            }
+        }
+    }
+    if TransportKind::BUILT.len() == 2 {
+        p.set("transports", " shm , dds ").unwrap();
+        assert_eq!(p.transports, vec![TransportKind::Shm, TransportKind::Dds], "order kept, spaces ignored");
+    }
+    let e = p.set("shm_spin_us", "20000").unwrap_err().to_string();
+    assert!(e.contains("shm_spin_us"), "{e}");
+    assert!(p.set("shm_spin_us", "1.5").is_err());
+    p.set("shm_spin_us", "0").unwrap();
+    assert_eq!(p.shm_spin_us, 0);
+}
+
+#[test]
+fn shared_memory_names_follow_namespace_and_node_remapping() {
+    let (p, _) =
+        NodeParams::from_args(&args("--ros-args -r __ns:=/lab/rig2 -r __node:=sim"), no_env).unwrap();
+    assert_eq!(p.shm_prefix(), "lab/rig2/sim");
+    assert_eq!(NodeParams::default().shm_prefix(), "tensegrity_sim");
 }

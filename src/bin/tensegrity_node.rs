@@ -1,18 +1,23 @@
-//! `tensegrity_node`: the simulator as a ROS 2 node (argument parsing and wiring only).
+//! `tensegrity_node`: the simulator as a ROS 2 node and a shared-memory server (argument parsing
+//! and wiring only).
 //!
 //! Usage: `tensegrity_node [SCENE.toml] [--ros-args -p name:=value ...]` (`--help` lists every
-//! parameter); without a scene it runs the bundled `prism3`. Stops cleanly on SIGINT and SIGTERM.
+//! parameter); without a scene it runs the bundled `prism3`. Serves the transports of
+//! `-p transports:=` (default: every one built in, features `ros2` and `shm`). Stops cleanly on
+//! SIGINT and SIGTERM.
 
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use tensegrity::io::params::{NodeParams, PARAMETERS};
-use tensegrity::io::ros2::SimNode;
+use tensegrity::io::params::{NodeParams, TransportKind, PARAMETERS};
 
 const DEFAULT_SCENE: &str = include_str!("../../config/scenes/prism3.toml");
 
 fn main() -> ExitCode {
+    // iceoryx2 warns when no config file exists; errors still show (IOX2_LOG_LEVEL overrides)
+    #[cfg(feature = "shm")]
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     match run() {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -25,7 +30,8 @@ fn main() -> ExitCode {
 /// The help text: usage, parameters (from `PARAMETERS`), environment, signals, exit status.
 fn help() -> String {
     let mut h = String::from(
-        "tensegrity_node: the clustered-tensegrity simulator as a ROS 2 node (DDS, no ROS install needed)\n\n\
+        "tensegrity_node: the clustered-tensegrity simulator as a ROS 2 node (DDS, no ROS install needed)\n\
+         and an iceoryx2 shared-memory server for local controllers\n\n\
          Usage: tensegrity_node [SCENE.toml] [--ros-args -p NAME:=VALUE ... --params-file FILE\n\
          \x20                                   -r __ns:=/NAMESPACE -r __node:=NAME]\n\
          \x20      tensegrity_node --help | --version\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
@@ -39,7 +45,13 @@ fn help() -> String {
           Topics /clock, /tf, /tf_static, /diagnostics and ~/body_poses, ~/cable_states, ~/actuator_states,\n\
           ~/structure, ~/markers out; ~/actuator_commands, ~/joint_commands in; simulation_interfaces\n\
           services in ~/ (see the README). SIGINT or SIGTERM stops it (exit 0); bad arguments, scene\n\
-          or parameters exit 1 with the reason.\n";
+          or parameters exit 1 with the reason.\n\n\
+          Shared memory (iceoryx2, services <ns>/<node>/...: state, structure, actuator_commands,\n\
+          lockstep; events to_node, from_node): see the README and tests/interop/shm_client.py.\n";
+    h += &format!(
+        "\nTransports built into this binary: {}\n",
+        TransportKind::BUILT.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ")
+    );
     h
 }
 
@@ -77,20 +89,34 @@ fn run() -> Result<(), String> {
         Some(path) => tensegrity::scene::load(path).map_err(|e| e.to_string())?,
         None => tensegrity::scene::from_toml(DEFAULT_SCENE, "<bundled prism3>").map_err(|e| e.to_string())?,
     };
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = stop.clone();
-    ctrlc::set_handler(move || flag.store(true, Ordering::Relaxed)).map_err(|e| e.to_string())?;
+    let mut serving = Vec::new();
+    for t in &params.transports {
+        serving.push(match t {
+            TransportKind::Dds => format!(
+                "DDS domain {}{}",
+                params.domain_id,
+                if params.localhost_only { " (localhost only)" } else { "" }
+            ),
+            TransportKind::Shm => format!("shared memory {}/*", params.shm_prefix()),
+        });
+    }
     eprintln!(
-        "tensegrity_node: '{}' as {}/{} on domain {}{}, dt {} s, real-time factor {}",
+        "tensegrity_node: '{}' as {}/{} on {}, dt {} s, real-time factor {}",
         model.name,
         params.namespace.trim_end_matches('/'),
         params.node_name,
-        params.domain_id,
-        if params.localhost_only { " (localhost only)" } else { "" },
+        serving.join(" and "),
         params.physics_dt.or(model.physics_dt).unwrap_or(1e-3),
         params.real_time_factor
     );
-    let mut node = SimNode::new(model, params).map_err(|e| e.to_string())?;
+    let mut node = tensegrity::io::launch(model, params).map_err(|e| e.to_string())?;
+    let stop = Arc::new(AtomicBool::new(false));
+    #[cfg(any(feature = "ros2", feature = "shm"))]
+    {
+        let flag = stop.clone();
+        ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
+            .map_err(|e| e.to_string())?;
+    }
     node.run(&stop);
     let s = node.stats();
     let failures: u64 = s.publish_failures.iter().sum();

@@ -1,10 +1,82 @@
 //! The edge between the physics and the outside world: wire types (flat serde copies of the
-//! `msg/` package, usable without any middleware) and, behind the `ros2` and `shm` cargo features,
-//! the transports. Nothing outside this module and the binaries imports a transport crate.
+//! `msg/` package, usable without any middleware), the transport-free node core and loop, and,
+//! behind the `ros2` and `shm` cargo features, the transports. Nothing outside this module and
+//! the binaries imports a transport crate.
 
 pub mod msg;
 pub mod node;
 pub mod params;
+pub mod runner;
 
 #[cfg(feature = "ros2")]
 pub mod ros2;
+#[cfg(feature = "shm")]
+pub mod shm;
+
+use crate::io::node::{CoreError, NodeCore};
+use crate::io::params::{NodeParams, TransportKind};
+use crate::io::runner::{SimNode, Transport};
+use crate::model::Model;
+
+/// Why the node could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum LaunchError {
+    /// The simulation could not start.
+    #[error(transparent)]
+    Core(#[from] CoreError),
+    /// A transport could not start (which one, and why).
+    #[error("{transport}: {reason}")]
+    Transport {
+        /// The transport's name.
+        transport: &'static str,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Builds the node for `model`: its core from `params`, then every transport in
+/// `params.transports` (in that order), and publishes the start-up outputs on all of them.
+pub fn launch(model: Model, params: NodeParams) -> Result<SimNode, LaunchError> {
+    let core = NodeCore::new(model, params)?;
+    launch_core(core)
+}
+
+/// Like `launch`, around a core built by the caller (e.g. around a simulator with other settings).
+pub fn launch_core(core: NodeCore) -> Result<SimNode, LaunchError> {
+    let params = core.params().clone();
+    let transports = params
+        .transports
+        .iter()
+        .map(|kind| build_transport(*kind, &core, &params))
+        .collect::<Result<Vec<_>, _>>()?;
+    if transports.is_empty() {
+        return Err(LaunchError::Transport {
+            transport: "none",
+            reason: "no transport to serve (parameter transports, features ros2 and shm)".into(),
+        });
+    }
+    Ok(SimNode::new(core, transports))
+}
+
+/// One transport of kind `kind` for `core`, or why it cannot be built.
+fn build_transport(
+    kind: TransportKind,
+    core: &NodeCore,
+    params: &NodeParams,
+) -> Result<Box<dyn Transport>, LaunchError> {
+    let fail = |reason: String| LaunchError::Transport { transport: kind.name(), reason };
+    let _ = core;
+    match kind {
+        #[cfg(feature = "ros2")]
+        TransportKind::Dds => Ok(Box::new(ros2::DdsTransport::new(params).map_err(|e| fail(e.to_string()))?)),
+        #[cfg(feature = "shm")]
+        TransportKind::Shm => Ok(Box::new(
+            shm::ShmTransport::new(core.simulator().model(), params).map_err(|e| fail(e.to_string()))?,
+        )),
+        #[allow(unreachable_patterns)]
+        other => {
+            let _ = params;
+            Err(fail(format!("not built into this binary (rebuild with --features {})", other.feature())))
+        }
+    }
+}

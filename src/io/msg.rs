@@ -169,6 +169,18 @@ pub enum MessageError {
     /// The same actuator appears twice in one message (which entry should win is ambiguous).
     #[error("actuator '{0}' is named more than once")]
     Duplicate(String),
+    /// An actuator given by index that the model does not have.
+    #[error("actuator index {index} is out of range (the scene has {count} actuators)")]
+    UnknownIndex {
+        /// The index received.
+        index: u64,
+        /// Actuators in the model.
+        count: usize,
+    },
+    /// A field that cannot be read (a name that is not UTF-8 or has no terminating NUL in its
+    /// fixed-size field, unknown flag bits).
+    #[error("{0}")]
+    Malformed(String),
     /// One of the commands is invalid.
     #[error(transparent)]
     Command(#[from] control::CommandError),
@@ -227,17 +239,36 @@ pub fn check_command(
         return Err(MessageError::NoNames);
     }
     for (i, name) in names.iter().enumerate() {
-        let id = model
-            .actuator_id(name)
-            .ok_or_else(|| control::CommandError::UnknownActuator(excerpt(name, EXCERPT_CHARS)))?;
-        if out.iter().any(|(seen, _)| *seen == id) {
-            return Err(MessageError::Duplicate(name.clone()));
-        }
+        let id = actuator_by_name(model, name)?;
         let cmd =
             control::ActuatorCommand { rest_length: rest_length.get(i).copied(), rate: rate.get(i).copied() };
-        control::Control::validate(model, id, cmd)?;
-        out.push((id, cmd));
+        check_entry(model, id, cmd, out)?;
     }
+    Ok(())
+}
+
+/// The actuator called `name`, or the error every transport gives for an unknown name.
+pub fn actuator_by_name(model: &Model, name: &str) -> Result<ActuatorId, MessageError> {
+    model
+        .actuator_id(name)
+        .ok_or_else(|| control::CommandError::UnknownActuator(excerpt(name, EXCERPT_CHARS)).into())
+}
+
+/// Checks one entry of a command message whose actuator is already resolved, the same way for
+/// every transport: a second entry for an actuator already in `out` is refused (which should win
+/// is ambiguous), then the values against the actuator's limits (`Control::validate`); a good
+/// entry is appended to `out`.
+pub fn check_entry(
+    model: &Model,
+    id: ActuatorId,
+    cmd: control::ActuatorCommand,
+    out: &mut Vec<(ActuatorId, control::ActuatorCommand)>,
+) -> Result<(), MessageError> {
+    if out.iter().any(|(seen, _)| *seen == id) {
+        return Err(MessageError::Duplicate(model.actuator_names[id.0].clone()));
+    }
+    control::Control::validate(model, id, cmd)?;
+    out.push((id, cmd));
     Ok(())
 }
 

@@ -44,8 +44,10 @@ pub const MAX_COMMANDS_PER_STEP: usize = 64;
 pub const MAX_REJECTION_REPORTS_PER_SECOND: u32 = 10;
 /// Interval of the periodic `/diagnostics` status and of transport-failure reports.
 pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
-/// How long `tick` asks to sleep while there is nothing to step (paused or faulted).
-pub const IDLE_PERIOD: Duration = Duration::from_millis(2);
+/// Longest `tick` asks to sleep while there is nothing to step (paused or faulted): the turn after
+/// it publishes the periodic status. Inputs that arrive meanwhile are taken by the transports,
+/// and a runner turns the core at once when they give it work (`NodeCore::has_work`).
+pub const IDLE_PERIOD: Duration = DIAGNOSTICS_PERIOD;
 
 /// `simulation_interfaces/msg/SimulationState` codes.
 pub mod sim_state {
@@ -92,11 +94,14 @@ pub enum Topic {
     Diagnostics,
     /// `~/markers`.
     Markers,
+    /// The whole state in one sample (body poses, cables, actuators, time and step index), for
+    /// transports that carry it so (shared memory); published with the other state topics.
+    State,
 }
 
 impl Topic {
     /// Every topic, in the order of `NodeStats::publish_failures`.
-    pub const ALL: [Topic; 9] = [
+    pub const ALL: [Topic; 10] = [
         Topic::Clock,
         Topic::Tf,
         Topic::TfStatic,
@@ -106,6 +111,7 @@ impl Topic {
         Topic::Structure,
         Topic::Diagnostics,
         Topic::Markers,
+        Topic::State,
     ];
     /// The topic's name (`~/` is the node's private namespace).
     pub fn name(self) -> &'static str {
@@ -119,6 +125,7 @@ impl Topic {
             Topic::Structure => "~/structure",
             Topic::Diagnostics => "/diagnostics",
             Topic::Markers => "~/markers",
+            Topic::State => "~/state",
         }
     }
     fn index(self) -> usize {
@@ -156,14 +163,26 @@ pub struct NodeView<'a> {
     pub node_name: &'a str,
     /// The statuses to publish on `/diagnostics` (when the topic is `Diagnostics`).
     pub diagnostics: &'a [DiagnosticStatus],
+    /// Steps taken since the start or the last reset (the state is the one after this many).
+    pub step: u64,
+    /// `sim_state` code: PLAYING or PAUSED (also while faulted).
+    pub simulation_state: u8,
+    /// True while a physics failure holds the simulation paused (until reset).
+    pub faulted: bool,
+    /// The node's counters.
+    pub stats: NodeStats,
+    /// The node's step (one `tick`), s.
+    pub dt: f64,
 }
 
 /// A transport's outgoing side, as the core sees it.
 pub trait NodeSink {
     /// Publishes `topic` from `view`.
     fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError>;
-    /// Answers the deferred StepSimulation request `ticket` (see `NodeCore::request_steps`).
-    fn step_request_done(&mut self, ticket: u64, result: SimResult);
+    /// Answers the deferred StepSimulation request `ticket` (see `NodeCore::request_steps`);
+    /// `view` is the state it ends at (a lockstep transport sends it back with the answer). A sink
+    /// ignores tickets it did not issue.
+    fn step_request_done(&mut self, ticket: u64, result: SimResult, view: &NodeView<'_>);
     /// The commands applied at the boundary before step `step` (sim time `time`), in the order
     /// they were applied. For recorders; default: nothing.
     fn commands_applied(&mut self, _time: f64, _step: u64, _commands: &[(ActuatorId, ActuatorCommand)]) {}
@@ -191,7 +210,7 @@ pub struct NodeStats {
     /// Times the command timeout fired.
     pub command_timeouts: u64,
     /// Failed publishes per topic, in `Topic::ALL` order.
-    pub publish_failures: [u64; 9],
+    pub publish_failures: [u64; 10],
     /// Incoming samples a transport could not read (malformed, wrong layout).
     pub malformed_incoming: u64,
     /// StepSimulation requests refused or interrupted.
@@ -226,6 +245,8 @@ pub struct NodeCore {
     fault: Option<String>,
     quit: bool,
     stats: NodeStats,
+    /// Steps since the start or the last reset.
+    steps_since_reset: u64,
     /// Accepted, not yet applied commands, keep-last per actuator.
     pending: Vec<Option<ActuatorCommand>>,
     /// Scratch for checking one message.
@@ -287,6 +308,7 @@ impl NodeCore {
             fault: None,
             quit: false,
             stats: NodeStats::default(),
+            steps_since_reset: 0,
             pending: vec![None; n_actuators],
             checked: Vec::with_capacity(n_actuators),
             applied: Vec::with_capacity(n_actuators),
@@ -342,6 +364,18 @@ impl NodeCore {
     /// (`MAX_COMMANDS_PER_STEP`).
     pub fn wants_commands(&self) -> bool {
         self.commands_this_step < MAX_COMMANDS_PER_STEP
+    }
+    /// True while there is nothing to step: paused (or faulted) with no StepSimulation request
+    /// under way. Its `tick` then asks for the next turn only `IDLE_PERIOD` later.
+    pub fn idle(&self) -> bool {
+        self.paused && self.step_request.is_none()
+    }
+    /// True when a turn now would do something that a turn asked for while idle would not wait
+    /// for: the core is no longer idle (unpaused, a StepSimulation request), or it holds commands
+    /// to apply or rejections to report. A runner that slept because the core was idle turns it
+    /// at once when this becomes true after taking inputs.
+    pub fn idle_turn_due(&self) -> bool {
+        !self.idle() || self.rejections_unreported > 0 || self.pending.iter().any(Option::is_some)
     }
 
     /// The `SimulationState` code: PAUSED or PLAYING.
@@ -417,9 +451,24 @@ impl NodeCore {
     }
 
     fn offer_arrays(&mut self, frame: &str, names: &[String], rest: &[f64], rate: &[f64]) {
+        // counted and reported inside; the DDS paths have no one to tell
+        let _ = self.offer_parsed(|model, out| msg::check_command(model, frame, names, rest, rate, out));
+    }
+
+    /// Takes one command message from a transport that reads its own wire format: `parse` fills
+    /// `out` (empty on entry) with the message's checked entries (resolving actuators and then
+    /// `msg::check_entry` for each, so every transport judges a command the same way) or says why
+    /// the whole message is refused. Counted and reported like `offer_command`; accepted entries
+    /// apply at the next step boundary. Returns the refusal, for transports that answer it.
+    pub fn offer_parsed(
+        &mut self,
+        parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), msg::MessageError>,
+    ) -> Result<(), msg::MessageError> {
         self.stats.commands_received += 1;
         self.commands_this_step += 1;
-        match msg::check_command(self.sim.model(), frame, names, rest, rate, &mut self.checked) {
+        self.checked.clear();
+        let result = parse(self.sim.model(), &mut self.checked);
+        match &result {
             Ok(()) => {
                 self.stats.commands_accepted += 1;
                 for (id, cmd) in &self.checked {
@@ -432,6 +481,8 @@ impl NodeCore {
                 self.latest_rejection = msg::excerpt(&e.to_string(), 2 * msg::EXCERPT_CHARS);
             }
         }
+        self.checked.clear();
+        result
     }
 
     /// Counts an incoming sample that a transport could not read (malformed, wrong layout).
@@ -454,7 +505,7 @@ impl NodeCore {
             let ticket = self.next_ticket;
             self.next_ticket += 1;
             if steps == 0 {
-                sink.step_request_done(ticket, SimResult::ok());
+                sink.step_request_done(ticket, SimResult::ok(), &self.view());
             } else {
                 self.step_request = Some(StepRequest { ticket, requested: steps, remaining: steps });
             }
@@ -472,7 +523,8 @@ impl NodeCore {
             self.stats.step_requests_failed += 1;
             let done =
                 format!("{why} after {} of {} requested steps", r.requested - r.remaining, r.requested);
-            sink.step_request_done(r.ticket, SimResult::err(result_code::OPERATION_FAILED, done));
+            let result = SimResult::err(result_code::OPERATION_FAILED, done);
+            sink.step_request_done(r.ticket, result, &self.view());
         }
     }
 
@@ -491,6 +543,7 @@ impl NodeCore {
     pub fn reset(&mut self, sink: &mut dyn NodeSink) {
         self.interrupt_step_request(sink, "reset");
         self.sim.reset();
+        self.steps_since_reset = 0;
         self.fault = None;
         if !self.params.follow_schedule {
             self.command_every_actuator(false);
@@ -563,7 +616,7 @@ impl NodeCore {
                     if r.remaining == 0 {
                         let ticket = r.ticket;
                         self.step_request = None;
-                        sink.step_request_done(ticket, SimResult::ok());
+                        sink.step_request_done(ticket, SimResult::ok(), &self.view());
                     }
                 }
             }
@@ -635,6 +688,7 @@ impl NodeCore {
             return false;
         }
         self.stats.steps += 1;
+        self.steps_since_reset += 1;
         let dt = self.sim.settings().dt;
         for (r, (now, before)) in
             self.rates.iter_mut().zip(self.sim.state().rest_lengths.iter().zip(&self.previous_rest))
@@ -713,7 +767,8 @@ impl NodeCore {
 
     // ----- outputs ------------------------------------------------------------------------------
 
-    fn view(&self) -> NodeView<'_> {
+    /// What a sink may read now (also for transports answering requests outside `tick`).
+    pub fn view(&self) -> NodeView<'_> {
         NodeView {
             model: self.sim.model(),
             state: self.sim.state(),
@@ -723,6 +778,11 @@ impl NodeCore {
             frame_id: &self.params.frame_id,
             node_name: &self.params.node_name,
             diagnostics: &self.statuses,
+            step: self.steps_since_reset,
+            simulation_state: self.simulation_state(),
+            faulted: self.fault.is_some(),
+            stats: self.stats,
+            dt: self.sim.settings().dt,
         }
     }
 
@@ -733,8 +793,10 @@ impl NodeCore {
         }
     }
 
+    /// The state topics, the whole-state sample first (a shared-memory sample takes microseconds,
+    /// so it does not wait for the DDS messages' serialization).
     fn publish_state(&mut self, sink: &mut dyn NodeSink) {
-        for topic in [Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates] {
+        for topic in [Topic::State, Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates] {
             self.publish(sink, topic);
         }
         self.last_state_publish = Some(self.sim.state().time);

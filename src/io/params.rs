@@ -56,6 +56,78 @@ pub struct NodeParams {
     pub domain_id: u16,
     /// Bind DDS to 127.0.0.1 only.
     pub localhost_only: bool,
+    /// Transports to serve (`transports`, a comma-separated list of `dds` and `shm`; default:
+    /// every transport this build has, see `TransportKind::BUILT`).
+    pub transports: Vec<TransportKind>,
+    /// How long the shared-memory transport keeps polling for the next request after answering
+    /// one before it blocks on its event, us (`shm_spin_us`, default 200, 0 = block at once):
+    /// a lockstep controller's next request arrives within a few microseconds, far sooner than an
+    /// event wake-up (tens of microseconds); the poll never runs while the node is idle.
+    pub shm_spin_us: u64,
+}
+
+/// A transport the node can serve.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TransportKind {
+    /// ROS 2 over DDS (feature `ros2`).
+    Dds,
+    /// iceoryx2 shared memory (feature `shm`).
+    Shm,
+}
+
+impl TransportKind {
+    /// The transports this build has (cargo features `ros2`, `shm`), in serving order.
+    pub const BUILT: &'static [TransportKind] = match (cfg!(feature = "ros2"), cfg!(feature = "shm")) {
+        (true, true) => &[TransportKind::Dds, TransportKind::Shm],
+        (true, false) => &[TransportKind::Dds],
+        (false, true) => &[TransportKind::Shm],
+        (false, false) => &[],
+    };
+    /// The name in `transports` (`dds`, `shm`).
+    pub fn name(self) -> &'static str {
+        match self {
+            TransportKind::Dds => "dds",
+            TransportKind::Shm => "shm",
+        }
+    }
+    /// The cargo feature that builds it.
+    pub fn feature(self) -> &'static str {
+        match self {
+            TransportKind::Dds => "ros2",
+            TransportKind::Shm => "shm",
+        }
+    }
+    /// Parses a `transports` value: names separated by commas (spaces ignored), each once, each
+    /// built into this binary.
+    pub fn parse_list(text: &str) -> Result<Vec<TransportKind>, ParamError> {
+        let mut out = Vec::new();
+        for part in text.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+            let kind = match part.to_ascii_lowercase().as_str() {
+                "dds" | "ros2" => TransportKind::Dds,
+                "shm" | "iceoryx2" => TransportKind::Shm,
+                other => {
+                    return Err(err(format!(
+                        "parameter transports: unknown transport '{other}' (dds or shm)"
+                    )))
+                }
+            };
+            if !Self::BUILT.contains(&kind) {
+                return Err(err(format!(
+                    "parameter transports: '{}' is not built into this binary (rebuild with --features {})",
+                    kind.name(),
+                    kind.feature()
+                )));
+            }
+            if out.contains(&kind) {
+                return Err(err(format!("parameter transports: '{}' is named twice", kind.name())));
+            }
+            out.push(kind);
+        }
+        if out.is_empty() {
+            return Err(err("parameter transports: names no transport (dds, shm or dds,shm)"));
+        }
+        Ok(out)
+    }
 }
 
 impl Default for NodeParams {
@@ -79,6 +151,8 @@ impl Default for NodeParams {
             service_mapping: "enhanced".into(),
             domain_id: 0,
             localhost_only: false,
+            transports: TransportKind::BUILT.to_vec(),
+            shm_spin_us: 200,
         }
     }
 }
@@ -94,6 +168,8 @@ pub const PUBLISH_RATE_RANGE: (f64, f64) = (0.0, 1e6);
 pub const MARKERS_RATE_RANGE: (f64, f64) = (0.0, 1e3);
 /// Accepted `tolerance`, m (0 = fixed steps).
 pub const TOLERANCE_RANGE: (f64, f64) = (0.0, 1.0);
+/// Accepted `shm_spin_us`, microseconds.
+pub const SHM_SPIN_RANGE: (f64, f64) = (0.0, 1e4);
 /// Accepted `command_timeout`, s of sim time (0 = never).
 pub const COMMAND_TIMEOUT_RANGE: (f64, f64) = (0.0, 1e6);
 
@@ -114,6 +190,8 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("command_timeout", "0.0", "sim-time s without a command before the action, 0 = never"),
     ("command_timeout_action", "hold", "hold (winches stop) or initial (back to start)"),
     ("service_mapping", "enhanced", "enhanced (Fast DDS, RustDDS), cyclone or basic"),
+    ("transports", "(every one built)", "dds, shm or dds,shm (shm alone opens no DDS socket)"),
+    ("shm_spin_us", "200", "us the shm transport polls for the next request before blocking, 0 to 10000"),
     ("use_sim_time", "false", "accepted and ignored (the node is the clock)"),
 ];
 
@@ -127,6 +205,18 @@ fn err(s: impl Into<String>) -> ParamError {
 }
 
 impl NodeParams {
+    /// The shared-memory service prefix: namespace and node name as in ROS (`<ns>/<node>`)
+    /// without the leading slash: `tensegrity_sim` by default, `lab/sim2` for `-r __ns:=/lab
+    /// -r __node:=sim2`.
+    pub fn shm_prefix(&self) -> String {
+        let ns = self.namespace.trim_matches('/');
+        if ns.is_empty() {
+            self.node_name.clone()
+        } else {
+            format!("{ns}/{}", self.node_name)
+        }
+    }
+
     /// Sets parameter `name` from its text `value` (YAML scalar syntax for booleans and numbers).
     pub fn set(&mut self, name: &str, value: &str) -> Result<(), ParamError> {
         let num = |v: &str| -> Result<f64, ParamError> {
@@ -199,6 +289,14 @@ impl NodeParams {
                     )));
                 }
                 self.service_mapping = v;
+            }
+            "transports" => self.transports = TransportKind::parse_list(&text(value))?,
+            "shm_spin_us" => {
+                let v = within(num(value)?, SHM_SPIN_RANGE)?;
+                if v.fract() != 0.0 {
+                    return Err(err(format!("parameter shm_spin_us must be a whole number, got {v}")));
+                }
+                self.shm_spin_us = v as u64;
             }
             "use_sim_time" => {}
             _ => return Err(err(format!("unknown parameter '{name}'"))),

@@ -1,6 +1,7 @@
-//! The ROS 2 node (feature `ros2`): takes a `Model` and `NodeParams`, gives the transport-free
-//! `NodeCore` a DDS face (ros2-client): its publishers, subscriptions and services, the mapping of
-//! the core's outputs to ROS message types, and QoS. Everything the node *means* (pacing,
+//! The ROS 2 transport (feature `ros2`): takes `NodeParams`, gives `DdsTransport`, the
+//! transport-free `NodeCore`'s DDS face (ros2-client) in the node's loop (`io::runner`): its
+//! publishers, subscriptions and services, the mapping of the core's outputs to ROS message
+//! types, and QoS. Everything the node *means* (pacing,
 //! pause/step/reset, command checks and keep-last intake, diagnostics, faults) lives in
 //! `io::node`; this file only moves samples.
 //!
@@ -15,8 +16,7 @@
 //! command messages are taken per step.
 
 use std::net::Ipv4Addr;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use ros2_client::dds::rustdds::DomainParticipantBuilder;
 use ros2_client::qos::{Durability, History, WhenFull};
@@ -27,22 +27,16 @@ use ros2_client::{
 };
 
 use crate::io::msg::{self, Header, Time};
-use crate::io::node::{CoreError, NodeCore, NodeSink, NodeView, PublishError, Topic};
+use crate::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
 use crate::io::params::NodeParams;
-use crate::model::Model;
-use crate::sim::Simulator;
+use crate::io::runner::{Transport, With};
 
-pub use crate::io::node::NodeStats;
-
-/// Why the node could not start.
+/// Why the DDS transport could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum NodeError {
     /// DDS or ROS entity creation failed.
     #[error("ROS 2: {0}")]
     Ros(String),
-    /// The simulation could not start.
-    #[error(transparent)]
-    Core(#[from] CoreError),
 }
 
 fn ros<E: std::fmt::Debug>(e: E) -> NodeError {
@@ -84,21 +78,18 @@ struct Services {
 /// Most requests taken from one service server per turn of the loop.
 const MAX_REQUESTS_PER_TURN: usize = 16;
 
-/// The DDS entities of a node.
-struct Dds {
+/// The node's DDS face: its publishers, services and subscriptions (ros2-client), as a
+/// `Transport` of the node's loop (`io::runner::SimNode`).
+pub struct DdsTransport {
     publishers: Publishers,
     services: Services,
     commands: Subscription<msg::ActuatorCommand>,
     joint_commands: Subscription<msg::JointState>,
     /// StepSimulation requests under way: the core's ticket and the DDS request id.
     tickets: Vec<(u64, RmwRequestId)>,
-}
-
-/// The core's outputs on DDS.
-struct DdsSink<'a> {
-    publishers: &'a Publishers,
-    step: &'a Server<msg::StepSimulationWire, msg::ResultResponse>,
-    tickets: &'a mut Vec<(u64, RmwRequestId)>,
+    // keep the DDS entities alive as long as the transport
+    _node: Node,
+    _context: Context,
 }
 
 fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError> {
@@ -109,9 +100,9 @@ fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError
     })
 }
 
-impl NodeSink for DdsSink<'_> {
+impl NodeSink for DdsTransport {
     fn publish(&mut self, topic: Topic, v: &NodeView<'_>) -> Result<(), PublishError> {
-        let (p, frame) = (self.publishers, v.frame_id);
+        let (p, frame) = (&self.publishers, v.frame_id);
         let (model, state, ws) = (v.model, v.state, v.workspace);
         match topic {
             Topic::Clock => sent(p.clock.publish(msg::Clock { clock: Time::from_seconds(state.time) })),
@@ -136,21 +127,17 @@ impl NodeSink for DdsSink<'_> {
                 sent(p.diagnostics.publish(msg::DiagnosticArray { header, status: v.diagnostics.to_vec() }))
             }
             Topic::Markers => sent(p.markers.publish(msg::MarkerArray::from_state(model, state, ws, frame))),
+            // the same state goes out on the topics above
+            Topic::State => Ok(()),
         }
     }
 
-    fn step_request_done(&mut self, ticket: u64, result: msg::SimResult) {
+    fn step_request_done(&mut self, ticket: u64, result: msg::SimResult, _view: &NodeView<'_>) {
         if let Some(k) = self.tickets.iter().position(|(t, _)| *t == ticket) {
             let (_, id) = self.tickets.swap_remove(k);
             // a client that went away cannot be answered; nothing to do about it
-            let _ = self.step.send_response(id, msg::ResultResponse { result });
+            let _ = self.services.step.send_response(id, msg::ResultResponse { result });
         }
-    }
-}
-
-impl Dds {
-    fn sink(&mut self) -> DdsSink<'_> {
-        DdsSink { publishers: &self.publishers, step: &self.services.step, tickets: &mut self.tickets }
     }
 }
 
@@ -208,36 +195,15 @@ pub fn private_namespace(params: &NodeParams) -> String {
     format!("{}/{}", params.namespace.trim_end_matches('/'), params.node_name)
 }
 
-/// The simulator as a ROS 2 node: a `NodeCore` and its DDS entities. Start it in-process with
-/// `SimNode::new` and drive it with `run` (the paced loop) or `turn` (one turn, for tests).
-pub struct SimNode {
-    core: NodeCore,
-    dds: Dds,
-    // keep the DDS entities alive as long as the node
-    _node: Node,
-    _context: Context,
-}
-
-impl SimNode {
-    /// Builds the simulator and the node, and publishes the structure, static transforms and the
-    /// initial state.
-    pub fn new(model: Model, params: NodeParams) -> Result<Self, NodeError> {
-        let core = NodeCore::new(model, params)?;
-        Self::with_core(core)
-    }
-
-    /// A node around a simulator built by the caller (e.g. with other step settings).
-    pub fn with_simulator(sim: Simulator, params: NodeParams) -> Result<Self, NodeError> {
-        Self::with_core(NodeCore::with_simulator(sim, params))
-    }
-
-    fn with_core(mut core: NodeCore) -> Result<Self, NodeError> {
-        let params = core.params().clone();
+impl DdsTransport {
+    /// Opens the DDS participant (`params.domain_id`, localhost only if asked), the node and its
+    /// topics, services and subscriptions. Nothing is published until the node starts.
+    pub fn new(params: &NodeParams) -> Result<Self, NodeError> {
         let context = context(params.domain_id, params.localhost_only)?;
         let mut node = context
             .new_node(NodeName::new(&params.namespace, &params.node_name).map_err(ros)?, NodeOptions::new())
             .map_err(ros)?;
-        let private = private_namespace(&params);
+        let private = private_namespace(params);
         let topic = |ns: &str, name: &str, pkg: &str, ty: &str, q: &QosProfile| {
             node.create_topic(&Name::new(ns, name).map_err(ros)?, MessageTypeName::new(pkg, ty), q)
                 .map_err(ros)
@@ -300,50 +266,20 @@ impl SimNode {
         };
         let commands = node.create_subscription(&t_cmd, None).map_err(ros)?;
         let joint_commands = node.create_subscription(&t_joint_cmd, None).map_err(ros)?;
-        let mut dds = Dds { publishers, services, commands, joint_commands, tickets: Vec::new() };
-        core.start(&mut dds.sink());
-        Ok(Self { core, dds, _node: node, _context: context })
+        Ok(Self {
+            publishers,
+            services,
+            commands,
+            joint_commands,
+            tickets: Vec::new(),
+            _node: node,
+            _context: context,
+        })
     }
 
-    /// The node's core (read-only).
-    pub fn core(&self) -> &NodeCore {
-        &self.core
-    }
-    /// The simulator (read-only).
-    pub fn simulator(&self) -> &Simulator {
-        self.core.simulator()
-    }
-    /// Counters.
-    pub fn stats(&self) -> NodeStats {
-        self.core.stats()
-    }
-
-    /// Takes pending command messages (at most the core's per-step budget) and answers pending
-    /// service requests (at most `MAX_REQUESTS_PER_TURN` per service).
-    pub fn take_inputs(&mut self) {
-        let core = &mut self.core;
-        let dds = &mut self.dds;
-        while core.wants_commands() {
-            match dds.commands.take() {
-                Ok(Some((m, _))) => core.offer_command(&m),
-                Ok(None) => break,
-                Err(_) => core.incoming_malformed(),
-            }
-        }
-        while core.wants_commands() {
-            match dds.joint_commands.take() {
-                Ok(Some((m, _))) => core.offer_joint_command(&m),
-                Ok(None) => break,
-                Err(_) => core.incoming_malformed(),
-            }
-        }
-        self.serve();
-    }
-
-    /// Answers pending service requests.
-    fn serve(&mut self) {
-        let core = &mut self.core;
-        let sv = &self.dds.services;
+    /// Answers pending service requests (at most `MAX_REQUESTS_PER_TURN` per service).
+    fn serve(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
+        let sv = &self.services;
         let steps = requests(&sv.step, core);
         let resets = requests(&sv.reset, core);
         let gets = requests(&sv.get_state, core);
@@ -352,6 +288,11 @@ impl SimNode {
         let pauses = requests(&sv.pause, core);
         let unpauses = requests(&sv.unpause, core);
         let empties = requests(&sv.reset_empty, core);
+        macro_rules! sink {
+            () => {
+                &mut With { own: &mut *self, others: &mut *others }
+            };
+        }
         for (id, req) in steps {
             if !req.layout_matches() {
                 // another mapping's layout: `steps` would be a header field. Not obeyed, and not
@@ -359,83 +300,79 @@ impl SimNode {
                 core.incoming_malformed();
                 continue;
             }
-            match core.request_steps(req.steps, &mut self.dds.sink()) {
+            match core.request_steps(req.steps, sink!()) {
                 Ok(ticket) => {
                     if core.steps_remaining() > 0 {
-                        self.dds.tickets.push((ticket, id));
+                        self.tickets.push((ticket, id));
                     } else {
-                        let _ = self
-                            .dds
-                            .services
-                            .step
-                            .send_response(id, msg::ResultResponse { result: msg::SimResult::ok() });
+                        let result = msg::SimResult::ok();
+                        let _ = self.services.step.send_response(id, msg::ResultResponse { result });
                     }
                 }
                 Err(result) => {
-                    let _ = self.dds.services.step.send_response(id, msg::ResultResponse { result });
+                    let _ = self.services.step.send_response(id, msg::ResultResponse { result });
                 }
             }
         }
         for (id, _) in resets {
-            core.reset(&mut self.dds.sink());
+            core.reset(sink!());
             let result = msg::SimResult::ok();
-            let _ = self.dds.services.reset.send_response(id, msg::ResultResponse { result });
+            let _ = self.services.reset.send_response(id, msg::ResultResponse { result });
         }
         for (id, _) in gets {
             let state = msg::SimulationState { state: core.simulation_state() };
             let response = msg::GetSimulationStateResponse { state, result: msg::SimResult::ok() };
-            let _ = self.dds.services.get_state.send_response(id, response);
+            let _ = self.services.get_state.send_response(id, response);
         }
         for (id, req) in sets {
-            let result = core.set_simulation_state(req.state.state, &mut self.dds.sink());
-            let _ = self.dds.services.set_state.send_response(id, msg::ResultResponse { result });
+            let result = core.set_simulation_state(req.state.state, sink!());
+            let _ = self.services.set_state.send_response(id, msg::ResultResponse { result });
         }
         for (id, _) in feats {
             let features = NodeCore::features();
-            let _ =
-                self.dds.services.features.send_response(id, msg::GetSimulatorFeaturesResponse { features });
+            let _ = self.services.features.send_response(id, msg::GetSimulatorFeaturesResponse { features });
         }
         for (id, _) in pauses {
-            core.set_paused(true, &mut self.dds.sink());
-            let _ = self.dds.services.pause.send_response(id, msg::Empty::default());
+            core.set_paused(true, sink!());
+            let _ = self.services.pause.send_response(id, msg::Empty::default());
         }
         for (id, _) in unpauses {
-            core.set_paused(false, &mut self.dds.sink());
-            let _ = self.dds.services.unpause.send_response(id, msg::Empty::default());
+            core.set_paused(false, sink!());
+            let _ = self.services.unpause.send_response(id, msg::Empty::default());
         }
         for (id, _) in empties {
-            core.reset(&mut self.dds.sink());
-            let _ = self.dds.services.reset_empty.send_response(id, msg::Empty::default());
+            core.reset(sink!());
+            let _ = self.services.reset_empty.send_response(id, msg::Empty::default());
         }
     }
+}
 
-    /// One turn of the loop at wall time `now` since the loop's epoch: the core's `tick`. Returns
-    /// when the core wants the next turn.
-    pub fn turn(&mut self, now: Duration) -> Option<Duration> {
-        self.core.tick(now, &mut self.dds.sink())
+impl Transport for DdsTransport {
+    fn name(&self) -> &'static str {
+        "dds"
     }
 
-    /// Runs until `stop` is set or SetSimulationState asks to quit: takes inputs, turns the core
-    /// when it is due and sleeps in between (in slices of at most 5 ms, taking inputs between
-    /// them). On the way out, a StepSimulation request under way is answered with a failure.
-    pub fn run(&mut self, stop: &AtomicBool) {
-        const SLICE: Duration = Duration::from_millis(5);
-        let epoch = Instant::now();
-        let mut wake_at = Duration::ZERO;
-        while !stop.load(Ordering::Relaxed) && !self.core.quit_requested() {
-            self.take_inputs();
-            let now = epoch.elapsed();
-            if now >= wake_at {
-                wake_at = self.turn(now).unwrap_or(now);
-            } else {
-                std::thread::sleep((wake_at - now).min(SLICE));
+    /// Takes pending command messages (at most the core's per-step budget) and answers pending
+    /// service requests (at most `MAX_REQUESTS_PER_TURN` per service).
+    fn take_inputs(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
+        while core.wants_commands() {
+            match self.commands.take() {
+                Ok(Some((m, _))) => core.offer_command(&m),
+                Ok(None) => break,
+                Err(_) => core.incoming_malformed(),
             }
         }
-        let answering = !self.dds.tickets.is_empty();
-        self.core.shutdown(&mut self.dds.sink());
-        if answering {
-            // give the reliable writer a moment to deliver the answer before the entities go
-            std::thread::sleep(Duration::from_millis(300));
+        while core.wants_commands() {
+            match self.joint_commands.take() {
+                Ok(Some((m, _))) => core.offer_joint_command(&m),
+                Ok(None) => break,
+                Err(_) => core.incoming_malformed(),
+            }
         }
+        self.serve(core, others);
+    }
+
+    fn answering(&self) -> bool {
+        !self.tickets.is_empty()
     }
 }

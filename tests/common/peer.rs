@@ -53,11 +53,16 @@ pub struct NodeProcess {
 }
 
 impl NodeProcess {
-    /// Starts the node binary on the bundled scene with `ROS_DOMAIN_ID = domain` and `-p` args.
+    /// Starts the node binary on the bundled scene with `ROS_DOMAIN_ID = domain` and `-p` args,
+    /// serving DDS only unless `params` names `transports` (parallel DDS tests would otherwise
+    /// share the default shared-memory service names).
     pub fn start(domain: u16, params: &[&str]) -> Self {
         let log = std::env::temp_dir().join(format!("tensegrity-node-{}-{domain}.log", std::process::id()));
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity_node"));
         cmd.arg("--ros-args");
+        if !params.iter().any(|p| p.starts_with("transports:=")) {
+            cmd.args(["-p", "transports:=dds"]);
+        }
         for p in params {
             cmd.args(["-p", p]);
         }

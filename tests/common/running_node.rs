@@ -4,8 +4,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use tensegrity::io::params::NodeParams;
-use tensegrity::io::ros2::{NodeStats, SimNode};
+use tensegrity::io::node::NodeStats;
+use tensegrity::io::params::{NodeParams, TransportKind};
 
 /// The node's thread and its stop flag.
 pub struct RunningNode {
@@ -14,12 +14,20 @@ pub struct RunningNode {
 }
 
 impl RunningNode {
-    /// Builds the node for `model` with `params` and runs it until `stop` is called.
+    /// Builds the node for `model` with `params`, serving DDS only (parallel tests share the
+    /// default shared-memory names, DDS tests do not), and runs it until `stop` is called.
+    #[allow(dead_code)]
     pub fn start(model: tensegrity::Model, params: NodeParams) -> Self {
+        Self::start_serving(model, NodeParams { transports: vec![TransportKind::Dds], ..params })
+    }
+
+    /// Like `start`, serving the transports of `params.transports` as given.
+    #[allow(dead_code)]
+    pub fn start_serving(model: tensegrity::Model, params: NodeParams) -> Self {
         let stop = Arc::new(AtomicBool::new(false));
         let flag = stop.clone();
         let handle = std::thread::spawn(move || {
-            let mut node = SimNode::new(model, params).unwrap();
+            let mut node = tensegrity::io::launch(model, params).unwrap();
             node.run(&flag);
             node.stats()
         });
