@@ -91,18 +91,7 @@ fn the_prisms_lowest_mode_has_the_period_of_an_undamped_dynamic_run() {
 
 #[test]
 fn a_free_prism_has_six_zero_frequency_modes() {
-    let mut spec = tensegrity::scene::generate::prism(&Default::default());
-    spec.joints.clear();
-    let template = spec.cables[0].clone();
-    for i in 0..3 {
-        spec.cables.push(tensegrity::scene::CableSpec {
-            name: format!("bottom{i}"),
-            route: vec![format!("bar0_{i}.a"), format!("bar0_{}.a", (i + 1) % 3)],
-            prestress: None,
-            ..template.clone()
-        });
-    }
-    let model = tensegrity::scene::build_model(&spec, "<free prism>", None).unwrap();
+    let model = common::free_prism();
     let modes = natural_modes(&model, &equilibrium(&model)).unwrap();
     assert_eq!(modes.iter().filter(|m| m.zero).count(), 6);
     assert!(modes.iter().all(|m| m.zero || m.frequency_hz > 0.5));

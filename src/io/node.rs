@@ -46,7 +46,7 @@ pub const MAX_REJECTION_REPORTS_PER_SECOND: u32 = 10;
 pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
 /// Longest `tick` asks to sleep while there is nothing to step (paused or faulted): the turn after
 /// it publishes the periodic status. Inputs that arrive meanwhile are taken by the transports,
-/// and a runner turns the core at once when they give it work (`NodeCore::has_work`).
+/// and a runner turns the core at once when they give it work (`NodeCore::idle_turn_due`).
 pub const IDLE_PERIOD: Duration = DIAGNOSTICS_PERIOD;
 
 /// `simulation_interfaces/msg/SimulationState` codes.
