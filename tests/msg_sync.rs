@@ -32,6 +32,7 @@ fn ros_to_format(ty: &str) -> Format {
         "string" => Format::Str,
         "bool" => Format::Bool,
         "uint32" => Format::U32,
+        "uint64" => Format::U64,
         "int32" => Format::I32,
         "std_msgs/Header" => Format::TypeName("Header".into()),
         "builtin_interfaces/Time" => Format::TypeName("Time".into()),
@@ -54,10 +55,11 @@ fn rust_structs_match_the_msg_files_field_by_field() {
     tracer.trace_simple_type::<CableStates>().unwrap();
     tracer.trace_simple_type::<ActuatorCommand>().unwrap();
     tracer.trace_simple_type::<Structure>().unwrap();
+    tracer.trace_simple_type::<tensegrity::io::msg::AppliedCommands>().unwrap();
     let registry = tracer.registry().unwrap();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg/msg");
     let mut checked = 0;
-    for name in ["CableStates", "ActuatorCommand", "Structure"] {
+    for name in ["CableStates", "ActuatorCommand", "Structure", "AppliedCommands"] {
         let text = std::fs::read_to_string(dir.join(format!("{name}.msg"))).unwrap();
         let expected: Vec<(String, Format)> =
             parse_msg(&text).into_iter().map(|(ty, n)| (n, ros_to_format(&ty))).collect();
@@ -166,4 +168,97 @@ fn marker_layout_matches_visualization_msgs() {
         fields_of(&registry, "ColorRgba"),
         ["r", "g", "b", "a"].iter().map(|n| (n.to_string(), Format::F32)).collect::<Vec<_>>()
     );
+}
+
+/// Checks the ROS definition of `ros_type` (as `io::schemas` gives it to bags) against the traced
+/// Rust struct `rust_name`, field by field and through every nested message type.
+fn check_definition(
+    registry: &serde_reflection::Registry,
+    ros_type: &str,
+    rust_name: &str,
+    checked: &mut Vec<String>,
+) {
+    use tensegrity::io::schemas;
+    let text = schemas::definition(ros_type).unwrap_or_else(|| panic!("no definition of {ros_type}"));
+    let pkg = ros_type.split('/').next().unwrap();
+    let rust = fields_of(registry, rust_name);
+    let ros = schemas::fields(text);
+    assert_eq!(ros.len(), rust.len(), "{ros_type} vs {rust_name}: {ros:?} / {rust:?}");
+    for ((ty, name), (rust_field, format)) in ros.iter().zip(&rust) {
+        assert_eq!(name, rust_field, "{ros_type}: field order");
+        let (base, format) = match (ty.strip_suffix("[]"), format) {
+            (Some(base), Format::Seq(inner)) => (base, inner.as_ref()),
+            (Some(_), other) => panic!("{ros_type}.{name}: an array in ROS, {other:?} in Rust"),
+            (None, f) => (*ty, f),
+        };
+        let primitive = match base {
+            "float64" => Some(Format::F64),
+            "float32" => Some(Format::F32),
+            "string" => Some(Format::Str),
+            "bool" => Some(Format::Bool),
+            "int32" => Some(Format::I32),
+            "uint32" => Some(Format::U32),
+            "uint64" => Some(Format::U64),
+            "uint8" | "byte" => Some(Format::U8),
+            _ => None,
+        };
+        match (primitive, format) {
+            (Some(p), f) => assert_eq!(&p, f, "{ros_type}.{name}"),
+            (None, Format::TypeName(inner)) => {
+                let nested = if base.contains('/') { base.to_string() } else { format!("{pkg}/{base}") };
+                check_definition(registry, &nested, inner, checked);
+            }
+            (None, other) => panic!("{ros_type}.{name}: message {base} in ROS, {other:?} in Rust"),
+        }
+    }
+    checked.push(ros_type.to_string());
+}
+
+#[test]
+fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
+    use tensegrity::io::{msg, node::Topic, record, schemas};
+    let mut tracer = Tracer::new(TracerConfig::default());
+    tracer.trace_simple_type::<msg::Clock>().unwrap();
+    tracer.trace_simple_type::<msg::TfMessage>().unwrap();
+    tracer.trace_simple_type::<msg::PoseArray>().unwrap();
+    tracer.trace_simple_type::<CableStates>().unwrap();
+    tracer.trace_simple_type::<msg::JointState>().unwrap();
+    tracer.trace_simple_type::<Structure>().unwrap();
+    tracer.trace_simple_type::<msg::DiagnosticArray>().unwrap();
+    tracer.trace_simple_type::<msg::MarkerArray>().unwrap();
+    tracer.trace_simple_type::<msg::AppliedCommands>().unwrap();
+    tracer.trace_simple_type::<ActuatorCommand>().unwrap();
+    let registry = tracer.registry().unwrap();
+    let rust_of = [
+        ("rosgraph_msgs/msg/Clock", "Clock"),
+        ("tf2_msgs/msg/TFMessage", "TfMessage"),
+        ("geometry_msgs/msg/PoseArray", "PoseArray"),
+        ("tensegrity_msgs/msg/CableStates", "CableStates"),
+        ("sensor_msgs/msg/JointState", "JointState"),
+        ("tensegrity_msgs/msg/Structure", "Structure"),
+        ("diagnostic_msgs/msg/DiagnosticArray", "DiagnosticArray"),
+        ("visualization_msgs/msg/MarkerArray", "MarkerArray"),
+        ("tensegrity_msgs/msg/AppliedCommands", "AppliedCommands"),
+        ("tensegrity_msgs/msg/ActuatorCommand", "ActuatorCommand"),
+    ];
+    // every topic a bag records is covered
+    for topic in Topic::ALL {
+        if let Some((ty, _)) = record::topic_type(topic) {
+            assert!(rust_of.iter().any(|(t, _)| *t == ty), "{ty} of {topic:?} is not checked here");
+        }
+    }
+    let mut checked = Vec::new();
+    for (ros, rust) in rust_of {
+        let short = ros.replace("/msg/", "/");
+        check_definition(&registry, &short, rust, &mut checked);
+        // the full text a bag stores names each dependency once, after its separator line
+        let full = schemas::full_definition(ros).unwrap();
+        for dep in schemas::dependencies(&short) {
+            assert_eq!(full.matches(&format!("\nMSG: {dep}\n")).count(), 1, "{ros}: {dep}");
+        }
+    }
+    // and every definition the module has was reached
+    for known in schemas::known_types() {
+        assert!(checked.iter().any(|c| c == known), "{known} is never checked");
+    }
 }

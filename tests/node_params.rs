@@ -110,6 +110,7 @@ fn every_parameter_in_the_help_table_is_understood_with_its_default() {
             "(scene's, else 0.001)" => "0.001",
             "(every one built)" if built.is_empty() => continue,
             "(every one built)" => built.as_str(),
+            "(off)" => "",
             d => d,
         };
         let mut p = NodeParams::default();

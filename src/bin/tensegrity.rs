@@ -8,6 +8,10 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::io::bag::{self, BagOptions};
+use tensegrity::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
+use tensegrity::io::params::NodeParams;
+use tensegrity::io::record;
 use tensegrity::report;
 use tensegrity::report::Num;
 use tensegrity::scene::{self, generate};
@@ -77,9 +81,31 @@ enum Command {
         /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
         #[arg(long)]
         duration: Option<f64>,
-        /// Output CSV file.
+        /// Output CSV file (`-`: standard output).
+        #[arg(long, required_unless_present = "record")]
+        out: Option<PathBuf>,
+        /// Also record a rosbag2 bag (MCAP) into this new directory: the topics the node
+        /// publishes, the run record for `tensegrity replay`.
+        #[arg(long, value_name = "DIR")]
+        record: Option<PathBuf>,
+    },
+    /// Run a recorded bag again (its scene, settings and applied commands at their recorded
+    /// steps) and compare every recorded message bit for bit: prints "identical" or the first
+    /// difference (exit status 1).
+    Replay {
+        /// The bag directory (or its .mcap file).
+        bag: PathBuf,
+        /// Run this scene instead of the recorded one.
         #[arg(long)]
-        out: PathBuf,
+        scene: Option<PathBuf>,
+        /// Write the re-run as a new bag into this directory.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// Bags: what one holds, and repairing one whose writer was killed.
+    Bag {
+        #[command(subcommand)]
+        kind: BagCommand,
     },
     /// Quasi-static path and dynamic deployments at several actuation times: CSVs, a summary
     /// table, and plots (PNG and SVG) of the deviation and of the time histories.
@@ -181,6 +207,23 @@ impl DynamicArgs {
         let integrator = self.integrator.integrator(self.rho_inf);
         Ok(SimSettings { dt, integrator, tolerance: self.tol, ..Default::default() })
     }
+}
+
+#[derive(Subcommand)]
+enum BagCommand {
+    /// Topics, types, message counts, duration and the recorded run, like `ros2 bag info`
+    /// (also for a bag cut short: counted up to where it can be read).
+    Info {
+        /// The bag directory (or its .mcap file).
+        bag: PathBuf,
+    },
+    /// Rewrite a bag whose writer was killed (no summary, no end magic) as a complete one that
+    /// every reader opens: the messages up to the last complete chunk (the original is kept as
+    /// `.mcap.cut`).
+    Reindex {
+        /// The bag directory.
+        bag: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -427,46 +470,206 @@ fn deploy_dynamic(
     settings: SimSettings,
     duration: Option<f64>,
     out: &Path,
+    record: Option<&Path>,
 ) -> Result<(), String> {
     let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
     if !(duration.is_finite() && duration > 0.0) {
         return Err(format!("--duration must be positive, got {duration}"));
     }
+    // the node's core, following the schedule with no clock: the bag holds what the node would
+    // publish with state every step, and `replay` runs it again the same way
+    let sim = tensegrity::sim::Simulator::new(model.clone(), settings)
+        .map_err(|e| format!("{}: {e}", scene.display()))?;
+    let params = NodeParams {
+        follow_schedule: true,
+        real_time_factor: 0.0,
+        state_publish_rate: 0.0,
+        ..NodeParams::default()
+    };
+    let mut recorder = match record {
+        Some(dir) => {
+            let run = record::run_info(
+                record::KIND_DYNAMIC,
+                model,
+                &scene.display().to_string(),
+                &settings,
+                &params,
+            );
+            Some(
+                record::BagRecorder::create(
+                    dir,
+                    model,
+                    &params,
+                    &run,
+                    record::LogTime::SimTime,
+                    &BagOptions::default(),
+                )
+                .map_err(|e| e.to_string())?,
+            )
+        }
+        None => None,
+    };
+    let mut core = NodeCore::with_simulator(sim, params);
+    let mut sink = OptionalSink(recorder.as_mut());
+    core.start(&mut sink);
     let mut file = csv_output(out)?;
     writeln!(file, "{}", study::dynamic_csv_header(model)).map_err(|e| e.to_string())?;
     // the row of t = 0: the start, before any step
-    let start = tensegrity::sim::Simulator::new(model.clone(), settings)
-        .map_err(|e| format!("{}: {e}", scene.display()))?;
-    writeln!(file, "{}", study::dynamic_csv_row(&start, &Default::default())).map_err(|e| e.to_string())?;
+    writeln!(file, "{}", study::dynamic_csv_row(core.simulator(), &Default::default()))
+        .map_err(|e| e.to_string())?;
     let steps = (duration / settings.dt).round().max(1.0) as u64;
     let bar = progress(steps, "steps");
-    let totals = study::run_dynamic(model, settings, duration, |sim, stats| {
+    let mut totals = study::RunTotals::default();
+    for _ in 0..steps {
+        let now = std::time::Duration::from_secs_f64(core.simulator().state().time);
+        core.tick(now, &mut sink);
+        if let Some(fault) = core.fault() {
+            return Err(format!("{}: {fault}", scene.display()));
+        }
+        let stats = core.last_step();
+        totals.steps += 1;
+        totals.newton_iterations += stats.newton_iterations;
+        totals.rejected += stats.rejected;
+        totals.substeps += stats.substeps;
+        totals.wall_time += stats.wall_time;
         bar.inc(1);
-        writeln!(file, "{}", study::dynamic_csv_row(sim, stats)).map_err(|e| write_error(out, e))
-    })
-    .map_err(|e| if e == CLOSED_PIPE { e } else { format!("{}: {e}", scene.display()) })?;
+        writeln!(file, "{}", study::dynamic_csv_row(core.simulator(), &stats))
+            .map_err(|e| write_error(out, e))?;
+    }
     bar.finish_and_clear();
     file.flush().map_err(|e| write_error(out, e))?;
+    let bag = match recorder {
+        Some(r) => {
+            let dir = r.dir().to_path_buf();
+            let summary = r.finish().map_err(|e| e.to_string())?;
+            format!(
+                "; bag {} ({} messages, {} bytes)",
+                dir.display(),
+                summary.counts.iter().sum::<u64>(),
+                summary.file_bytes
+            )
+        }
+        None => String::new(),
+    };
     say(
         out,
         format!(
-        "{}: {} steps of {} s with {} written to {} ({} Newton iterations, {} rejected attempts, {:.3} s wall)",
-        model.name,
-        totals.steps,
-        settings.dt,
-        settings.integrator.name(),
-        out.display(),
-        totals.newton_iterations,
-        totals.rejected,
-        totals.wall_time.as_secs_f64()
+            "{}: {} steps of {} s with {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){bag}",
+            model.name,
+            totals.steps,
+            settings.dt,
+            settings.integrator.name(),
+            if out.as_os_str().is_empty() { String::new() } else { format!(" written to {}", out.display()) },
+            totals.newton_iterations,
+            totals.rejected,
+            totals.wall_time.as_secs_f64()
         ),
     );
     Ok(())
 }
 
-/// Where a CSV goes: the file `out`, or standard output for `-`.
+/// `tensegrity replay`: exit status 1 (an error) when the re-run differs.
+fn replay(bag: &Path, scene: Option<&Path>, out: Option<&Path>) -> Result<(), String> {
+    let scene_text = match scene {
+        Some(p) => Some((
+            std::fs::read_to_string(p).map_err(|e| format!("{}: {e}", p.display()))?,
+            p.display().to_string(),
+        )),
+        None => None,
+    };
+    let report = record::replay(bag, scene_text.as_ref().map(|(t, l)| (t.as_str(), l.as_str())), out)
+        .map_err(|e| e.to_string())?;
+    let what = format!(
+        "{} messages compared over {} steps ({} command batches, {} resets applied from the bag; /diagnostics not compared)",
+        report.compared, report.steps, report.command_batches, report.resets
+    );
+    if let Some(cut) = &report.cut_short {
+        say!("note: the bag stops early ({cut}); compared up to there");
+    }
+    if let Some(out) = out {
+        say!("re-run written to {}", out.display());
+    }
+    match report.difference {
+        None => {
+            say!("identical: {what}");
+            Ok(())
+        }
+        Some(d) => Err(format!("{d}; {what} before it")),
+    }
+}
+
+/// The table of `tensegrity bag info`.
+fn format_bag_info(info: &bag::BagInfo) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let (start, end) = info.time_range.unwrap_or((0, 0));
+    let total: u64 = info.topics.iter().map(|(_, n)| n).sum();
+    let _ = writeln!(s, "Files:             {}", info.path.display());
+    let _ = writeln!(s, "Bag size:          {} bytes", info.file_bytes);
+    let _ = writeln!(s, "Storage id:        mcap");
+    let _ = writeln!(s, "Duration:          {:.9} s", (end - start) as f64 * 1e-9);
+    let _ = writeln!(s, "Start:             {:.9} s", start as f64 * 1e-9);
+    let _ = writeln!(s, "End:               {:.9} s", end as f64 * 1e-9);
+    let _ = writeln!(s, "Messages:          {total}");
+    if let Some(cut) = &info.cut_short {
+        let _ = writeln!(s, "Cut short:         {cut} (`tensegrity bag reindex` repairs it)");
+    }
+    if let Some(run) = &info.run {
+        let get = |k: &str| run.get(k).map_or("?", String::as_str);
+        let _ = writeln!(
+            s,
+            "Run:               {} of '{}' ({}), dt {} s, {}",
+            get(record::KEY_KIND),
+            get("scene_name"),
+            get("scene_file"),
+            get("dt"),
+            get("integrator")
+        );
+    }
+    let width = info.topics.iter().map(|(t, _)| t.name.len()).max().unwrap_or(0);
+    let _ = writeln!(s, "Topic information:");
+    for (t, n) in &info.topics {
+        let _ = writeln!(
+            s,
+            "  Topic: {:<width$} | Type: {} | Count: {n} | Serialization Format: cdr",
+            t.name, t.type_name
+        );
+    }
+    s
+}
+
+/// A sink that passes everything to a recorder when there is one.
+struct OptionalSink<'a>(Option<&'a mut record::BagRecorder>);
+
+impl NodeSink for OptionalSink<'_> {
+    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
+        self.0.as_mut().map_or(Ok(()), |r| r.publish(topic, view))
+    }
+    fn step_request_done(
+        &mut self,
+        _ticket: u64,
+        _result: tensegrity::io::msg::SimResult,
+        _view: &NodeView<'_>,
+    ) {
+    }
+    fn commands_applied(
+        &mut self,
+        time: f64,
+        step: u64,
+        commands: &[(tensegrity::model::ActuatorId, tensegrity::control::ActuatorCommand)],
+    ) {
+        if let Some(r) = self.0.as_mut() {
+            r.commands_applied(time, step, commands);
+        }
+    }
+}
+
+/// Where a CSV goes: the file `out`, standard output for `-`, nowhere for an empty path (no
+/// `--out`).
 fn csv_output(out: &Path) -> Result<Box<dyn Write>, String> {
-    if out == Path::new("-") {
+    if out.as_os_str().is_empty() {
+        Ok(Box::new(std::io::sink()))
+    } else if out == Path::new("-") {
         Ok(Box::new(std::io::BufWriter::new(std::io::stdout())))
     } else {
         let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
@@ -647,10 +850,27 @@ fn run(cli: Cli) -> Result<(), String> {
             }
             Ok(())
         }
-        Command::Deploy { scene, quasi_static: _, dynamic, steps, dynamics, duration, out } => {
+        Command::Deploy {
+            scene,
+            quasi_static: _,
+            dynamic,
+            steps,
+            dynamics,
+            duration,
+            out,
+            record: bag_dir,
+        } => {
             let mut model = load(&scene)?;
+            let out = out.unwrap_or_default();
             if dynamic {
-                return deploy_dynamic(&model, &scene, dynamics.settings(&model)?, duration, &out);
+                return deploy_dynamic(
+                    &model,
+                    &scene,
+                    dynamics.settings(&model)?,
+                    duration,
+                    &out,
+                    bag_dir.as_deref(),
+                );
             }
             if let Some(note) = report::unheld_bodies_note(&model) {
                 return Err(format!("{}: {note}", scene.display()));
@@ -668,10 +888,36 @@ fn run(cli: Cli) -> Result<(), String> {
             let mut state = State::initial(&model);
             let mut ws = Workspace::new(&model);
             let mut io_error = None;
+            let params = NodeParams::default();
+            let mut recorder = match &bag_dir {
+                Some(dir) => {
+                    let label = scene.display().to_string();
+                    let mut run = record::run_info(
+                        record::KIND_QUASI_STATIC,
+                        &model,
+                        &label,
+                        &SimSettings::default(),
+                        &params,
+                    );
+                    run.insert("steps".into(), model.schedule.steps.to_string());
+                    let log = record::LogTime::Step;
+                    Some(
+                        record::BagRecorder::create(dir, &model, &params, &run, log, &BagOptions::default())
+                            .map_err(|e| e.to_string())?,
+                    )
+                }
+                None => None,
+            };
+            let mut publisher: Option<record::PathPublisher> = None;
             let path = deploy_quasi_static(&model, &mut state, &mut ws, |step, st, w| {
                 let row = report::path_csv_row(&model, st, w, step);
                 if let Err(e) = writeln!(file, "{row}") {
                     io_error.get_or_insert(e);
+                }
+                if let Some(r) = recorder.as_mut() {
+                    publisher
+                        .get_or_insert_with(|| record::PathPublisher::new(&model, st, w, &params))
+                        .row(r, &model, st, w);
                 }
                 bar.inc(1);
             })
@@ -681,6 +927,19 @@ fn run(cli: Cli) -> Result<(), String> {
                 return Err(write_error(&out, e));
             }
             file.flush().map_err(|e| e.to_string())?;
+            if let Some(r) = recorder {
+                let dir = r.dir().to_path_buf();
+                let summary = r.finish().map_err(|e| e.to_string())?;
+                say(
+                    &out,
+                    format!(
+                        "bag {}: {} messages, {} bytes",
+                        dir.display(),
+                        summary.counts.iter().sum::<u64>(),
+                        summary.file_bytes
+                    ),
+                );
+            }
             let outputs: Vec<_> = path.output_steps().collect();
             let unstable = outputs.iter().filter(|p| !p.report.stable).count();
             let worst =
@@ -717,6 +976,22 @@ fn run(cli: Cli) -> Result<(), String> {
                     ),
                 );
             }
+            Ok(())
+        }
+        Command::Replay { bag, scene, out } => replay(&bag, scene.as_deref(), out.as_deref()),
+        Command::Bag { kind: BagCommand::Info { bag } } => {
+            let reader = bag::BagReader::open(&bag).map_err(|e| e.to_string())?;
+            emit(&format_bag_info(&reader.info()));
+            Ok(())
+        }
+        Command::Bag { kind: BagCommand::Reindex { bag } } => {
+            let (summary, why) = bag::reindex(&bag, &BagOptions::default()).map_err(|e| e.to_string())?;
+            say!(
+                "{}: rewritten with {} messages{}",
+                bag.display(),
+                summary.counts.iter().sum::<u64>(),
+                why.map_or(String::new(), |w| format!(" (the original stopped: {w})"))
+            );
             Ok(())
         }
         Command::Study { scene, ramp_times, point, settle, dynamics, jobs, out } => {

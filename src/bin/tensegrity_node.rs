@@ -44,7 +44,8 @@ fn help() -> String {
           ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST   the same\n\n\
           Topics /clock, /tf, /tf_static, /diagnostics and ~/body_poses, ~/cable_states, ~/actuator_states,\n\
           ~/structure, ~/markers out; ~/actuator_commands, ~/joint_commands in; simulation_interfaces\n\
-          services in ~/ (see the README). SIGINT or SIGTERM stops it (exit 0); bad arguments, scene\n\
+          services in ~/ (see the README). -p record:=DIR also writes them and the applied commands\n\
+          (~/applied_commands) to a rosbag2 bag (MCAP); `tensegrity replay DIR` runs it again. SIGINT or SIGTERM stops it (exit 0); bad arguments, scene\n\
           or parameters exit 1 with the reason.\n\n\
           Shared memory (iceoryx2, services <ns>/<node>/...: state, structure, actuator_commands,\n\
           lockstep; events to_node, from_node): see the README and tests/interop/shm_client.py.\n";
@@ -109,7 +110,11 @@ fn run() -> Result<(), String> {
         params.physics_dt.or(model.physics_dt).unwrap_or(1e-3),
         params.real_time_factor
     );
+    let bag = params.record.clone();
     let mut node = tensegrity::io::launch(model, params).map_err(|e| e.to_string())?;
+    if let Some(dir) = &bag {
+        eprintln!("tensegrity_node: recording to the bag {}", dir.display());
+    }
     let stop = Arc::new(AtomicBool::new(false));
     #[cfg(any(feature = "ros2", feature = "shm"))]
     {
@@ -131,5 +136,10 @@ fn run() -> Result<(), String> {
         s.overruns,
         s.physics_failures
     );
+    // the recorder closes its bag (summary, end magic, metadata.yaml) when the node goes
+    drop(node);
+    if let Some(dir) = bag {
+        eprintln!("tensegrity_node: bag {} closed", dir.display());
+    }
     Ok(())
 }

@@ -3,10 +3,13 @@
 //! behind the `ros2` and `shm` cargo features, the transports. Nothing outside this module and
 //! the binaries imports a transport crate.
 
+pub mod bag;
 pub mod msg;
 pub mod node;
 pub mod params;
+pub mod record;
 pub mod runner;
+pub mod schemas;
 
 #[cfg(feature = "ros2")]
 pub mod ros2;
@@ -42,6 +45,7 @@ pub fn launch(model: Model, params: NodeParams) -> Result<SimNode, LaunchError> 
 }
 
 /// Like `launch`, around a core built by the caller (e.g. around a simulator with other settings).
+/// With `params.record`, a bag recorder (`record::BagRecorder`) is served last.
 pub fn launch_core(core: NodeCore) -> Result<SimNode, LaunchError> {
     let params = core.params().clone();
     let transports = params
@@ -54,6 +58,12 @@ pub fn launch_core(core: NodeCore) -> Result<SimNode, LaunchError> {
             transport: "none",
             reason: "no transport to serve (parameter transports, features ros2 and shm)".into(),
         });
+    }
+    let mut transports = transports;
+    if let Some(dir) = &params.record {
+        let recorder = record::BagRecorder::for_node(&core, dir)
+            .map_err(|e| LaunchError::Transport { transport: "record", reason: e.to_string() })?;
+        transports.push(Box::new(recorder));
     }
     Ok(SimNode::new(core, transports))
 }

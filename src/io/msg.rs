@@ -515,6 +515,126 @@ impl JointState {
     }
 }
 
+/// `tensegrity_msgs/msg/AppliedCommands`: the commands the simulator applied at one step
+/// boundary, or a reset there (what a bag needs to replay a run; see `io::bag`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct AppliedCommands {
+    /// Stamp: the simulation time of the boundary, s.
+    pub header: Header,
+    /// Steps taken since the start (resets do not restart it) at the boundary: the commands act
+    /// from step `step + 1` on.
+    pub step: u64,
+    /// True: the simulation was reset to its initial state here (the arrays are empty).
+    pub reset: bool,
+    /// Actuator names, in the order the commands were applied.
+    pub name: Vec<String>,
+    /// Target rest lengths, m; NaN where the command gave none.
+    pub rest_length: Vec<f64>,
+    /// Rates, m/s; NaN where the command gave none.
+    pub rate: Vec<f64>,
+}
+
+impl AppliedCommands {
+    /// The message for `commands` applied at sim time `time` after `step` steps; `names` are the
+    /// model's actuator names.
+    pub fn new(
+        names: &[String],
+        time: f64,
+        step: u64,
+        commands: &[(ActuatorId, control::ActuatorCommand)],
+    ) -> Self {
+        Self {
+            header: Header { stamp: Time::from_seconds(time), frame_id: String::new() },
+            step,
+            reset: false,
+            name: commands.iter().map(|(id, _)| names[id.0].clone()).collect(),
+            rest_length: commands.iter().map(|(_, c)| c.rest_length.unwrap_or(f64::NAN)).collect(),
+            rate: commands.iter().map(|(_, c)| c.rate.unwrap_or(f64::NAN)).collect(),
+        }
+    }
+
+    /// The commands again, resolved against `model` (NaN: not given); why not, when a name is
+    /// unknown or the arrays are not parallel.
+    pub fn commands(
+        &self,
+        model: &Model,
+    ) -> Result<Vec<(ActuatorId, control::ActuatorCommand)>, MessageError> {
+        for (field, got) in [("rest_length", self.rest_length.len()), ("rate", self.rate.len())] {
+            if got != self.name.len() {
+                return Err(MessageError::WrongLength { field, got, names: self.name.len() });
+            }
+        }
+        let given = |x: f64| (!x.is_nan()).then_some(x);
+        self.name
+            .iter()
+            .zip(self.rest_length.iter().zip(&self.rate))
+            .map(|(n, (l, r))| {
+                let id = actuator_by_name(model, n)?;
+                Ok((id, control::ActuatorCommand { rest_length: given(*l), rate: given(*r) }))
+            })
+            .collect()
+    }
+}
+
+/// One published message of the node, built from the core's view: what every transport that
+/// speaks ROS message types (DDS, the bag recorder) sends for a `Topic`. Serializes as the
+/// message it holds.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum TopicMessage {
+    /// `/clock`.
+    Clock(Clock),
+    /// `/tf` or `/tf_static`.
+    Tf(TfMessage),
+    /// `~/body_poses`.
+    Poses(PoseArray),
+    /// `~/cable_states`.
+    Cables(CableStates),
+    /// `~/actuator_states`.
+    Actuators(JointState),
+    /// `~/structure`.
+    Structure(Structure),
+    /// `/diagnostics`.
+    Diagnostics(DiagnosticArray),
+    /// `~/markers`.
+    Markers(MarkerArray),
+}
+
+impl TopicMessage {
+    /// The message of `topic` from `view`; `None` for topics that have no ROS message
+    /// (`Topic::State`, the shared-memory sample); an error for non-finite cable states.
+    pub fn build(
+        topic: crate::io::node::Topic,
+        view: &crate::io::node::NodeView<'_>,
+    ) -> Result<Option<Self>, crate::io::node::PublishError> {
+        use crate::io::node::Topic;
+        let (model, state, ws, frame) = (view.model, view.state, view.workspace, view.frame_id);
+        Ok(Some(match topic {
+            Topic::Clock => Self::Clock(Clock { clock: Time::from_seconds(state.time) }),
+            Topic::Tf => Self::Tf(TfMessage::from_state(model, state, frame, false)),
+            Topic::TfStatic => Self::Tf(TfMessage::from_state(model, state, frame, true)),
+            Topic::BodyPoses => Self::Poses(PoseArray::from_state(state, frame)),
+            Topic::CableStates => {
+                let cables = CableStates::from_state(model, state, ws, view.reference, frame);
+                if !cables.is_finite() {
+                    return Err(crate::io::node::PublishError::Failed(
+                        "refusing to publish non-finite cable states".into(),
+                    ));
+                }
+                Self::Cables(cables)
+            }
+            Topic::ActuatorStates => Self::Actuators(JointState::actuators(model, state, ws, view.rates)),
+            Topic::Structure => Self::Structure(Structure::from_model(model, frame)),
+            Topic::Diagnostics => {
+                let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.to_string() };
+                Self::Diagnostics(DiagnosticArray { header, status: view.diagnostics.to_vec() })
+            }
+            Topic::Markers => Self::Markers(MarkerArray::from_state(model, state, ws, frame)),
+            Topic::State => return Ok(None),
+        }))
+    }
+}
+
 /// `diagnostic_msgs/msg/KeyValue`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct KeyValue {

@@ -33,7 +33,7 @@ use crate::io::msg::{self, DiagnosticStatus, KeyValue, SimResult};
 use crate::io::params::NodeParams;
 use crate::model::{ActuatorId, Model};
 use crate::report;
-use crate::sim::{SimSettings, Simulator, StepError};
+use crate::sim::{SimSettings, Simulator, StepError, StepStats};
 use crate::solve::dynamics::Integrator;
 use crate::state::State;
 
@@ -186,6 +186,9 @@ pub trait NodeSink {
     /// The commands applied at the boundary before step `step` (sim time `time`), in the order
     /// they were applied. For recorders; default: nothing.
     fn commands_applied(&mut self, _time: f64, _step: u64, _commands: &[(ActuatorId, ActuatorCommand)]) {}
+    /// The simulation was just reset to its initial state (sim time `time`) after `step` steps
+    /// since the start; the reset state is published next. For recorders; default: nothing.
+    fn simulation_reset(&mut self, _time: f64, _step: u64) {}
 }
 
 /// Counters reported in `/diagnostics`.
@@ -268,6 +271,7 @@ pub struct NodeCore {
     latest_rejection: String,
     commands_this_step: usize,
     statuses: Vec<DiagnosticStatus>,
+    last_step: StepStats,
 }
 
 /// Why the core could not be built.
@@ -325,6 +329,7 @@ impl NodeCore {
             latest_rejection: String::new(),
             commands_this_step: 0,
             statuses: Vec::new(),
+            last_step: StepStats::default(),
         };
         if !core.params.follow_schedule {
             core.command_every_actuator(false);
@@ -335,6 +340,10 @@ impl NodeCore {
     /// The simulator (read-only).
     pub fn simulator(&self) -> &Simulator {
         &self.sim
+    }
+    /// What the last physics step cost.
+    pub fn last_step(&self) -> StepStats {
+        self.last_step
     }
     /// The parameters.
     pub fn params(&self) -> &NodeParams {
@@ -543,6 +552,7 @@ impl NodeCore {
     pub fn reset(&mut self, sink: &mut dyn NodeSink) {
         self.interrupt_step_request(sink, "reset");
         self.sim.reset();
+        sink.simulation_reset(self.sim.state().time, self.stats.steps);
         self.steps_since_reset = 0;
         self.fault = None;
         if !self.params.follow_schedule {
@@ -675,6 +685,7 @@ impl NodeCore {
         self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
         match self.sim.step() {
             Ok(stats) => {
+                self.last_step = stats;
                 self.stats.last_newton_iterations = stats.newton_iterations;
                 self.stats.rejected_attempts += stats.rejected;
             }

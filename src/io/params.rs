@@ -64,6 +64,9 @@ pub struct NodeParams {
     /// a lockstep controller's next request arrives within a few microseconds, far sooner than an
     /// event wake-up (tens of microseconds); the poll never runs while the node is idle.
     pub shm_spin_us: u64,
+    /// Record a rosbag2 bag into this directory (`record`, default: none): every published
+    /// topic and the applied commands (`io::record`).
+    pub record: Option<PathBuf>,
 }
 
 /// A transport the node can serve.
@@ -153,6 +156,7 @@ impl Default for NodeParams {
             localhost_only: false,
             transports: TransportKind::BUILT.to_vec(),
             shm_spin_us: 200,
+            record: None,
         }
     }
 }
@@ -192,6 +196,11 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("service_mapping", "enhanced", "enhanced (Fast DDS, RustDDS), cyclone or basic"),
     ("transports", "(every one built)", "dds, shm or dds,shm (shm alone opens no DDS socket)"),
     ("shm_spin_us", "200", "us the shm transport polls for the next request before blocking, 0 to 10000"),
+    (
+        "record",
+        "(off)",
+        "record a rosbag2 bag (MCAP) of every topic and applied command into this new directory",
+    ),
     ("use_sim_time", "false", "accepted and ignored (the node is the clock)"),
 ];
 
@@ -215,6 +224,11 @@ impl NodeParams {
         } else {
             format!("{ns}/{}", self.node_name)
         }
+    }
+
+    /// The namespace of the node's private (`~/`) topics: `<ns>/<node>` (`/tensegrity_sim`).
+    pub fn private_namespace(&self) -> String {
+        format!("{}/{}", self.namespace.trim_end_matches('/'), self.node_name)
     }
 
     /// Sets parameter `name` from its text `value` (YAML scalar syntax for booleans and numbers).
@@ -297,6 +311,10 @@ impl NodeParams {
                     return Err(err(format!("parameter shm_spin_us must be a whole number, got {v}")));
                 }
                 self.shm_spin_us = v as u64;
+            }
+            "record" => {
+                let v = text(value);
+                self.record = (!v.is_empty()).then(|| PathBuf::from(v));
             }
             "use_sim_time" => {}
             _ => return Err(err(format!("unknown parameter '{name}'"))),

@@ -26,7 +26,7 @@ use ros2_client::{
     QosProfile, Server, ServiceMapping, ServiceTypeName, Subscription,
 };
 
-use crate::io::msg::{self, Header, Time};
+use crate::io::msg;
 use crate::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
 use crate::io::params::NodeParams;
 use crate::io::runner::{Transport, With};
@@ -102,33 +102,20 @@ fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError
 
 impl NodeSink for DdsTransport {
     fn publish(&mut self, topic: Topic, v: &NodeView<'_>) -> Result<(), PublishError> {
-        let (p, frame) = (&self.publishers, v.frame_id);
-        let (model, state, ws) = (v.model, v.state, v.workspace);
-        match topic {
-            Topic::Clock => sent(p.clock.publish(msg::Clock { clock: Time::from_seconds(state.time) })),
-            Topic::Tf => sent(p.tf.publish(msg::TfMessage::from_state(model, state, frame, false))),
-            Topic::TfStatic => {
-                sent(p.tf_static.publish(msg::TfMessage::from_state(model, state, frame, true)))
-            }
-            Topic::BodyPoses => sent(p.poses.publish(msg::PoseArray::from_state(state, frame))),
-            Topic::CableStates => {
-                let cables = msg::CableStates::from_state(model, state, ws, v.reference, frame);
-                if !cables.is_finite() {
-                    return Err(PublishError::Failed("refusing to publish non-finite cable states".into()));
-                }
-                sent(p.cables.publish(cables))
-            }
-            Topic::ActuatorStates => {
-                sent(p.actuators.publish(msg::JointState::actuators(model, state, ws, v.rates)))
-            }
-            Topic::Structure => sent(p.structure.publish(msg::Structure::from_model(model, frame))),
-            Topic::Diagnostics => {
-                let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.to_string() };
-                sent(p.diagnostics.publish(msg::DiagnosticArray { header, status: v.diagnostics.to_vec() }))
-            }
-            Topic::Markers => sent(p.markers.publish(msg::MarkerArray::from_state(model, state, ws, frame))),
-            // the same state goes out on the topics above
-            Topic::State => Ok(()),
+        use msg::TopicMessage as M;
+        let p = &self.publishers;
+        match (topic, M::build(topic, v)?) {
+            (_, Some(M::Clock(m))) => sent(p.clock.publish(m)),
+            (Topic::TfStatic, Some(M::Tf(m))) => sent(p.tf_static.publish(m)),
+            (_, Some(M::Tf(m))) => sent(p.tf.publish(m)),
+            (_, Some(M::Poses(m))) => sent(p.poses.publish(m)),
+            (_, Some(M::Cables(m))) => sent(p.cables.publish(m)),
+            (_, Some(M::Actuators(m))) => sent(p.actuators.publish(m)),
+            (_, Some(M::Structure(m))) => sent(p.structure.publish(m)),
+            (_, Some(M::Diagnostics(m))) => sent(p.diagnostics.publish(m)),
+            (_, Some(M::Markers(m))) => sent(p.markers.publish(m)),
+            // the whole-state sample: the same state goes out on the topics above
+            (_, None) => Ok(()),
         }
     }
 
@@ -190,11 +177,6 @@ pub fn writer_qos(depth: usize, transient_local: bool) -> QosProfile {
     qos(depth, transient_local).reliability_reliable(WhenFull::Fail)
 }
 
-/// The namespace of the node's private (`~/`) topics: `<ns>/<node>`.
-pub fn private_namespace(params: &NodeParams) -> String {
-    format!("{}/{}", params.namespace.trim_end_matches('/'), params.node_name)
-}
-
 impl DdsTransport {
     /// Opens the DDS participant (`params.domain_id`, localhost only if asked), the node and its
     /// topics, services and subscriptions. Nothing is published until the node starts.
@@ -203,7 +185,7 @@ impl DdsTransport {
         let mut node = context
             .new_node(NodeName::new(&params.namespace, &params.node_name).map_err(ros)?, NodeOptions::new())
             .map_err(ros)?;
-        let private = private_namespace(params);
+        let private = params.private_namespace();
         let topic = |ns: &str, name: &str, pkg: &str, ty: &str, q: &QosProfile| {
             node.create_topic(&Name::new(ns, name).map_err(ros)?, MessageTypeName::new(pkg, ty), q)
                 .map_err(ros)

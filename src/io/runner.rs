@@ -34,6 +34,10 @@ pub trait Transport: NodeSink {
     /// `core`. What the core publishes while serving them (the state after a reset, say) goes to
     /// this transport and to `others`, the other transports' sinks.
     fn take_inputs(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink);
+    /// False for a transport that never has inputs (the bag recorder): the loop need not poll it.
+    fn takes_inputs(&self) -> bool {
+        true
+    }
     /// True when `wait` blocks until input may have arrived (an event), false when it cannot
     /// tell and the loop must poll.
     fn event_driven(&self) -> bool {
@@ -87,6 +91,11 @@ impl NodeSink for TransportSinks<'_> {
     fn commands_applied(&mut self, time: f64, step: u64, commands: &[(ActuatorId, ActuatorCommand)]) {
         for t in self.each() {
             t.commands_applied(time, step, commands);
+        }
+    }
+    fn simulation_reset(&mut self, time: f64, step: u64) {
+        for t in self.each() {
+            t.simulation_reset(time, step);
         }
     }
 }
@@ -151,7 +160,7 @@ impl SimNode {
     pub fn run(&mut self, stop: &AtomicBool) {
         let epoch = Instant::now();
         let mut wake_at = Duration::ZERO;
-        let polled = self.transports.iter().any(|t| !t.event_driven());
+        let polled = self.transports.iter().any(|t| t.takes_inputs() && !t.event_driven());
         let waiter = self.transports.iter().position(|t| t.event_driven());
         while !stop.load(Ordering::Relaxed) && !self.core.quit_requested() {
             self.take_inputs();
@@ -202,5 +211,9 @@ impl NodeSink for With<'_> {
     fn commands_applied(&mut self, time: f64, step: u64, commands: &[(ActuatorId, ActuatorCommand)]) {
         self.own.commands_applied(time, step, commands);
         self.others.commands_applied(time, step, commands);
+    }
+    fn simulation_reset(&mut self, time: f64, step: u64) {
+        self.own.simulation_reset(time, step);
+        self.others.simulation_reset(time, step);
     }
 }

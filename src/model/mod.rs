@@ -24,6 +24,8 @@
 //! supplied analytically by `crate::kinematics` and checked by finite differences in the tests.
 //! Rotations never pass through a singular chart: increments are always taken at the current pose.
 
+use std::sync::Arc;
+
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
 
 /// Index of a body in `Model::bodies`.
@@ -309,6 +311,9 @@ pub struct Model {
     pub solver: SolverSettings,
     /// Physics step the scene asks for, s (None: the tool's default).
     pub physics_dt: Option<f64>,
+    /// The scene text this model was built from (for a generated scene, its TOML), so that a
+    /// recording can rebuild it. A model edited in code after building no longer matches it.
+    pub source: Arc<str>,
 }
 
 impl Model {

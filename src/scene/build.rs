@@ -547,6 +547,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
             None => None,
         },
+        source: match text {
+            Some(t) => t.into(),
+            None => super::to_toml(spec).into(),
+        },
     };
     check_mass_on_free_coordinates(&model, &cx)?;
     check_redundant_joints(&model, &cx)?;

@@ -1,0 +1,167 @@
+//! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
+//! record_overhead`; `-- --quick` for 10 s of sim time instead of 60; without `ros2` only the
+//! first pair of rows).
+//!
+//! The node's core steps a bundled scene at dt = 1 ms with the state published every step
+//! (`state_publish_rate = 0`: every topic, markers at 30 Hz), as fast as it can (no pacing, so
+//! nothing hides in idle time), for 60 s of sim time, serving: nothing (the physics and the core
+//! alone), a `BagRecorder` alone (messages built, CDR-serialized and queued on the node's thread;
+//! compressed and written by the bag's writer thread), DDS (the node as users run it, no
+//! subscriber), and DDS with the bag. Runs alternate, two of each, and the medians of the
+//! per-step medians and means are compared in one table; the process CPU time per step shows the
+//! writer thread's share too. The bag's size per second of sim time is from the file. With `ros2`
+//! the bench first moves itself into a private loopback-only network namespace.
+
+#[cfg(feature = "ros2")]
+#[path = "../tests/common/netns.rs"]
+mod netns;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use tensegrity::io::bag::BagOptions;
+use tensegrity::io::msg::SimResult;
+use tensegrity::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
+use tensegrity::io::params::NodeParams;
+use tensegrity::io::record::{self, BagRecorder, LogTime};
+use tensegrity::io::runner::{Transport, TransportSinks};
+use tensegrity::sim::{SimSettings, Simulator};
+
+struct Nowhere;
+
+impl NodeSink for Nowhere {
+    fn publish(&mut self, _topic: Topic, _view: &NodeView<'_>) -> Result<(), PublishError> {
+        Ok(())
+    }
+    fn step_request_done(&mut self, _ticket: u64, _result: SimResult, _view: &NodeView<'_>) {}
+}
+
+/// Process CPU time (user + system) from /proc, s (10 ms ticks).
+fn cpu_seconds() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // utime and stime are fields 14 and 15 of the line, 12 and 13 after the command name
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+struct RunFigures {
+    median_us: f64,
+    mean_us: f64,
+    p99_us: f64,
+    cpu_us: f64,
+    bag_bytes: u64,
+    messages: u64,
+}
+
+fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool) -> RunFigures {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(scene);
+    let model = tensegrity::scene::load(&path).unwrap();
+    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+    let mut transports: Vec<Box<dyn Transport>> = Vec::new();
+    if dds {
+        #[cfg(feature = "ros2")]
+        transports.push(Box::new(
+            tensegrity::io::ros2::DdsTransport::new(&NodeParams { domain_id: 90, ..params.clone() }).unwrap(),
+        ));
+    }
+    if let Some(dir) = &bag {
+        let _ = std::fs::remove_dir_all(dir);
+        let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
+        let recorder =
+            BagRecorder::create(dir, &model, &params, &run, LogTime::Wall, &BagOptions::default()).unwrap();
+        transports.push(Box::new(recorder));
+    }
+    let mut core = NodeCore::with_simulator(sim, params);
+    let mut nowhere = Nowhere;
+    let mut all = TransportSinks::all(&mut transports);
+    let sink: &mut dyn NodeSink = if bag.is_some() || dds { &mut all } else { &mut nowhere };
+    core.start(sink);
+    let mut times = Vec::with_capacity(steps as usize);
+    let cpu0 = cpu_seconds();
+    for k in 0..steps {
+        let t0 = Instant::now();
+        core.tick(Duration::from_millis(k), sink);
+        times.push(t0.elapsed().as_secs_f64() * 1e6);
+    }
+    // the bag closes with its transport
+    drop(transports);
+    let cpu_us = (cpu_seconds() - cpu0) * 1e6 / steps as f64;
+    let (mut bag_bytes, mut messages) = (0, 0);
+    if let Some(dir) = &bag {
+        let info = tensegrity::io::bag::BagReader::open(dir).unwrap().info();
+        bag_bytes = info.file_bytes;
+        messages = info.topics.iter().map(|(_, n)| n).sum();
+    }
+    assert_eq!(core.stats().steps, steps);
+    assert_eq!(core.stats().publish_failures.iter().sum::<u64>(), 0, "nothing dropped");
+    let mean_us = times.iter().sum::<f64>() / times.len() as f64;
+    times.sort_by(f64::total_cmp);
+    RunFigures {
+        median_us: times[times.len() / 2],
+        mean_us,
+        p99_us: times[times.len() * 99 / 100],
+        cpu_us,
+        bag_bytes,
+        messages,
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn main() {
+    #[cfg(feature = "ros2")]
+    if !netns::isolated_or_rerun(
+        &std::env::args().skip(1).collect::<Vec<_>>().iter().map(String::as_str).collect::<Vec<_>>(),
+    ) {
+        return;
+    }
+    let quick = std::env::args().any(|a| a == "--quick");
+    let seconds = if quick { 10 } else { 60 };
+    let steps = seconds * 1000;
+    let dir = std::env::temp_dir().join(format!("tensegrity-record-bench-{}", std::process::id()));
+    println!("Recording {seconds} s of sim time at 1 kHz, state every step, as fast as possible (two alternating runs each; medians)\n");
+    println!("| scene | serving | per step without bag: median / mean / p99 | with bag: median / mean / p99 | mean added | CPU per step without / with bag (all threads) | bag per sim second | messages per sim second |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
+    let serving: &[bool] = if cfg!(feature = "ros2") { &[false, true] } else { &[false] };
+    for scene in ["prism3.toml", "tower.toml"] {
+        for &dds in serving {
+            let mut plain = Vec::new();
+            let mut recorded = Vec::new();
+            for _ in 0..2 {
+                plain.push(run(scene, steps, None, dds));
+                recorded.push(run(scene, steps, Some(dir.join(scene)), dds));
+            }
+            let m = |runs: &[RunFigures], f: fn(&RunFigures) -> f64| median(runs.iter().map(f).collect());
+            let (a_med, a_mean, a_p99, a_cpu) = (
+                m(&plain, |r| r.median_us),
+                m(&plain, |r| r.mean_us),
+                m(&plain, |r| r.p99_us),
+                m(&plain, |r| r.cpu_us),
+            );
+            let (b_med, b_mean, b_p99, b_cpu) = (
+                m(&recorded, |r| r.median_us),
+                m(&recorded, |r| r.mean_us),
+                m(&recorded, |r| r.p99_us),
+                m(&recorded, |r| r.cpu_us),
+            );
+            let bytes = m(&recorded, |r| r.bag_bytes as f64) / seconds as f64;
+            let messages = m(&recorded, |r| r.messages as f64) / seconds as f64;
+            println!(
+                "| {} | {} | {a_med:.1} / {a_mean:.1} / {a_p99:.1} us | {b_med:.1} / {b_mean:.1} / {b_p99:.1} us | {:+.1} % ({:+.1} us; {:.1} % of the 1 ms step) | {a_cpu:.1} / {b_cpu:.1} us | {:.0} kB | {messages:.0} |",
+                scene.trim_end_matches(".toml"),
+                if dds { "DDS" } else { "nothing" },
+                100.0 * (b_mean / a_mean - 1.0),
+                b_mean - a_mean,
+                100.0 * (b_mean - a_mean) / 1000.0,
+                bytes / 1000.0,
+            );
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,845 @@
+//! Recording runs into bags and replaying them: takes the node core's outputs (`BagRecorder`, a
+//! `Transport` of the node's loop, so it sees exactly what the core published and applied) or an
+//! offline run's (the CLI's `deploy --dynamic` drives the same core; `PathPublisher` publishes a
+//! quasi-static path), gives a rosbag2 bag (`io::bag`) with every published topic, the applied
+//! commands on `~/applied_commands` (`tensegrity_msgs/msg/AppliedCommands`) and the run record;
+//! takes such a bag back (`replay`) and runs it again with the recorded commands (and resets) at
+//! their recorded steps, comparing every recorded message bit for bit.
+//!
+//! Each message's MCAP `sequence` is the simulator's step count when it was published (steps
+//! since the start, resets included; modulo 2^32), its log time the wall clock for the node and
+//! the simulation time for offline runs (a quasi-static path: 1 ms per row).
+//!
+//! What is reproducible: the same scene, settings and commands at the same steps give the same
+//! bits (the physics has no wall-clock, thread-count or hash-order dependence), so a run's
+//! real-time overruns, its machine's load and its transports do not matter. `/diagnostics` holds
+//! wall-clock figures (real-time factor, overruns) and is recorded but not compared.
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use crate::control::ActuatorCommand;
+use crate::forces::Workspace;
+use crate::io::bag::{
+    BagError, BagOptions, BagReader, BagSummary, BagTopic, BagWriter, RunInfo, TopicQos, TopicSpec,
+};
+use crate::io::msg::{self, AppliedCommands, TopicMessage};
+use crate::io::node::{NodeCore, NodeSink, NodeStats, NodeView, PublishError, Topic};
+use crate::io::params::NodeParams;
+use crate::io::runner::Transport;
+use crate::model::{ActuatorId, Model};
+use crate::sim::{SimSettings, Simulator};
+use crate::solve::dynamics::{Integrator, NewtonSettings};
+use crate::solve::linear::LinearBackend;
+use crate::state::State;
+
+/// Name of the applied-commands topic in the node's private namespace.
+pub const APPLIED_COMMANDS: &str = "applied_commands";
+/// `RunInfo` key of the run's kind: `KIND_NODE`, `KIND_DYNAMIC` or `KIND_QUASI_STATIC`.
+pub const KEY_KIND: &str = "kind";
+/// A node run.
+pub const KIND_NODE: &str = "node";
+/// `tensegrity deploy --dynamic`.
+pub const KIND_DYNAMIC: &str = "deploy-dynamic";
+/// `tensegrity deploy --quasi-static`.
+pub const KIND_QUASI_STATIC: &str = "deploy-quasi-static";
+
+/// The ROS type and offered QoS (as the node's DDS writers offer it) of a topic; `None` for the
+/// shared-memory whole-state sample.
+pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
+    let q = |depth, transient_local| TopicQos { depth, transient_local };
+    // volatile writers keep at least 16 samples (io::ros2::MIN_WRITER_DEPTH)
+    Some(match topic {
+        Topic::Clock => ("rosgraph_msgs/msg/Clock", q(16, false)),
+        Topic::Tf => ("tf2_msgs/msg/TFMessage", q(100, false)),
+        Topic::TfStatic => ("tf2_msgs/msg/TFMessage", q(1, true)),
+        Topic::BodyPoses => ("geometry_msgs/msg/PoseArray", q(16, false)),
+        Topic::CableStates => ("tensegrity_msgs/msg/CableStates", q(16, false)),
+        Topic::ActuatorStates => ("sensor_msgs/msg/JointState", q(16, false)),
+        Topic::Structure => ("tensegrity_msgs/msg/Structure", q(1, true)),
+        Topic::Diagnostics => ("diagnostic_msgs/msg/DiagnosticArray", q(16, false)),
+        Topic::Markers => ("visualization_msgs/msg/MarkerArray", q(16, false)),
+        Topic::State => return None,
+    })
+}
+
+/// The full name of `topic` for a node with `params` (`~/x` is `<ns>/<node>/x`).
+pub fn topic_name(topic_short: &str, params: &NodeParams) -> String {
+    match topic_short.strip_prefix("~/") {
+        Some(rest) => format!("{}/{rest}", params.private_namespace()),
+        None => topic_short.to_string(),
+    }
+}
+
+/// The name a bag gives the applied-commands topic of a node with `params`.
+pub fn applied_commands_topic(params: &NodeParams) -> String {
+    topic_name(&format!("~/{APPLIED_COMMANDS}"), params)
+}
+
+/// Where a recorded message's log time comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogTime {
+    /// The wall clock (ns since the Unix epoch), as `ros2 bag record` stamps: the node.
+    Wall,
+    /// The simulation time, ns: offline dynamic runs.
+    SimTime,
+    /// 1 ms per step of the sequence: quasi-static paths (whose time may go back on a traced
+    /// branch).
+    Step,
+}
+
+fn f64_text(x: f64) -> String {
+    // Debug prints the shortest text that parses back to the same bits
+    format!("{x:?}")
+}
+
+fn linear_name(l: LinearBackend) -> &'static str {
+    match l {
+        LinearBackend::Dense => "dense",
+        LinearBackend::Sparse => "sparse",
+        LinearBackend::SparseLu => "sparse-lu",
+        LinearBackend::Auto => "auto",
+    }
+}
+
+/// The run record of a run of `model` with `settings` and the node parameters that decide what
+/// the core does and publishes (`params`); `kind` is one of the `KIND_` names.
+pub fn run_info(
+    kind: &str,
+    model: &Model,
+    scene_label: &str,
+    settings: &SimSettings,
+    params: &NodeParams,
+) -> RunInfo {
+    let mut r = RunInfo::new();
+    let mut put = |k: &str, v: String| {
+        r.insert(k.to_string(), v);
+    };
+    put(KEY_KIND, kind.into());
+    put("tensegrity_version", env!("CARGO_PKG_VERSION").into());
+    put("scene", model.source.to_string());
+    put("scene_file", scene_label.into());
+    put("scene_name", model.name.clone());
+    put("dt", f64_text(settings.dt));
+    let (integrator, rho) = match settings.integrator {
+        Integrator::GeneralizedAlpha { rho_inf } => ("generalized-alpha", rho_inf),
+        Integrator::SymplecticEuler => ("symplectic-euler", params.rho_inf),
+        Integrator::Rk4 => ("rk4", params.rho_inf),
+        Integrator::DormandPrince => ("dormand-prince", params.rho_inf),
+    };
+    put("integrator", integrator.into());
+    put("rho_inf", f64_text(rho));
+    put("tolerance", settings.tolerance.map_or("none".into(), f64_text));
+    put("min_dt", f64_text(settings.min_dt));
+    put("linear", linear_name(settings.linear).into());
+    put("newton_tolerance", f64_text(settings.newton.tolerance));
+    put("newton_max_iterations", settings.newton.max_iterations.to_string());
+    put("newton_reuse_factorization", settings.newton.reuse_factorization.to_string());
+    put("follow_schedule", params.follow_schedule.to_string());
+    put("state_publish_rate", f64_text(params.state_publish_rate));
+    put("markers_rate", f64_text(params.markers_rate));
+    put("command_timeout", f64_text(params.command_timeout));
+    put("command_timeout_action", params.command_timeout_action.clone());
+    put("frame_id", params.frame_id.clone());
+    put("node_name", params.node_name.clone());
+    put("namespace", params.namespace.clone());
+    r
+}
+
+/// Why a run record cannot be run again.
+fn record_err(key: &str, why: impl std::fmt::Display) -> String {
+    format!("run record: {key}: {why}")
+}
+
+/// The simulator settings and node parameters of a run record (the inverse of `run_info`).
+pub fn settings_of(run: &RunInfo) -> Result<(SimSettings, NodeParams), String> {
+    let get = |k: &str| run.get(k).map(String::as_str).ok_or_else(|| record_err(k, "missing"));
+    let num = |k: &str| -> Result<f64, String> { get(k)?.parse::<f64>().map_err(|e| record_err(k, e)) };
+    let integrator = Integrator::parse(get("integrator")?, num("rho_inf")?)
+        .ok_or_else(|| record_err("integrator", "unknown"))?;
+    let linear = match get("linear")? {
+        "dense" => LinearBackend::Dense,
+        "sparse" => LinearBackend::Sparse,
+        "sparse-lu" => LinearBackend::SparseLu,
+        "auto" => LinearBackend::Auto,
+        other => return Err(record_err("linear", format!("unknown '{other}'"))),
+    };
+    let newton = NewtonSettings {
+        tolerance: num("newton_tolerance")?,
+        max_iterations: get("newton_max_iterations")?
+            .parse()
+            .map_err(|e| record_err("newton_max_iterations", e))?,
+        reuse_factorization: get("newton_reuse_factorization")? == "true",
+    };
+    let tolerance = match get("tolerance")? {
+        "none" => None,
+        _ => Some(num("tolerance")?),
+    };
+    let settings =
+        SimSettings { dt: num("dt")?, integrator, newton, min_dt: num("min_dt")?, linear, tolerance };
+    let mut params = NodeParams {
+        node_name: get("node_name")?.into(),
+        namespace: get("namespace")?.into(),
+        real_time_factor: 0.0,
+        start_paused: true,
+        ..NodeParams::default()
+    };
+    for k in [
+        "follow_schedule",
+        "state_publish_rate",
+        "markers_rate",
+        "command_timeout",
+        "command_timeout_action",
+        "frame_id",
+    ] {
+        params.set(k, get(k)?).map_err(|e| record_err(k, e))?;
+    }
+    Ok((settings, params))
+}
+
+/// The topics a node with `params` publishes, and the applied commands, as bag topics: the
+/// `Topic` each comes from (`None`: applied commands).
+pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
+    let mut out = Vec::new();
+    for topic in Topic::ALL {
+        if topic == Topic::Markers && params.markers_rate <= 0.0 {
+            continue;
+        }
+        if let Some((type_name, qos)) = topic_type(topic) {
+            let spec = TopicSpec { name: topic_name(topic.name(), params), type_name: type_name.into(), qos };
+            out.push((Some(topic), spec));
+        }
+    }
+    let applied = TopicSpec {
+        name: applied_commands_topic(params),
+        type_name: "tensegrity_msgs/msg/AppliedCommands".into(),
+        qos: TopicQos { depth: 100, transient_local: false },
+    };
+    out.push((None, applied));
+    out
+}
+
+/// Records what the core publishes and applies: a `NodeSink` and a `Transport` (with no inputs)
+/// of the node's loop, or a sink of an offline run.
+pub struct BagRecorder {
+    writer: BagWriter,
+    /// Bag topic of each `Topic`, in `Topic::ALL` order.
+    topics: [Option<BagTopic>; 10],
+    applied: BagTopic,
+    actuator_names: Vec<String>,
+    log_time: LogTime,
+    /// The last sim time and step seen (stamps of applied commands for `LogTime::SimTime`).
+    last: (f64, u64),
+}
+
+impl BagRecorder {
+    /// Creates the bag `dir` for a run of `model` whose outputs a core with `params` publishes;
+    /// `run` is its run record (`run_info`, plus any keys of the run's own).
+    pub fn create(
+        dir: &Path,
+        model: &Model,
+        params: &NodeParams,
+        run: &RunInfo,
+        log_time: LogTime,
+        options: &BagOptions,
+    ) -> Result<Self, BagError> {
+        let specs = node_topics(params);
+        let writer = BagWriter::create(dir, specs.iter().map(|(_, s)| s.clone()).collect(), run, options)?;
+        let mut topics = [None; 10];
+        let mut applied = BagTopic(0);
+        for (k, (topic, _)) in specs.iter().enumerate() {
+            match topic {
+                Some(t) => topics[Topic::ALL.iter().position(|a| a == t).unwrap_or(0)] = Some(BagTopic(k)),
+                None => applied = BagTopic(k),
+            }
+        }
+        Ok(Self {
+            writer,
+            topics,
+            applied,
+            actuator_names: model.actuator_names.clone(),
+            log_time,
+            last: (0.0, 0),
+        })
+    }
+
+    /// A recorder for the node `core` will serve, into `dir` (the node's `record` parameter).
+    pub fn for_node(core: &NodeCore, dir: &Path) -> Result<Self, BagError> {
+        let params = core.params();
+        let label = params.scene.as_ref().map_or("<bundled prism3>".into(), |p| p.display().to_string());
+        let sim = core.simulator();
+        let run = run_info(KIND_NODE, sim.model(), &label, sim.settings(), params);
+        Self::create(dir, sim.model(), params, &run, LogTime::Wall, &BagOptions::default())
+    }
+
+    /// The bag directory.
+    pub fn dir(&self) -> &Path {
+        self.writer.dir()
+    }
+
+    /// Closes the bag (see `BagWriter::finish`).
+    pub fn finish(self) -> Result<BagSummary, BagError> {
+        self.writer.finish()
+    }
+
+    fn stamp(&self, time: f64, step: u64) -> u64 {
+        match self.log_time {
+            LogTime::Wall => SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64),
+            LogTime::SimTime => (time.max(0.0) * 1e9).round() as u64,
+            LogTime::Step => step.saturating_mul(1_000_000),
+        }
+    }
+
+    fn write_applied(&mut self, m: &AppliedCommands) {
+        let log_time = self.stamp(m.header.stamp.seconds(), m.step);
+        // never dropped: a bag without its commands cannot be replayed
+        if let Err(e) = self.writer.write(self.applied, m.step as u32, log_time, m, false) {
+            eprintln!("bag {}: applied commands at step {} not recorded: {e}", self.dir().display(), m.step);
+        }
+    }
+}
+
+impl NodeSink for BagRecorder {
+    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
+        let Some(handle) = self.topics[Topic::ALL.iter().position(|t| *t == topic).unwrap_or(0)] else {
+            return Ok(());
+        };
+        let Some(message) = TopicMessage::build(topic, view)? else { return Ok(()) };
+        let step = view.stats.steps;
+        self.last = (view.state.time, step);
+        let log_time = self.stamp(view.state.time, step);
+        // what a late joiner needs is never dropped; state messages are when the queue is full
+        let droppable = !matches!(topic, Topic::Structure | Topic::TfStatic);
+        self.writer
+            .write(handle, step as u32, log_time, &message, droppable)
+            .map_err(|e| PublishError::Failed(format!("bag: {e}")))
+    }
+
+    fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
+
+    fn commands_applied(&mut self, time: f64, step: u64, commands: &[(ActuatorId, ActuatorCommand)]) {
+        let m = AppliedCommands::new(&self.actuator_names, time, step, commands);
+        self.write_applied(&m);
+    }
+
+    fn simulation_reset(&mut self, time: f64, step: u64) {
+        let m = AppliedCommands {
+            header: msg::Header { stamp: msg::Time::from_seconds(time), frame_id: String::new() },
+            step,
+            reset: true,
+            ..Default::default()
+        };
+        self.write_applied(&m);
+    }
+}
+
+impl Transport for BagRecorder {
+    fn name(&self) -> &'static str {
+        "record"
+    }
+    fn take_inputs(&mut self, _core: &mut NodeCore, _others: &mut dyn NodeSink) {}
+    fn takes_inputs(&self) -> bool {
+        false
+    }
+}
+
+/// Publishes a quasi-static path (rows of equilibria, no core) to a sink as the node would
+/// publish states: structure and static transforms first, then per row the state topics and
+/// the clock, stamped with the row's schedule time; the sequence is the row index.
+pub struct PathPublisher {
+    reference: Vec<Vec<f64>>,
+    previous: Option<(f64, Vec<f64>)>,
+    rates: Vec<f64>,
+    rows: u64,
+    frame_id: String,
+    node_name: String,
+}
+
+impl PathPublisher {
+    /// A publisher for a path of `model` that starts at `state` (evaluated in `ws`).
+    pub fn new(model: &Model, state: &State, ws: &Workspace, params: &NodeParams) -> Self {
+        Self {
+            reference: crate::report::all_pulley_coordinates(model, state, ws),
+            previous: None,
+            rates: vec![0.0; model.cables.len()],
+            rows: 0,
+            frame_id: params.frame_id.clone(),
+            node_name: params.node_name.clone(),
+        }
+    }
+
+    fn view<'a>(&'a self, model: &'a Model, state: &'a State, ws: &'a Workspace) -> NodeView<'a> {
+        NodeView {
+            model,
+            state,
+            workspace: ws,
+            rates: &self.rates,
+            reference: &self.reference,
+            frame_id: &self.frame_id,
+            node_name: &self.node_name,
+            diagnostics: &[],
+            step: self.rows,
+            simulation_state: crate::io::node::sim_state::PLAYING,
+            faulted: false,
+            stats: NodeStats { steps: self.rows, ..Default::default() },
+            dt: 0.0,
+        }
+    }
+
+    /// Publishes one row (the first also publishes the structure and static transforms).
+    pub fn row(&mut self, sink: &mut dyn NodeSink, model: &Model, state: &State, ws: &Workspace) {
+        match &self.previous {
+            Some((t, rest)) if state.time != *t => {
+                for (r, (now, before)) in self.rates.iter_mut().zip(state.rest_lengths.iter().zip(rest)) {
+                    *r = (now - before) / (state.time - t);
+                }
+            }
+            _ => self.rates.fill(0.0),
+        }
+        let view = self.view(model, state, ws);
+        let first = self.previous.is_none();
+        let topics: &[Topic] = if first {
+            &[
+                Topic::Structure,
+                Topic::TfStatic,
+                Topic::BodyPoses,
+                Topic::Tf,
+                Topic::CableStates,
+                Topic::ActuatorStates,
+                Topic::Clock,
+            ]
+        } else {
+            &[Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates, Topic::Clock]
+        };
+        for t in topics {
+            // a sink's failure is its own to report (a recorder prints it when it closes)
+            let _ = sink.publish(*t, &view);
+        }
+        self.previous = Some((state.time, state.rest_lengths.clone()));
+        self.rows += 1;
+    }
+}
+
+// ----- replay -----------------------------------------------------------------------------------
+
+/// The first difference between a bag and its re-run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Difference {
+    /// The step count (MCAP sequence) of the recorded message.
+    pub step: u64,
+    /// The topic.
+    pub topic: String,
+    /// The first field that differs (`tension[3]`), or what differs about the messages.
+    pub field: String,
+    /// The recorded value.
+    pub recorded: String,
+    /// The re-run's value.
+    pub rerun: String,
+    /// |recorded - rerun| for numbers.
+    pub by: Option<f64>,
+}
+
+impl std::fmt::Display for Difference {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "first difference at step {} on {}: {}: recorded {}, re-run {}",
+            self.step, self.topic, self.field, self.recorded, self.rerun
+        )?;
+        if let Some(by) = self.by {
+            write!(f, " (differs by {by:.3e})")?;
+        }
+        Ok(())
+    }
+}
+
+/// What a replay found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayReport {
+    /// Recorded messages compared bit for bit (diagnostics are not compared).
+    pub compared: u64,
+    /// Steps re-run.
+    pub steps: u64,
+    /// Command batches and resets applied from the bag.
+    pub command_batches: u64,
+    /// Resets applied from the bag.
+    pub resets: u64,
+    /// The first difference, if any.
+    pub difference: Option<Difference>,
+    /// Why the bag stopped before its end (a cut bag: compared up to there), if it did.
+    pub cut_short: Option<String>,
+}
+
+/// Why a bag could not be replayed at all.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The bag could not be read.
+    #[error(transparent)]
+    Bag(#[from] BagError),
+    /// The bag holds no run record, or one that cannot be run.
+    #[error("{path}: {reason}")]
+    Run {
+        /// The bag.
+        path: PathBuf,
+        /// Why.
+        reason: String,
+    },
+}
+
+/// Collects what a re-run publishes, serialized as the recorder would, and passes it on to an
+/// optional recorder (`--out`).
+struct RerunSink {
+    names: [Option<String>; 10],
+    produced: VecDeque<(String, u32, Vec<u8>)>,
+    applied: u64,
+    out: Option<BagRecorder>,
+}
+
+impl NodeSink for RerunSink {
+    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
+        if let Some(out) = &mut self.out {
+            let _ = out.publish(topic, view);
+        }
+        let k = Topic::ALL.iter().position(|t| *t == topic).unwrap_or(0);
+        let (Some(name), false) = (&self.names[k], topic == Topic::Diagnostics) else { return Ok(()) };
+        let Some(message) = TopicMessage::build(topic, view)? else { return Ok(()) };
+        let mut data = crate::io::bag::CDR_LE_HEADER.to_vec();
+        cdr_encoding::to_writer::<_, byteorder::LittleEndian, _>(&mut data, &message)
+            .map_err(|e| PublishError::Failed(e.to_string()))?;
+        self.produced.push_back((name.clone(), view.stats.steps as u32, data));
+        Ok(())
+    }
+    fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
+    fn commands_applied(&mut self, time: f64, step: u64, commands: &[(ActuatorId, ActuatorCommand)]) {
+        self.applied += 1;
+        if let Some(out) = &mut self.out {
+            out.commands_applied(time, step, commands);
+        }
+    }
+    fn simulation_reset(&mut self, time: f64, step: u64) {
+        if let Some(out) = &mut self.out {
+            out.simulation_reset(time, step);
+        }
+    }
+}
+
+/// Steps the re-run has taken (since the start).
+fn steps_of(rerun: &Rerun) -> u64 {
+    match rerun {
+        Rerun::Core { core, .. } => core.stats().steps,
+        Rerun::Path => 0,
+    }
+}
+
+/// The re-run: a core (dynamic runs) or a precomputed list (quasi-static paths).
+enum Rerun {
+    Core { core: Box<NodeCore>, clock: Duration },
+    Path,
+}
+
+/// Runs the bag `bag` again: its recorded scene (or `scene`, text and label, to try another),
+/// settings and parameters, with its applied commands and resets at their recorded steps, and
+/// compares every recorded message except `/diagnostics` with the re-run's, bit for bit. `out`
+/// writes the re-run as a new bag.
+pub fn replay(
+    bag: &Path,
+    scene: Option<(&str, &str)>,
+    out: Option<&Path>,
+) -> Result<ReplayReport, ReplayError> {
+    let reader = BagReader::open(bag)?;
+    let run_err = |reason: String| ReplayError::Run { path: reader.path.clone(), reason };
+    let run = reader
+        .run()
+        .ok_or_else(|| run_err("no run record (metadata 'tensegrity'): not recorded by tensegrity".into()))?;
+    let (settings, params) = settings_of(&run).map_err(run_err)?;
+    let kind = run.get(KEY_KIND).cloned().unwrap_or_default();
+    let (text, label) = match scene {
+        Some((text, label)) => (text.to_string(), label.to_string()),
+        None => (
+            run.get("scene").cloned().ok_or_else(|| run_err("the run record has no scene".into()))?,
+            format!("{} (recorded)", run.get("scene_file").map_or("scene", String::as_str)),
+        ),
+    };
+    let mut model = crate::scene::from_toml(&text, &label).map_err(|e| run_err(e.to_string()))?;
+    let out_recorder = |model: &Model| -> Result<Option<BagRecorder>, ReplayError> {
+        let Some(dir) = out else { return Ok(None) };
+        let log = if kind == KIND_QUASI_STATIC { LogTime::Step } else { LogTime::SimTime };
+        let mut record = run_info(&kind, model, &label, &settings, &params);
+        if let Some(steps) = run.get("steps") {
+            record.insert("steps".into(), steps.clone());
+        }
+        Ok(Some(BagRecorder::create(dir, model, &params, &record, log, &BagOptions::default())?))
+    };
+    let mut names: [Option<String>; 10] = Default::default();
+    for (topic, spec) in node_topics(&params) {
+        if let Some(t) = topic {
+            names[Topic::ALL.iter().position(|a| *a == t).unwrap_or(0)] = Some(spec.name);
+        }
+    }
+    let applied_topic = applied_commands_topic(&params);
+    let diagnostics = topic_name(Topic::Diagnostics.name(), &params);
+    let mut rerun;
+    let mut sink;
+    if kind == KIND_QUASI_STATIC {
+        if let Some(steps) = run.get("steps") {
+            model.schedule.steps = steps.parse().map_err(|e| run_err(record_err("steps", e)))?;
+        }
+        sink = RerunSink { names, produced: VecDeque::new(), applied: 0, out: out_recorder(&model)? };
+        let mut state = State::initial(&model);
+        let mut ws = Workspace::new(&model);
+        let mut publisher: Option<PathPublisher> = None;
+        let result = crate::solve::statics::deploy_quasi_static(&model, &mut state, &mut ws, |_, st, w| {
+            publisher
+                .get_or_insert_with(|| PathPublisher::new(&model, st, w, &params))
+                .row(&mut sink, &model, st, w);
+        });
+        if let Err(e) = result {
+            return Err(run_err(format!("the re-run's quasi-static path fails: {e}")));
+        }
+        rerun = Rerun::Path;
+    } else {
+        let sim =
+            Simulator::new(model, settings).map_err(|e| run_err(format!("the re-run cannot start: {e}")))?;
+        let recorder = out_recorder(sim.model())?;
+        let mut core = NodeCore::with_simulator(sim, params.clone());
+        sink = RerunSink { names, produced: VecDeque::new(), applied: 0, out: recorder };
+        core.start(&mut sink);
+        rerun = Rerun::Core { core: Box::new(core), clock: Duration::ZERO };
+    }
+    let mut report = ReplayReport {
+        compared: 0,
+        steps: 0,
+        command_batches: 0,
+        resets: 0,
+        difference: None,
+        cut_short: None,
+    };
+    let differ = |step: u64, topic: &str, field: &str, recorded: String, rerun: String| Difference {
+        step,
+        topic: topic.to_string(),
+        field: field.to_string(),
+        recorded,
+        rerun,
+        by: None,
+    };
+    // one more step of the re-run (nothing for a path: it was computed whole)
+    let advance =
+        |rerun: &mut Rerun, sink: &mut RerunSink, report: &mut ReplayReport| -> Result<(), String> {
+            let Rerun::Core { core, clock } = rerun else {
+                return Err("the re-run's path has no more rows".into());
+            };
+            core.request_steps(1, sink).map_err(|r| r.error_message)?;
+            *clock += Duration::from_millis(1);
+            core.tick(*clock, sink);
+            if let Some(f) = core.fault() {
+                return Err(f.to_string());
+            }
+            report.steps += 1;
+            Ok(())
+        };
+    for recorded in reader.messages() {
+        let recorded = match recorded {
+            Ok(m) => m,
+            Err(why) => {
+                report.cut_short = Some(why);
+                break;
+            }
+        };
+        if recorded.topic == diagnostics {
+            continue;
+        }
+        if recorded.topic == applied_topic {
+            let a: AppliedCommands = recorded.decode().map_err(run_err)?;
+            if matches!(rerun, Rerun::Path) {
+                continue;
+            }
+            while steps_of(&rerun) < a.step && sink.produced.is_empty() {
+                if let Err(why) = advance(&mut rerun, &mut sink, &mut report) {
+                    report.difference = Some(differ(
+                        a.step,
+                        &recorded.topic,
+                        "re-run",
+                        "commands".into(),
+                        format!("fails: {why}"),
+                    ));
+                    return Ok(report);
+                }
+            }
+            let Rerun::Core { core, clock } = &mut rerun else { continue };
+            if let Some((topic, seq, _)) = sink.produced.front() {
+                report.difference = Some(differ(
+                    *seq as u64,
+                    topic,
+                    "message",
+                    "none (the bag has the applied commands next)".into(),
+                    "one more".into(),
+                ));
+                return Ok(report);
+            }
+            if a.reset {
+                core.reset(&mut sink);
+                report.resets += 1;
+            } else {
+                let commands = match a.commands(core.simulator().model()) {
+                    Ok(c) => c,
+                    Err(e) => {
+                        report.difference = Some(differ(
+                            a.step,
+                            &recorded.topic,
+                            "commands",
+                            "applied".into(),
+                            format!("refused: {e}"),
+                        ));
+                        return Ok(report);
+                    }
+                };
+                let before = sink.applied;
+                // checked as the node checked them when they arrived (the scene may differ)
+                let offered = core.offer_parsed(|model, out| {
+                    commands.iter().try_for_each(|(id, cmd)| msg::check_entry(model, *id, *cmd, out))
+                });
+                *clock += Duration::from_millis(1);
+                core.tick(*clock, &mut sink);
+                let refused = match offered {
+                    Err(e) => Some(e.to_string()),
+                    Ok(()) if sink.applied == before => Some("not applied".into()),
+                    Ok(()) => None,
+                };
+                if let Some(why) = refused {
+                    report.difference = Some(differ(
+                        a.step,
+                        &recorded.topic,
+                        "commands",
+                        "applied".into(),
+                        format!("refused: {why}"),
+                    ));
+                    return Ok(report);
+                }
+                report.command_batches += 1;
+            }
+            continue;
+        }
+        while sink.produced.is_empty() {
+            if let Err(why) = advance(&mut rerun, &mut sink, &mut report) {
+                report.difference = Some(differ(
+                    recorded.sequence as u64,
+                    &recorded.topic,
+                    "message",
+                    "present".into(),
+                    format!("missing: {why}"),
+                ));
+                return Ok(report);
+            }
+        }
+        let (topic, sequence, data) = sink.produced.pop_front().expect("not empty");
+        if topic != recorded.topic || sequence != recorded.sequence {
+            report.difference = Some(differ(
+                recorded.sequence as u64,
+                &recorded.topic,
+                "next message",
+                format!("{} at step {}", recorded.topic, recorded.sequence),
+                format!("{topic} at step {sequence}"),
+            ));
+            return Ok(report);
+        }
+        if data != recorded.data {
+            report.difference = Some(first_field_difference(&recorded, &data));
+            return Ok(report);
+        }
+        report.compared += 1;
+    }
+    if let Some(out) = sink.out.take() {
+        out.finish()?;
+    }
+    Ok(report)
+}
+
+/// The first field that differs between a recorded message and the re-run's bytes of the same
+/// topic (decoded by type), with the size of the difference for numbers.
+fn first_field_difference(recorded: &crate::io::bag::RecordedMessage, rerun: &[u8]) -> Difference {
+    let other = crate::io::bag::RecordedMessage { data: rerun.to_vec(), ..recorded.clone() };
+    let mut d = Difference {
+        step: recorded.sequence as u64,
+        topic: recorded.topic.clone(),
+        field: "bytes".into(),
+        recorded: format!("{} bytes", recorded.data.len()),
+        rerun: format!("{} bytes", rerun.len()),
+        by: None,
+    };
+    if let (Ok(a), Ok(b)) = (decode_json(recorded), decode_json(&other)) {
+        if let Some((path, x, y)) = first_json_difference("", &a, &b) {
+            d.field = path;
+            d.by = match (x.as_f64(), y.as_f64()) {
+                (Some(p), Some(q)) => Some((p - q).abs()),
+                _ => None,
+            };
+            d.recorded = x.to_string();
+            d.rerun = y.to_string();
+        }
+    }
+    d
+}
+
+/// A recorded message decoded by its type into JSON (for field-by-field comparison and display).
+pub fn decode_json(m: &crate::io::bag::RecordedMessage) -> Result<serde_json::Value, String> {
+    fn json<M: serde::de::DeserializeOwned + serde::Serialize>(
+        m: &crate::io::bag::RecordedMessage,
+    ) -> Result<serde_json::Value, String> {
+        serde_json::to_value(m.decode::<M>()?).map_err(|e| e.to_string())
+    }
+    match m.type_name.as_str() {
+        "rosgraph_msgs/msg/Clock" => json::<msg::Clock>(m),
+        "tf2_msgs/msg/TFMessage" => json::<msg::TfMessage>(m),
+        "geometry_msgs/msg/PoseArray" => json::<msg::PoseArray>(m),
+        "tensegrity_msgs/msg/CableStates" => json::<msg::CableStates>(m),
+        "sensor_msgs/msg/JointState" => json::<msg::JointState>(m),
+        "tensegrity_msgs/msg/Structure" => json::<msg::Structure>(m),
+        "diagnostic_msgs/msg/DiagnosticArray" => json::<msg::DiagnosticArray>(m),
+        "visualization_msgs/msg/MarkerArray" => json::<msg::MarkerArray>(m),
+        "tensegrity_msgs/msg/AppliedCommands" => json::<msg::AppliedCommands>(m),
+        other => Err(format!("no decoder for {other}")),
+    }
+}
+
+/// The first leaf (depth first, in field order) where `a` and `b` differ: its path and values.
+fn first_json_difference(
+    path: &str,
+    a: &serde_json::Value,
+    b: &serde_json::Value,
+) -> Option<(String, serde_json::Value, serde_json::Value)> {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            for (k, v) in x {
+                let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+                match y.get(k) {
+                    Some(w) => {
+                        if let Some(d) = first_json_difference(&p, v, w) {
+                            return Some(d);
+                        }
+                    }
+                    None => return Some((p, v.clone(), Value::Null)),
+                }
+            }
+            None
+        }
+        (Value::Array(x), Value::Array(y)) => {
+            for (i, (v, w)) in x.iter().zip(y).enumerate() {
+                if let Some(d) = first_json_difference(&format!("{path}[{i}]"), v, w) {
+                    return Some(d);
+                }
+            }
+            (x.len() != y.len())
+                .then(|| (format!("{path}.len()"), Value::from(x.len()), Value::from(y.len())))
+        }
+        // bit for bit: 0.1 + 0.2 and 0.3 differ here too
+        (Value::Number(x), Value::Number(y))
+            if x.as_f64().map(f64::to_bits) == y.as_f64().map(f64::to_bits) =>
+        {
+            None
+        }
+        _ if a == b => None,
+        _ => Some((path.to_string(), a.clone(), b.clone())),
+    }
+}

@@ -1,0 +1,316 @@
+//! Invariant: a run recorded as a rosbag2 bag reads back in an independent reader (the Python
+//! `rosbags` package, with our message types registered from `msg/` and the standard ones from
+//! its own ROS 2 store) with every topic, type, count and value the simulator produced; replaying
+//! a bag with its recorded commands at their recorded steps gives the same bits, and a changed
+//! scene is caught at its first differing field; a bag cut short or whose writer was killed is
+//! read up to its last complete chunk and can be rewritten complete (`bag reindex`).
+//!
+//! The node's own recordings (DDS commands from a controller on a second context, Ctrl-C) run in
+//! a private loopback-only network namespace, each on its own domain id, like every DDS test.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use tensegrity::io::bag::{self, BagOptions, BagReader};
+use tensegrity::io::msg;
+use tensegrity::io::node::NodeCore;
+use tensegrity::io::params::NodeParams;
+use tensegrity::io::record;
+use tensegrity::sim::{SimSettings, Simulator};
+
+#[path = "common/bags.rs"]
+mod bags;
+mod common;
+
+use bags::{floats, our_counts, rosbags_counts, rosbags_read};
+
+fn scene_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name)
+}
+
+fn cli(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_tensegrity")).args(args).output().expect("tensegrity runs")
+}
+
+/// A fresh (not yet existing) bag directory for one test.
+fn bag_dir(name: &str) -> PathBuf {
+    let d = common::scratch("bags").join(name);
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+/// Records `tensegrity deploy prism3.toml ARGS --record DIR` into a fresh bag directory `name`.
+fn deploy_recorded(name: &str, args: &[&str]) -> PathBuf {
+    let dir = bag_dir(name);
+    let prism = scene_path("prism3.toml");
+    let mut all = vec!["deploy", prism.to_str().unwrap()];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--record", dir.to_str().unwrap()]);
+    let out = cli(&all);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    dir
+}
+
+#[test]
+fn a_dynamic_deployment_bag_reads_back_in_rosbags_equal_to_the_simulator() {
+    let dir = deploy_recorded("dynamic", &["--dynamic", "--duration", "0.25"]);
+    let ours = our_counts(&dir);
+    let expected = [
+        ("/clock", "rosgraph_msgs/msg/Clock", 250),
+        ("/tf", "tf2_msgs/msg/TFMessage", 251),
+        ("/tf_static", "tf2_msgs/msg/TFMessage", 1),
+        ("/tensegrity_sim/body_poses", "geometry_msgs/msg/PoseArray", 251),
+        ("/tensegrity_sim/cable_states", "tensegrity_msgs/msg/CableStates", 251),
+        ("/tensegrity_sim/actuator_states", "sensor_msgs/msg/JointState", 251),
+        ("/tensegrity_sim/structure", "tensegrity_msgs/msg/Structure", 1),
+        ("/tensegrity_sim/applied_commands", "tensegrity_msgs/msg/AppliedCommands", 0),
+    ];
+    for (topic, ty, n) in expected {
+        assert_eq!(ours.get(topic), Some(&(ty.to_string(), n)), "{topic}: {ours:?}");
+    }
+    assert!(ours.contains_key("/diagnostics") && ours.contains_key("/tensegrity_sim/markers"), "{ours:?}");
+    let Some(v) = rosbags_read(&dir) else { return };
+    assert_eq!(rosbags_counts(&v), ours, "rosbags and our reader disagree");
+
+    // contents: an independent run of the same simulator, step by step
+    let model = tensegrity::scene::load(&scene_path("prism3.toml")).unwrap();
+    let mut sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+    let cables = v["messages"]["/tensegrity_sim/cable_states"].as_array().unwrap();
+    let poses = v["messages"]["/tensegrity_sim/body_poses"].as_array().unwrap();
+    let clock = v["messages"]["/clock"].as_array().unwrap();
+    for k in 0..=250 {
+        if k > 0 {
+            sim.step().unwrap();
+            let t = msg::Time::from_seconds(sim.state().time);
+            assert_eq!(
+                (clock[k - 1]["sec"].as_i64(), clock[k - 1]["nanosec"].as_u64()),
+                (Some(t.sec as i64), Some(t.nanosec as u64))
+            );
+        }
+        let tension: Vec<f64> = sim.workspace().cables.iter().map(|c| c.tension).collect();
+        assert_eq!(floats(&cables[k]["tension"]), tension, "tensions at step {k}");
+        assert_eq!(floats(&cables[k]["rest_length"]), sim.state().rest_lengths, "rest lengths at step {k}");
+        let expected = msg::PoseArray::from_state(sim.state(), "world");
+        for (b, p) in expected.poses.iter().enumerate() {
+            assert_eq!(
+                floats(&poses[k]["position"][b]),
+                vec![p.position.x, p.position.y, p.position.z],
+                "step {k}"
+            );
+            let q = &p.orientation;
+            assert_eq!(floats(&poses[k]["orientation"][b]), vec![q.x, q.y, q.z, q.w], "step {k}");
+        }
+    }
+    assert_eq!(
+        v["messages"]["/tensegrity_sim/structure"][0]["cable_names"],
+        serde_json::json!(model.cable_names)
+    );
+
+    // the same bag replays bit for bit, and `bag info` lists it like `ros2 bag info`
+    let out = cli(&["replay", dir.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("identical"),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = cli(&["bag", "info", dir.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("Topic: /tensegrity_sim/cable_states") && text.contains("Count: 251"), "{text}");
+    assert!(text.contains("deploy-dynamic of 'prism3'"), "{text}");
+}
+
+#[test]
+fn a_changed_scene_is_caught_at_its_first_differing_field() {
+    let dir = deploy_recorded("changed", &["--dynamic", "--duration", "0.05"]);
+    // one cable's EA changed (the ring's: the last `ea` of the file)
+    let text = std::fs::read_to_string(scene_path("prism3.toml")).unwrap();
+    let at = text.rfind("ea = 50000.0").unwrap();
+    let changed = format!("{}ea = 50001.0{}", &text[..at], &text[at + "ea = 50000.0".len()..]);
+    let scene = common::scratch("bags").join("prism3-ea.toml");
+    std::fs::write(&scene, changed).unwrap();
+    let out = cli(&["replay", dir.to_str().unwrap(), "--scene", scene.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a changed scene must not replay as identical");
+    // the prestress fixes the tensions; form finding gives the ring another rest length
+    assert!(
+        err.contains("first difference at step 0 on /tensegrity_sim/cable_states: rest_length[3]"),
+        "the ring's rest length at the start differs first: {err}"
+    );
+    assert!(err.contains("differs by"), "{err}");
+    // the library says the same, with the size of the difference
+    let report =
+        record::replay(&dir, Some((&std::fs::read_to_string(&scene).unwrap(), "changed")), None).unwrap();
+    let d = report.difference.expect("a difference");
+    assert_eq!((d.step, d.field.as_str()), (0, "rest_length[3]"));
+    assert!(d.by.unwrap() > 0.0);
+}
+
+#[test]
+fn a_quasi_static_bag_reads_back_and_replays_identically() {
+    let dir = deploy_recorded("quasi", &["--quasi-static", "--steps", "12"]);
+    let ours = our_counts(&dir);
+    // the initial equilibrium and 12 load steps
+    assert_eq!(ours["/tensegrity_sim/cable_states"].1, 13, "{ours:?}");
+    assert_eq!(ours["/clock"].1, 13);
+    let out = cli(&["replay", dir.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("identical"),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let Some(v) = rosbags_read(&dir) else { return };
+    assert_eq!(rosbags_counts(&v), ours);
+    // the ring shortens along the path (the schedule's ramp)
+    let cables = v["messages"]["/tensegrity_sim/cable_states"].as_array().unwrap();
+    let ring = |k: usize| floats(&cables[k]["rest_length"])[3];
+    assert!(ring(12) < ring(0), "{} -> {}", ring(0), ring(12));
+}
+
+/// Records `steps` steps of the bundled prism through the node core (ring commands at steps 20
+/// and 60, a reset at 90) into `dir` with small chunks, the way the CLI and the node record.
+fn record_through_the_core(dir: &Path, steps: u64, chunk_size: u64) -> u64 {
+    let model = tensegrity::scene::load(&scene_path("prism3.toml")).unwrap();
+    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+    let run = record::run_info(record::KIND_NODE, &model, "prism3", sim.settings(), &params);
+    let options = BagOptions { chunk_size, ..BagOptions::default() };
+    let mut recorder =
+        record::BagRecorder::create(dir, &model, &params, &run, record::LogTime::Step, &options).unwrap();
+    let mut core = NodeCore::with_simulator(sim, params);
+    core.start(&mut recorder);
+    let ring = msg::ActuatorCommand {
+        name: vec!["ring_winch".into()],
+        rest_length: vec![4.0],
+        rate: vec![0.5],
+        ..Default::default()
+    };
+    for k in 0..steps {
+        let now = Duration::from_millis(k);
+        match k {
+            20 => core.offer_command(&ring),
+            60 => core.offer_command(&msg::ActuatorCommand { rest_length: vec![4.3], ..ring.clone() }),
+            90 => core.reset(&mut recorder),
+            _ => {}
+        }
+        core.tick(now, &mut recorder);
+        assert!(core.fault().is_none());
+    }
+    recorder.finish().unwrap().counts.iter().sum()
+}
+
+#[test]
+fn a_bag_cut_short_is_read_up_to_its_last_complete_chunk_and_reindexed() {
+    let dir = bag_dir("cut");
+    let total = record_through_the_core(&dir, 400, 16 * 1024);
+    let complete = BagReader::open(&dir).unwrap();
+    assert!(complete.complete());
+    let all: Vec<_> = complete.messages().collect::<Result<_, _>>().unwrap();
+    assert_eq!(all.len() as u64, total);
+    let report = record::replay(&dir, None, None).unwrap();
+    assert_eq!(report.difference, None, "{report:?}");
+    assert_eq!((report.command_batches, report.resets, report.cut_short.clone()), (2, 1, None));
+    // every message compared but the diagnostics (wall-clock figures) and the applied commands
+    // (which the replay applies)
+    let uncompared = |messages: &[bag::RecordedMessage]| {
+        messages
+            .iter()
+            .filter(|m| m.topic == "/diagnostics" || m.topic.ends_with("/applied_commands"))
+            .count() as u64
+    };
+    assert_eq!(report.compared + uncompared(&all), total);
+
+    // cut the file at 60 %: a prefix of the messages is readable, the rest is said to be lost
+    let file = complete.path.clone();
+    let bytes = std::fs::read(&file).unwrap();
+    std::fs::write(&file, &bytes[..bytes.len() * 6 / 10]).unwrap();
+    let cut = BagReader::open(&dir).unwrap();
+    assert!(!cut.complete());
+    let info = cut.info();
+    let read: u64 = info.topics.iter().map(|(_, n)| n).sum();
+    assert!(read > total / 4 && read < total, "read {read} of {total}");
+    assert!(info.cut_short.as_deref().unwrap_or("").contains("cut short"), "{:?}", info.cut_short);
+    assert!(info.run.is_some(), "the run record is before the first chunk");
+    let prefix: Vec<_> = cut.messages().filter_map(Result::ok).collect();
+    assert_eq!(prefix[..], all[..prefix.len()], "what is read is exactly the start of the bag");
+    // replay compares up to the cut
+    let report = record::replay(&dir, None, None).unwrap();
+    assert_eq!(report.difference, None);
+    assert!(report.cut_short.is_some() && report.compared + uncompared(&prefix) == read, "{report:?}");
+
+    // reindex: a complete bag of the readable messages, which rosbags opens (it refuses the cut one)
+    let out = cli(&["bag", "reindex", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(BagReader::open(&dir).unwrap().complete());
+    assert_eq!(our_counts(&dir).values().map(|(_, n)| n).sum::<u64>(), read);
+    assert!(dir.join(format!("{}.cut", bag::mcap_file_name(&dir))).exists(), "the original is kept");
+    if let Some(v) = rosbags_read(&dir) {
+        assert_eq!(rosbags_counts(&v).values().map(|(_, n)| n).sum::<u64>(), read);
+    }
+}
+
+#[test]
+fn applied_commands_and_resets_are_recorded_and_decode_in_rosbags() {
+    let dir = bag_dir("applied");
+    record_through_the_core(&dir, 120, 1 << 20);
+    let reader = BagReader::open(&dir).unwrap();
+    let applied: Vec<msg::AppliedCommands> = reader
+        .messages()
+        .map(Result::unwrap)
+        .filter(|m| m.topic == "/tensegrity_sim/applied_commands")
+        .map(|m| m.decode().unwrap())
+        .collect();
+    // the hold of every actuator at start-up is not a command; the two commands and the reset are
+    assert_eq!(applied.len(), 3, "{applied:?}");
+    assert_eq!(
+        (applied[0].step, applied[0].name.clone(), applied[0].rest_length.clone()),
+        (20, vec!["ring_winch".to_string()], vec![4.0])
+    );
+    assert_eq!((applied[1].step, applied[1].rest_length[0], applied[1].rate[0]), (60, 4.3, 0.5));
+    assert!(applied[2].reset && applied[2].step == 90 && applied[2].name.is_empty());
+    let Some(v) = rosbags_read(&dir) else { return };
+    let seen = v["messages"]["/tensegrity_sim/applied_commands"].as_array().unwrap();
+    assert_eq!(seen.len(), 3);
+    assert_eq!(seen[0]["step"], 20);
+    assert_eq!(floats(&seen[1]["rest_length"]), vec![4.3]);
+    assert_eq!(seen[2]["reset"], true);
+}
+
+#[test]
+fn a_killed_recording_keeps_what_it_flushed() {
+    let dir = bag_dir("killed");
+    let tower = scene_path("tower.toml");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_tensegrity"))
+        .args([
+            "deploy",
+            tower.to_str().unwrap(),
+            "--dynamic",
+            "--duration",
+            "1000",
+            "--record",
+            dir.to_str().unwrap(),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // chunks close at least every second: wait for a few
+    std::thread::sleep(Duration::from_millis(3500));
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let reader = BagReader::open(&dir).unwrap();
+    assert!(!reader.complete(), "a killed writer cannot have closed the file");
+    let info = reader.info();
+    let read = info.topics.iter().find(|(t, _)| t.name == "/clock").map_or(0, |(_, n)| *n);
+    assert!(read > 0, "at least the first second's chunks are in the file: {info:?}");
+    assert!(dir.join("metadata.yaml").exists());
+    let out = cli(&["bag", "reindex", dir.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report = record::replay(&dir, None, None).unwrap();
+    assert_eq!(report.difference, None, "{report:?}");
+    if let Some(v) = rosbags_read(&dir) {
+        assert_eq!(rosbags_counts(&v)["/clock"].1, read);
+    }
+}
