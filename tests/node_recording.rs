@@ -144,6 +144,7 @@ fn the_node_records_what_it_published_and_applied_and_the_bag_replays_bit_for_bi
         assert_eq!(floats(&seen[3]["rest_length"]), vec![sent[2].0]);
         assert_eq!(seen[2]["reset"], true);
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -165,4 +166,5 @@ fn ctrl_c_closes_the_node_bag() {
     if let Some(v) = rosbags_read(&dir) {
         assert_eq!(rosbags_counts(&v), ours);
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -313,4 +313,6 @@ fn a_killed_recording_keeps_what_it_flushed() {
     if let Some(v) = rosbags_read(&dir) {
         assert_eq!(rosbags_counts(&v)["/clock"].1, read);
     }
+    // tens of MB: not left behind
+    let _ = std::fs::remove_dir_all(&dir);
 }
