@@ -96,6 +96,17 @@ pub struct RunTotals {
     pub wall_time: Duration,
 }
 
+impl RunTotals {
+    /// Counts one step that cost `stats`.
+    pub fn add(&mut self, stats: &StepStats) {
+        self.steps += 1;
+        self.newton_iterations += stats.newton_iterations;
+        self.rejected += stats.rejected;
+        self.substeps += stats.substeps;
+        self.wall_time += stats.wall_time;
+    }
+}
+
 /// Runs `model` for `duration` s with `settings`, calling `each` after every step.
 pub fn run_dynamic(
     model: &Model,
@@ -108,11 +119,7 @@ pub fn run_dynamic(
     let mut totals = RunTotals::default();
     for _ in 0..steps {
         let stats = sim.step().map_err(|e| e.to_string())?;
-        totals.steps += 1;
-        totals.newton_iterations += stats.newton_iterations;
-        totals.rejected += stats.rejected;
-        totals.substeps += stats.substeps;
-        totals.wall_time += stats.wall_time;
+        totals.add(&stats);
         each(&sim, &stats)?;
     }
     Ok(totals)

@@ -25,7 +25,7 @@ mod peer;
 #[path = "common/running_node.rs"]
 mod running_node;
 
-use bags::{floats, our_counts, rosbags_counts, rosbags_read};
+use bags::{applied_commands, floats, our_counts, rosbags_counts, rosbags_read};
 use peer::{call, wait_for, NodeProcess, Peer, NS};
 use running_node::RunningNode;
 
@@ -94,12 +94,7 @@ fn the_node_records_what_it_published_and_applied_and_the_bag_replays_bit_for_bi
     // the applied commands, in order, stamped with the steps at which they took effect
     let reader = BagReader::open(&dir).unwrap();
     assert!(reader.complete(), "the node closes its bag when it stops");
-    let applied: Vec<msg::AppliedCommands> = reader
-        .messages()
-        .map(Result::unwrap)
-        .filter(|m| m.topic == "/tensegrity_sim/applied_commands")
-        .map(|m| m.decode().unwrap())
-        .collect();
+    let applied = applied_commands(&reader);
     assert_eq!(applied.len(), 4, "three commands and a reset: {applied:?}");
     assert!(applied[2].reset);
     for (a, (l, r)) in [&applied[0], &applied[1], &applied[3]].into_iter().zip(sent) {

@@ -23,7 +23,7 @@ use tensegrity::sim::{SimSettings, Simulator};
 mod bags;
 mod common;
 
-use bags::{floats, our_counts, rosbags_counts, rosbags_read};
+use bags::{applied_commands, floats, our_counts, rosbags_counts, rosbags_read};
 
 fn scene_path(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name)
@@ -50,6 +50,17 @@ fn deploy_recorded(name: &str, args: &[&str]) -> PathBuf {
     let out = cli(&all);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     dir
+}
+
+/// `tensegrity replay DIR` succeeds and says "identical".
+fn assert_replays_identically(dir: &Path) {
+    let out = cli(&["replay", dir.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && text.contains("identical"),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
 
 #[test]
@@ -108,13 +119,7 @@ fn a_dynamic_deployment_bag_reads_back_in_rosbags_equal_to_the_simulator() {
     );
 
     // the same bag replays bit for bit, and `bag info` lists it like `ros2 bag info`
-    let out = cli(&["replay", dir.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success() && text.contains("identical"),
-        "{text}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_replays_identically(&dir);
     let out = cli(&["bag", "info", dir.to_str().unwrap()]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("Topic: /tensegrity_sim/cable_states") && text.contains("Count: 251"), "{text}");
@@ -154,13 +159,7 @@ fn a_quasi_static_bag_reads_back_and_replays_identically() {
     // the initial equilibrium and 12 load steps
     assert_eq!(ours["/tensegrity_sim/cable_states"].1, 13, "{ours:?}");
     assert_eq!(ours["/clock"].1, 13);
-    let out = cli(&["replay", dir.to_str().unwrap()]);
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success() && text.contains("identical"),
-        "{text}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_replays_identically(&dir);
     let Some(v) = rosbags_read(&dir) else { return };
     assert_eq!(rosbags_counts(&v), ours);
     // the ring shortens along the path (the schedule's ramp)
@@ -245,7 +244,16 @@ fn a_bag_cut_short_is_read_up_to_its_last_complete_chunk_and_reindexed() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(BagReader::open(&dir).unwrap().complete());
     assert_eq!(our_counts(&dir).values().map(|(_, n)| n).sum::<u64>(), read);
-    assert!(dir.join(format!("{}.cut", bag::mcap_file_name(&dir))).exists(), "the original is kept");
+    let kept = dir.join(format!("{}.cut", bag::mcap_file_name(&dir)));
+    assert_eq!(
+        std::fs::metadata(&kept).unwrap().len() as usize,
+        bytes.len() * 6 / 10,
+        "the original is kept"
+    );
+    // a complete bag is left as it is (and the kept original is not overwritten)
+    let out = cli(&["bag", "reindex", dir.to_str().unwrap()]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("already complete"), "{out:?}");
+    assert_eq!(std::fs::metadata(&kept).unwrap().len() as usize, bytes.len() * 6 / 10);
     if let Some(v) = rosbags_read(&dir) {
         assert_eq!(rosbags_counts(&v).values().map(|(_, n)| n).sum::<u64>(), read);
     }
@@ -256,12 +264,7 @@ fn applied_commands_and_resets_are_recorded_and_decode_in_rosbags() {
     let dir = bag_dir("applied");
     record_through_the_core(&dir, 120, 1 << 20);
     let reader = BagReader::open(&dir).unwrap();
-    let applied: Vec<msg::AppliedCommands> = reader
-        .messages()
-        .map(Result::unwrap)
-        .filter(|m| m.topic == "/tensegrity_sim/applied_commands")
-        .map(|m| m.decode().unwrap())
-        .collect();
+    let applied = applied_commands(&reader);
     // the hold of every actuator at start-up is not a command; the two commands and the reset are
     assert_eq!(applied.len(), 3, "{applied:?}");
     assert_eq!(

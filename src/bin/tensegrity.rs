@@ -527,11 +527,7 @@ fn deploy_dynamic(
             return Err(format!("{}: {fault}", scene.display()));
         }
         let stats = core.last_step();
-        totals.steps += 1;
-        totals.newton_iterations += stats.newton_iterations;
-        totals.rejected += stats.rejected;
-        totals.substeps += stats.substeps;
-        totals.wall_time += stats.wall_time;
+        totals.add(&stats);
         bar.inc(1);
         writeln!(file, "{}", study::dynamic_csv_row(core.simulator(), &stats))
             .map_err(|e| write_error(out, e))?;
@@ -985,7 +981,12 @@ fn run(cli: Cli) -> Result<(), String> {
             Ok(())
         }
         Command::Bag { kind: BagCommand::Reindex { bag } } => {
-            let (summary, why) = bag::reindex(&bag, &BagOptions::default()).map_err(|e| e.to_string())?;
+            let Some((summary, why)) =
+                bag::reindex(&bag, &BagOptions::default()).map_err(|e| e.to_string())?
+            else {
+                say!("{}: already complete (summary and end magic): left as it is", bag.display());
+                return Ok(());
+            };
             say!(
                 "{}: rewritten with {} messages{}",
                 bag.display(),

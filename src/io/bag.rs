@@ -31,6 +31,14 @@ use crate::io::schemas;
 
 /// The CDR encapsulation header of a little-endian message (`CDR_LE`, options 0).
 pub const CDR_LE_HEADER: [u8; 4] = [0, 1, 0, 0];
+/// Writes `message` into `out` (cleared first) as a rosbag2 `cdr` message: the encapsulation
+/// header `CDR_LE_HEADER`, then the little-endian CDR body.
+pub fn encode_cdr<M: Serialize>(out: &mut Vec<u8>, message: &M) -> Result<(), cdr_encoding::Error> {
+    out.clear();
+    out.extend_from_slice(&CDR_LE_HEADER);
+    cdr_encoding::to_writer::<_, LittleEndian, _>(out, message)
+}
+
 /// Name of the MCAP metadata record that holds `RunInfo`.
 pub const RUN_METADATA: &str = "tensegrity";
 /// Version of `metadata.yaml` written (rosbag2 of Jazzy and later; Python `rosbags` reads it).
@@ -255,9 +263,7 @@ impl BagWriter {
         droppable: bool,
     ) -> Result<(), BagError> {
         let mut data = self.recycled.try_recv().unwrap_or_default();
-        data.clear();
-        data.extend_from_slice(&CDR_LE_HEADER);
-        cdr_encoding::to_writer::<_, LittleEndian, _>(&mut data, message)
+        encode_cdr(&mut data, message)
             .map_err(|e| BagError::Write(format!("{}: {e}", self.topics[topic.0].name)))?;
         self.write_serialized(topic, sequence, log_time, data, droppable)
     }
@@ -668,9 +674,13 @@ pub fn parse_qos(text: &str) -> TopicQos {
 
 /// Rewrites a bag whose writer was killed (no summary, no end magic) as a complete one: every
 /// message that can be read, the run record, summary, footer and `metadata.yaml`. The original
-/// file is kept beside it as `<file>.cut`. Returns what the new bag holds.
-pub fn reindex(dir: &Path, options: &BagOptions) -> Result<(BagSummary, Option<String>), BagError> {
+/// file is kept beside it as `<file>.cut`. Returns what the new bag holds and why the original
+/// stopped, or `None` for a bag that is already complete (left as it is).
+pub fn reindex(dir: &Path, options: &BagOptions) -> Result<Option<(BagSummary, Option<String>)>, BagError> {
     let reader = BagReader::open(dir)?;
+    if reader.complete() {
+        return Ok(None);
+    }
     let run = reader.run().unwrap_or_default();
     let topics: Vec<TopicSpec> = reader.info().topics.into_iter().map(|(t, _)| t).collect();
     let original = reader.path.clone();
@@ -694,5 +704,5 @@ pub fn reindex(dir: &Path, options: &BagOptions) -> Result<(BagSummary, Option<S
     let yaml = MetadataYaml { dir: dir.to_path_buf(), file_name, topics };
     yaml.write(&summary.counts, summary.time_range)?;
     let _ = std::fs::remove_dir_all(&rebuilt);
-    Ok((summary, why))
+    Ok(Some((summary, why)))
 }

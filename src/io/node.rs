@@ -128,9 +128,14 @@ impl Topic {
             Topic::State => "~/state",
         }
     }
-    fn index(self) -> usize {
+    /// The topic's position in `Topic::ALL` (and in `NodeStats::publish_failures`).
+    pub fn index(self) -> usize {
         Topic::ALL.iter().position(|t| *t == self).unwrap_or(0)
     }
+    /// The topics of one state, in publish order: the whole-state sample first (a shared-memory
+    /// sample takes microseconds, so it does not wait for the DDS messages' serialization).
+    pub const STATE: [Topic; 5] =
+        [Topic::State, Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates];
 }
 
 /// Why a sink could not publish. Never fatal: counted per topic and reported.
@@ -804,10 +809,9 @@ impl NodeCore {
         }
     }
 
-    /// The state topics, the whole-state sample first (a shared-memory sample takes microseconds,
-    /// so it does not wait for the DDS messages' serialization).
+    /// The state topics (`Topic::STATE`).
     fn publish_state(&mut self, sink: &mut dyn NodeSink) {
-        for topic in [Topic::State, Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates] {
+        for topic in Topic::STATE {
             self.publish(sink, topic);
         }
         self.last_state_publish = Some(self.sim.state().time);

@@ -250,7 +250,7 @@ impl BagRecorder {
         let mut applied = BagTopic(0);
         for (k, (topic, _)) in specs.iter().enumerate() {
             match topic {
-                Some(t) => topics[Topic::ALL.iter().position(|a| a == t).unwrap_or(0)] = Some(BagTopic(k)),
+                Some(t) => topics[t.index()] = Some(BagTopic(k)),
                 None => applied = BagTopic(k),
             }
         }
@@ -302,7 +302,7 @@ impl BagRecorder {
 
 impl NodeSink for BagRecorder {
     fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
-        let Some(handle) = self.topics[Topic::ALL.iter().position(|t| *t == topic).unwrap_or(0)] else {
+        let Some(handle) = self.topics[topic.index()] else {
             return Ok(());
         };
         let Some(message) = TopicMessage::build(topic, view)? else { return Ok(()) };
@@ -399,22 +399,13 @@ impl PathPublisher {
         }
         let view = self.view(model, state, ws);
         let first = self.previous.is_none();
-        let topics: &[Topic] = if first {
-            &[
-                Topic::Structure,
-                Topic::TfStatic,
-                Topic::BodyPoses,
-                Topic::Tf,
-                Topic::CableStates,
-                Topic::ActuatorStates,
-                Topic::Clock,
-            ]
-        } else {
-            &[Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates, Topic::Clock]
-        };
-        for t in topics {
-            // a sink's failure is its own to report (a recorder prints it when it closes)
-            let _ = sink.publish(*t, &view);
+        // a sink's failure is its own to report (a recorder prints it when it closes)
+        if first {
+            let _ = sink.publish(Topic::Structure, &view);
+            let _ = sink.publish(Topic::TfStatic, &view);
+        }
+        for t in Topic::STATE.into_iter().chain([Topic::Clock]) {
+            let _ = sink.publish(t, &view);
         }
         self.previous = Some((state.time, state.rest_lengths.clone()));
         self.rows += 1;
@@ -501,12 +492,12 @@ impl NodeSink for RerunSink {
         if let Some(out) = &mut self.out {
             let _ = out.publish(topic, view);
         }
-        let k = Topic::ALL.iter().position(|t| *t == topic).unwrap_or(0);
-        let (Some(name), false) = (&self.names[k], topic == Topic::Diagnostics) else { return Ok(()) };
+        let (Some(name), false) = (&self.names[topic.index()], topic == Topic::Diagnostics) else {
+            return Ok(());
+        };
         let Some(message) = TopicMessage::build(topic, view)? else { return Ok(()) };
-        let mut data = crate::io::bag::CDR_LE_HEADER.to_vec();
-        cdr_encoding::to_writer::<_, byteorder::LittleEndian, _>(&mut data, &message)
-            .map_err(|e| PublishError::Failed(e.to_string()))?;
+        let mut data = Vec::new();
+        crate::io::bag::encode_cdr(&mut data, &message).map_err(|e| PublishError::Failed(e.to_string()))?;
         self.produced.push_back((name.clone(), view.stats.steps as u32, data));
         Ok(())
     }
@@ -574,7 +565,7 @@ pub fn replay(
     let mut names: [Option<String>; 10] = Default::default();
     for (topic, spec) in node_topics(&params) {
         if let Some(t) = topic {
-            names[Topic::ALL.iter().position(|a| *a == t).unwrap_or(0)] = Some(spec.name);
+            names[t.index()] = Some(spec.name);
         }
     }
     let applied_topic = applied_commands_topic(&params);

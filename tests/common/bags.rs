@@ -8,6 +8,7 @@ use std::process::Command;
 
 use serde_json::Value;
 use tensegrity::io::bag::BagReader;
+use tensegrity::io::msg::AppliedCommands;
 
 /// The bag as the Python `rosbags` reader sees it (`tests/interop/read_bag.py`), or `None` (and
 /// a SKIPPED note) when no Python with `rosbags` is around and none was named.
@@ -50,4 +51,14 @@ pub fn our_counts(dir: &Path) -> BTreeMap<String, (String, u64)> {
 
 pub fn floats(v: &Value) -> Vec<f64> {
     v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+}
+
+/// The bag's `~/applied_commands` messages of the default node, decoded, in order.
+pub fn applied_commands(reader: &BagReader) -> Vec<AppliedCommands> {
+    reader
+        .messages()
+        .map(Result::unwrap)
+        .filter(|m| m.topic == "/tensegrity_sim/applied_commands")
+        .map(|m| m.decode().unwrap())
+        .collect()
 }
