@@ -39,5 +39,8 @@ pub mod study;
 
 pub use error::{SceneError, SolveError};
 pub use forces::Workspace;
+/// The test kit for users' controllers (`io::testing`): start the simulator in a test, step it in
+/// lockstep, read its state, stop it on drop.
+pub use io::testing;
 pub use model::Model;
 pub use state::State;

@@ -262,3 +262,27 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
         assert!(checked.iter().any(|c| c == known), "{known} is never checked");
     }
 }
+
+/// The Python kit's message classes are generated from the same definitions (`python_module`):
+/// the shipped file is that text. `TENSEGRITY_BLESS=1` rewrites it after a change to `msg/`.
+#[test]
+fn the_python_kits_message_classes_are_generated_from_msg() {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("python/tensegrity_testing/msgs.py");
+    let generated = tensegrity::io::schemas::python_module();
+    if std::env::var_os("TENSEGRITY_BLESS").is_some() {
+        std::fs::write(&path, &generated).unwrap();
+    }
+    let shipped = std::fs::read_to_string(&path).unwrap_or_default();
+    assert!(
+        shipped == generated,
+        "{} is not what msg/ generates: run TENSEGRITY_BLESS=1 cargo test --test msg_sync",
+        path.display()
+    );
+    // every message definition has its class, with the DDS type name ROS 2 uses
+    for ty in tensegrity::io::schemas::known_types() {
+        let (pkg, class) = ty.split_once('/').unwrap();
+        assert!(
+            generated.contains(&format!("class {class}(IdlStruct, typename=\"{pkg}::msg::dds_::{class}_\")"))
+        );
+    }
+}

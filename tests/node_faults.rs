@@ -298,6 +298,65 @@ fn the_node_binary_answers_help_and_version_and_refuses_unknown_options() {
             && String::from_utf8_lossy(&version.stdout).contains(env!("CARGO_PKG_VERSION"))
     );
     let unknown = run(&["--frobnicate"]);
-    assert_eq!(unknown.status.code(), Some(1));
+    assert_eq!(unknown.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&unknown.stderr).contains("unknown option '--frobnicate'"));
+}
+
+#[test]
+fn exit_statuses_say_why_the_node_stopped_and_the_ready_file_says_when_it_is_up() {
+    // shared memory only, or refused before any transport: no DDS socket is opened
+    let node = env!("CARGO_BIN_EXE_tensegrity_node");
+    let prefix = format!("-p shm_prefix:=exit_test_{}", std::process::id());
+    let run = |args: &str| {
+        let mut a: Vec<String> = args.split_whitespace().map(String::from).collect();
+        if let Some(i) = a.iter().position(|x| x == "--ros-args") {
+            a.splice(i + 1..i + 1, ["-p".to_string(), "transports:=shm".to_string()]);
+            a.extend(prefix.split_whitespace().map(String::from));
+        }
+        std::process::Command::new(node).args(&a).output().unwrap()
+    };
+    let scratch = std::env::temp_dir().join(format!("tensegrity-exit-{}", std::process::id()));
+    std::fs::create_dir_all(&scratch).unwrap();
+    let bad_scene = scratch.join("bad.toml");
+    std::fs::write(&bad_scene, "name = 3\n").unwrap();
+    let cases = [
+        ("--frobnicate", 2, "unknown option"),
+        ("--ready-file", 2, "--ready-file needs a PATH"),
+        ("--ros-args -p physics_dt:=-1", 2, "physics_dt"),
+        ("--ros-args -p no_such:=1", 2, "no_such"),
+        (&format!("{} --ros-args", bad_scene.display()), 3, "bad.toml"),
+        ("/no/such/scene.toml --ros-args", 3, "/no/such/scene.toml"),
+        ("--ros-args -p record:=/proc/no/such/dir", 4, "record"),
+        ("--ros-args -p integrator:=symplectic-euler -p physics_dt:=0.05", 5, "stability limit"),
+    ];
+    for (args, code, needle) in cases {
+        let out = run(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{args}: {err}");
+        assert!(err.contains(needle), "{args}: {err}");
+    }
+
+    // the ready file appears whole once the node serves, and goes when it stops
+    let ready = scratch.join("ready");
+    let mut child = std::process::Command::new(node)
+        .args(["--ready-file", ready.to_str().unwrap(), "--ros-args", "-p", "transports:=shm"])
+        .args(prefix.split_whitespace())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let text = wait_for(10 * SEC, || std::fs::read_to_string(&ready).ok()).expect("the ready file appears");
+    assert!(text.contains(&format!("pid={}\n", child.id())), "{text}");
+    assert!(
+        text.contains("transports=shm\n")
+            && text.contains(&format!("shm_prefix=exit_test_{}", std::process::id()))
+    );
+    signal(child.id(), "INT");
+    let status = wait_for(10 * SEC, || child.try_wait().unwrap()).expect("it stops on SIGINT");
+    assert_eq!(status.code(), Some(0));
+    let mut stdout = String::new();
+    std::io::Read::read_to_string(child.stdout.as_mut().unwrap(), &mut stdout).unwrap();
+    assert_eq!(stdout, "ready\n");
+    assert!(!ready.exists(), "the ready file is removed at exit");
+    let _ = std::fs::remove_dir_all(&scratch);
 }

@@ -110,7 +110,7 @@ fn every_parameter_in_the_help_table_is_understood_with_its_default() {
             "(scene's, else 0.001)" => "0.001",
             "(every one built)" if built.is_empty() => continue,
             "(every one built)" => built.as_str(),
-            "(off)" => "",
+            "(off)" | "(<ns>/<node>)" => "",
             d => d,
         };
         let mut p = NodeParams::default();
@@ -161,4 +161,15 @@ fn shared_memory_names_follow_namespace_and_node_remapping() {
         NodeParams::from_args(&args("--ros-args -r __ns:=/lab/rig2 -r __node:=sim"), no_env).unwrap();
     assert_eq!(p.shm_prefix(), "lab/rig2/sim");
     assert_eq!(NodeParams::default().shm_prefix(), "tensegrity_sim");
+    // an explicit prefix wins over the ROS names (parallel tests keep their topic names)
+    let mut q = p.clone();
+    q.set("shm_prefix", "kit/test_7").unwrap();
+    assert_eq!(q.shm_prefix(), "kit/test_7");
+    assert_eq!(q.private_namespace(), p.private_namespace());
+    q.set("shm_prefix", "").unwrap();
+    assert_eq!(q.shm_prefix(), "lab/rig2/sim");
+    for bad in ["/abs", "trailing/", "sp ace", "dot.ted", &"x".repeat(201)] {
+        let e = q.set("shm_prefix", bad).unwrap_err().to_string();
+        assert!(e.contains("parameter shm_prefix"), "{bad}: {e}");
+    }
 }

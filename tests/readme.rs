@@ -67,3 +67,33 @@ fn the_readme_field_reference_is_generated_and_lists_exactly_the_parsed_fields()
         assert_eq!(documented, accepted, "{table}: documented fields vs the parser's ({err})");
     }
 }
+
+/// Invariant: the README's test-kit examples are the kits' tests. Every ```rust and ```python
+/// block whose first line names a file (`// tests/kit.rs`, `# python/tests/...`) is, piece by
+/// piece (pieces split at `// ...` and `# ...` lines), verbatim text of that file.
+#[test]
+fn the_readmes_kit_examples_are_verbatim_parts_of_tested_files() {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let mut checked = 0;
+    for (fence, comment) in [("```rust\n", "// "), ("```python\n", "# ")] {
+        for rest in readme.split(fence).skip(1) {
+            let block = &rest[..rest.find("```").expect("closed block")];
+            let first = block.lines().next().unwrap_or("");
+            let Some(named) = first.strip_prefix(comment) else { continue };
+            let file = named.split([',', ' ']).next().unwrap();
+            if !(file.starts_with("tests/") || file.starts_with("python/")) {
+                continue;
+            }
+            let text = std::fs::read_to_string(root.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+            let body: Vec<&str> = block.lines().skip(1).collect();
+            let elision = format!("{comment}...");
+            for piece in body.split(|l| *l == elision) {
+                let piece = piece.join("\n");
+                assert!(text.contains(&piece), "this README piece is not in {file}:\n{piece}");
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked >= 4, "the README shows the Rust and Python kit examples ({checked} blocks found)");
+}

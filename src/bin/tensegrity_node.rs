@@ -6,13 +6,36 @@
 //! `-p transports:=` (default: every one built in, features `ros2` and `shm`). Stops cleanly on
 //! SIGINT and SIGTERM.
 
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use tensegrity::io::params::{NodeParams, TransportKind, PARAMETERS};
+use tensegrity::io::LaunchError;
 
 const DEFAULT_SCENE: &str = include_str!("../../config/scenes/prism3.toml");
+
+/// Why the node stopped, as its exit status says it (`--help` lists them).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Exit {
+    /// Bad arguments or parameters (also a parameter that does not fit the scene).
+    BadArguments = 2,
+    /// The scene could not be read or is invalid.
+    BadScene = 3,
+    /// A transport (DDS, shared memory, the bag recorder) or the signal handler could not start.
+    Middleware = 4,
+    /// The simulation could not start, or it stopped while a physics failure held it (no reset
+    /// cleared it).
+    Physics = 5,
+}
+
+/// A failure and its exit status.
+struct Failure(Exit, String);
+
+fn fail(exit: Exit) -> impl Fn(String) -> Failure {
+    move |message| Failure(exit, message)
+}
 
 fn main() -> ExitCode {
     // iceoryx2 warns when no config file exists; errors still show (IOX2_LOG_LEVEL overrides)
@@ -20,21 +43,24 @@ fn main() -> ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
     match run() {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
+        Err(Failure(exit, message)) => {
+            eprintln!("error: {message}");
+            ExitCode::from(exit as u8)
         }
     }
 }
-
 /// The help text: usage, parameters (from `PARAMETERS`), environment, signals, exit status.
 fn help() -> String {
     let mut h = String::from(
         "tensegrity_node: the clustered-tensegrity simulator as a ROS 2 node (DDS, no ROS install needed)\n\
          and an iceoryx2 shared-memory server for local controllers\n\n\
-         Usage: tensegrity_node [SCENE.toml] [--ros-args -p NAME:=VALUE ... --params-file FILE\n\
-         \x20                                   -r __ns:=/NAMESPACE -r __node:=NAME]\n\
-         \x20      tensegrity_node --help | --version\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
+         Usage: tensegrity_node [--ready-file PATH] [SCENE.toml] [--ros-args -p NAME:=VALUE ...\n\
+         \x20                      --params-file FILE -r __ns:=/NAMESPACE -r __node:=NAME]\n\
+         \x20      tensegrity_node --help | --version\n\n\
+         Options:\n  --ready-file PATH                once every publisher and service is up, writes PATH\n\
+         \x20                                  (pid=, domain_id=, namespace=, shm_prefix=, transports=\n\
+         \x20                                  lines; written whole, removed at exit) and prints `ready`\n\
+         \x20                                  on stdout\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
     );
     for (name, default, meaning) in PARAMETERS {
         h += &format!("  {name:<24} {default:<22} {meaning}\n");
@@ -45,10 +71,13 @@ fn help() -> String {
           Topics /clock, /tf, /tf_static, /diagnostics and ~/body_poses, ~/cable_states, ~/actuator_states,\n\
           ~/structure, ~/markers out; ~/actuator_commands, ~/joint_commands in; simulation_interfaces\n\
           services in ~/ (see the README). -p record:=DIR also writes them and the applied commands\n\
-          (~/applied_commands) to a rosbag2 bag (MCAP); `tensegrity replay DIR` runs it again. SIGINT or SIGTERM stops it (exit 0); bad arguments, scene\n\
-          or parameters exit 1 with the reason.\n\n\
+          (~/applied_commands) to a rosbag2 bag (MCAP); `tensegrity replay DIR` runs it again.\n\n\
+          Exit status (the reason is printed on stderr): 0 stopped by SIGINT, SIGTERM or\n\
+          SetSimulationState(QUITTING); 2 bad arguments or parameters; 3 the scene cannot be read or is\n\
+          invalid; 4 a transport (DDS, shared memory, the bag recorder) cannot start; 5 a physics failure:\n\
+          the simulation cannot start, or it was stopped while a physics failure held it (no reset).\n\n\
           Shared memory (iceoryx2, services <ns>/<node>/...: state, structure, actuator_commands,\n\
-          lockstep; events to_node, from_node): see the README and tests/interop/shm_client.py.\n";
+          lockstep; events to_node, from_node): see the README and python/tensegrity_testing/shm.py.\n";
     h += &format!(
         "\nTransports built into this binary: {}\n",
         TransportKind::BUILT.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ")
@@ -56,8 +85,55 @@ fn help() -> String {
     h
 }
 
-fn run() -> Result<(), String> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+/// Splits `--ready-file PATH` (or `--ready-file=PATH`) off the arguments before `--ros-args`.
+fn take_ready_file(args: &mut Vec<String>) -> Result<Option<PathBuf>, Failure> {
+    let end = args.iter().position(|a| a == "--ros-args").unwrap_or(args.len());
+    let Some(i) = args[..end].iter().position(|a| a == "--ready-file" || a.starts_with("--ready-file="))
+    else {
+        return Ok(None);
+    };
+    let path = match args[i].strip_prefix("--ready-file=") {
+        Some(p) => {
+            let p = p.to_string();
+            args.remove(i);
+            p
+        }
+        None if i + 1 < end => {
+            let p = args.remove(i + 1);
+            args.remove(i);
+            p
+        }
+        None => return Err(Failure(Exit::BadArguments, "--ready-file needs a PATH".into())),
+    };
+    if path.is_empty() || path.starts_with('-') {
+        return Err(Failure(Exit::BadArguments, format!("--ready-file needs a PATH, got '{path}'")));
+    }
+    Ok(Some(PathBuf::from(path)))
+}
+
+/// Writes the ready file whole (a temporary file renamed into place), so a reader that sees it
+/// sees all of it.
+fn write_ready_file(path: &Path, params: &NodeParams) -> Result<(), Failure> {
+    let transports: Vec<_> = params.transports.iter().map(|t| t.name()).collect();
+    let text = format!(
+        "pid={}\ndomain_id={}\nnamespace={}\nnode={}\nshm_prefix={}\ntransports={}\n",
+        std::process::id(),
+        params.domain_id,
+        params.private_namespace(),
+        params.node_name,
+        params.shm_prefix(),
+        transports.join(",")
+    );
+    let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+    std::fs::write(&tmp, text)
+        .and_then(|()| std::fs::rename(&tmp, path))
+        .map_err(|e| Failure(Exit::BadArguments, format!("--ready-file {}: {e}", path.display())))
+}
+
+fn run() -> Result<(), Failure> {
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let ready_file = take_ready_file(&mut args)?;
+    let bad_args = fail(Exit::BadArguments);
     let before_ros_args = args.iter().take_while(|a| *a != "--ros-args");
     for a in before_ros_args {
         match a.as_str() {
@@ -70,25 +146,27 @@ fn run() -> Result<(), String> {
                 return Ok(());
             }
             other if other.starts_with('-') => {
-                return Err(format!("unknown option '{other}'; see tensegrity_node --help"));
+                return Err(bad_args(format!("unknown option '{other}'; see tensegrity_node --help")));
             }
             _ => {}
         }
     }
     let (mut params, rest) =
-        NodeParams::from_args(&args, |k| std::env::var(k).ok()).map_err(|e| e.to_string())?;
+        NodeParams::from_args(&args, |k| std::env::var(k).ok()).map_err(|e| bad_args(e.to_string()))?;
     match rest.as_slice() {
         [] => {}
         [scene] => params.scene = Some(scene.into()),
         more => {
-            return Err(format!(
+            return Err(bad_args(format!(
                 "unexpected arguments {more:?}; usage: tensegrity_node [SCENE.toml] [--ros-args ...]"
-            ))
+            )))
         }
     }
+    let bad_scene = fail(Exit::BadScene);
     let model = match &params.scene {
-        Some(path) => tensegrity::scene::load(path).map_err(|e| e.to_string())?,
-        None => tensegrity::scene::from_toml(DEFAULT_SCENE, "<bundled prism3>").map_err(|e| e.to_string())?,
+        Some(path) => tensegrity::scene::load(path).map_err(|e| bad_scene(e.to_string()))?,
+        None => tensegrity::scene::from_toml(DEFAULT_SCENE, "<bundled prism3>")
+            .map_err(|e| bad_scene(e.to_string()))?,
     };
     let mut serving = Vec::new();
     for t in &params.transports {
@@ -111,7 +189,12 @@ fn run() -> Result<(), String> {
         params.real_time_factor
     );
     let bag = params.record.clone();
-    let mut node = tensegrity::io::launch(model, params).map_err(|e| e.to_string())?;
+    let launch_params = params.clone();
+    let mut node = tensegrity::io::launch(model, launch_params).map_err(|e| match e {
+        LaunchError::Core(tensegrity::io::node::CoreError::Params(why)) => Failure(Exit::BadArguments, why),
+        LaunchError::Core(e) => Failure(Exit::Physics, format!("the simulation cannot start: {e}")),
+        e @ LaunchError::Transport { .. } => Failure(Exit::Middleware, e.to_string()),
+    })?;
     if let Some(dir) = &bag {
         eprintln!("tensegrity_node: recording to the bag {}", dir.display());
     }
@@ -120,9 +203,22 @@ fn run() -> Result<(), String> {
     {
         let flag = stop.clone();
         ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| Failure(Exit::Middleware, format!("signal handler: {e}")))?;
+    }
+    if let Some(path) = &ready_file {
+        write_ready_file(path, &params)?;
+    }
+    {
+        use std::io::Write;
+        // a closed stdout must not stop the node
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "ready").and_then(|()| out.flush());
     }
     node.run(&stop);
+    if let Some(path) = &ready_file {
+        let _ = std::fs::remove_file(path);
+    }
+    let fault = node.core().fault().map(str::to_string);
     let s = node.stats();
     let failures: u64 = s.publish_failures.iter().sum();
     eprintln!(
@@ -141,5 +237,8 @@ fn run() -> Result<(), String> {
     if let Some(dir) = bag {
         eprintln!("tensegrity_node: bag {} closed", dir.display());
     }
-    Ok(())
+    match fault {
+        Some(fault) => Err(Failure(Exit::Physics, format!("stopped while faulted: {fault}"))),
+        None => Ok(()),
+    }
 }

@@ -10,6 +10,7 @@ pub mod params;
 pub mod record;
 pub mod runner;
 pub mod schemas;
+pub mod testing;
 
 #[cfg(feature = "ros2")]
 pub mod ros2;
@@ -47,19 +48,25 @@ pub fn launch(model: Model, params: NodeParams) -> Result<SimNode, LaunchError> 
 /// Like `launch`, around a core built by the caller (e.g. around a simulator with other settings).
 /// With `params.record`, a bag recorder (`record::BagRecorder`) is served last.
 pub fn launch_core(core: NodeCore) -> Result<SimNode, LaunchError> {
+    launch_core_with(core, Vec::new())
+}
+
+/// Like `launch_core`, with `extra` transports served after those of `params.transports` (the
+/// test kit's in-process channel, `testing`); it is an error only when there is none at all.
+pub fn launch_core_with(core: NodeCore, extra: Vec<Box<dyn Transport>>) -> Result<SimNode, LaunchError> {
     let params = core.params().clone();
-    let transports = params
+    let mut transports = params
         .transports
         .iter()
         .map(|kind| build_transport(*kind, &core, &params))
         .collect::<Result<Vec<_>, _>>()?;
+    transports.extend(extra);
     if transports.is_empty() {
         return Err(LaunchError::Transport {
             transport: "none",
             reason: "no transport to serve (parameter transports, features ros2 and shm)".into(),
         });
     }
-    let mut transports = transports;
     if let Some(dir) = &params.record {
         let recorder = record::BagRecorder::for_node(&core, dir)
             .map_err(|e| LaunchError::Transport { transport: "record", reason: e.to_string() })?;

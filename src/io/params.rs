@@ -64,6 +64,10 @@ pub struct NodeParams {
     /// a lockstep controller's next request arrives within a few microseconds, far sooner than an
     /// event wake-up (tens of microseconds); the poll never runs while the node is idle.
     pub shm_spin_us: u64,
+    /// The shared-memory service prefix instead of `<ns>/<node>` (`shm_prefix`, default: none),
+    /// so that several nodes (parallel tests) keep their ROS names and still have distinct
+    /// iceoryx2 services: shared memory is one per machine, not per network namespace.
+    pub shm_prefix_override: Option<String>,
     /// Record a rosbag2 bag into this directory (`record`, default: none): every published
     /// topic and the applied commands (`io::record`).
     pub record: Option<PathBuf>,
@@ -156,6 +160,7 @@ impl Default for NodeParams {
             localhost_only: false,
             transports: TransportKind::BUILT.to_vec(),
             shm_spin_us: 200,
+            shm_prefix_override: None,
             record: None,
         }
     }
@@ -196,6 +201,7 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("service_mapping", "enhanced", "enhanced (Fast DDS, RustDDS), cyclone or basic"),
     ("transports", "(every one built)", "dds, shm or dds,shm (shm alone opens no DDS socket)"),
     ("shm_spin_us", "200", "us the shm transport polls for the next request before blocking, 0 to 10000"),
+    ("shm_prefix", "(<ns>/<node>)", "shared-memory service prefix, e.g. a unique one per parallel test"),
     (
         "record",
         "(off)",
@@ -214,10 +220,13 @@ fn err(s: impl Into<String>) -> ParamError {
 }
 
 impl NodeParams {
-    /// The shared-memory service prefix: namespace and node name as in ROS (`<ns>/<node>`)
-    /// without the leading slash: `tensegrity_sim` by default, `lab/sim2` for `-r __ns:=/lab
-    /// -r __node:=sim2`.
+    /// The shared-memory service prefix: `shm_prefix` when set, else namespace and node name as
+    /// in ROS (`<ns>/<node>`) without the leading slash: `tensegrity_sim` by default, `lab/sim2`
+    /// for `-r __ns:=/lab -r __node:=sim2`.
     pub fn shm_prefix(&self) -> String {
+        if let Some(prefix) = &self.shm_prefix_override {
+            return prefix.clone();
+        }
         let ns = self.namespace.trim_matches('/');
         if ns.is_empty() {
             self.node_name.clone()
@@ -311,6 +320,20 @@ impl NodeParams {
                     return Err(err(format!("parameter shm_spin_us must be a whole number, got {v}")));
                 }
                 self.shm_spin_us = v as u64;
+            }
+            "shm_prefix" => {
+                let v = text(value);
+                let ok = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '/');
+                if v.is_empty() {
+                    self.shm_prefix_override = None;
+                } else if v.len() > 200 || !v.chars().all(ok) || v.starts_with('/') || v.ends_with('/') {
+                    return Err(err(format!(
+                        "parameter shm_prefix: '{}' must be 1 to 200 letters, digits, '_', '-' and inner '/'",
+                        crate::io::msg::excerpt(&v, 60)
+                    )));
+                } else {
+                    self.shm_prefix_override = Some(v);
+                }
             }
             "record" => {
                 let v = text(value);

@@ -3,10 +3,11 @@
 //! into the core, turns the core when it is due and publishes its outputs on every transport.
 //!
 //! No transport crate is named here: an adapter implements `Transport` in its own module. While
-//! the core is idle (paused, no step requested), the loop waits on the first transport that can
-//! block until input arrives (`Transport::event_driven`, shared memory's event listener), so an
-//! idle node takes no CPU and a lockstep request wakes it at once; transports that can only be
-//! polled (DDS) are polled every `POLL_SLICE`. Between paced real-time steps it sleeps to the
+//! the core is idle (paused, no step requested), the loop waits on the last transport that can
+//! block until input arrives (`Transport::event_driven`: shared memory's event listener, the test
+//! kit's channel), so an idle node takes no CPU and a request on it wakes the node at once; the
+//! other transports (DDS, which can only be polled, and any other event-driven one) are polled
+//! every `POLL_SLICE`. Between paced real-time steps it sleeps to the
 //! step's due time instead (`std::thread::sleep`, precise to tens of microseconds): what
 //! arrives meanwhile applies at that step boundary anyway, and event waits with a timeout
 //! (iceoryx2's socket `SO_RCVTIMEO`) round up to the kernel tick, up to 4 ms late. After taking inputs, a core that slept because it was idle is turned at once
@@ -160,8 +161,9 @@ impl SimNode {
     pub fn run(&mut self, stop: &AtomicBool) {
         let epoch = Instant::now();
         let mut wake_at = Duration::ZERO;
-        let polled = self.transports.iter().any(|t| t.takes_inputs() && !t.event_driven());
-        let waiter = self.transports.iter().position(|t| t.event_driven());
+        // the last event-driven transport is waited on; every other one with inputs is polled
+        let waiter = self.transports.iter().rposition(|t| t.event_driven());
+        let polled = self.transports.iter().enumerate().any(|(k, t)| t.takes_inputs() && Some(k) != waiter);
         while !stop.load(Ordering::Relaxed) && !self.core.quit_requested() {
             self.take_inputs();
             let now = epoch.elapsed();

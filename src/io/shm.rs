@@ -1,7 +1,7 @@
 //! The shared-memory transport (feature `shm`, iceoryx2 0.10): takes `NodeParams` and the model,
 //! gives `ShmTransport` (the node's zero-copy face in the node's loop, `io::runner`) and
 //! `ShmClient` (a controller's side, in Rust); the payloads are fixed-size `#[repr(C)]` types
-//! that the Python client (`tests/interop/shm_client.py`) mirrors with `ctypes`.
+//! that the Python client (`python/tensegrity_testing/shm.py`) mirrors with `ctypes`.
 //!
 //! Services, named under the node's namespace and name like its ROS topics (`<ns>/<node>/...`
 //! without the leading slash; `tensegrity_sim/...` by default):
@@ -331,7 +331,7 @@ pub fn check_command(
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ShmError {
     /// The scene does not fit the payloads.
-    #[error("the scene has {count} {what}, more than this build's shared-memory capacity {limit} ({constant} in src/io/shm.rs, mirrored in tests/interop/shm_client.py); run it over DDS (-p transports:=dds) or raise the constant")]
+    #[error("the scene has {count} {what}, more than this build's shared-memory capacity {limit} ({constant} in src/io/shm.rs, mirrored in python/tensegrity_testing/shm.py); run it over DDS (-p transports:=dds) or raise the constant")]
     Capacity {
         /// What is counted.
         what: &'static str,

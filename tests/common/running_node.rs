@@ -1,17 +1,12 @@
-//! A `SimNode` running its real-time loop on a background thread, for DDS tests and benches.
-
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
-use std::thread::JoinHandle;
+//! A `SimNode` running its real-time loop on a background thread, for DDS tests and benches: the
+//! test kit's simulator (`tensegrity::testing`) started from parameters given field by field.
 
 use tensegrity::io::node::NodeStats;
 use tensegrity::io::params::{NodeParams, TransportKind};
+use tensegrity::testing::{SimBuilder, SimUnderTest};
 
-/// The node's thread and its stop flag.
-pub struct RunningNode {
-    stop: Arc<AtomicBool>,
-    handle: JoinHandle<NodeStats>,
-}
+/// The kit's handle; stops on `stop` or drop.
+pub struct RunningNode(SimUnderTest);
 
 impl RunningNode {
     /// Builds the node for `model` with `params`, serving DDS only (parallel tests share the
@@ -21,22 +16,15 @@ impl RunningNode {
         Self::start_serving(model, NodeParams { transports: vec![TransportKind::Dds], ..params })
     }
 
-    /// Like `start`, serving the transports of `params.transports` as given.
+    /// Like `start`, serving the transports of `params.transports` as given; returns once they
+    /// are discoverable.
     #[allow(dead_code)]
     pub fn start_serving(model: tensegrity::Model, params: NodeParams) -> Self {
-        let stop = Arc::new(AtomicBool::new(false));
-        let flag = stop.clone();
-        let handle = std::thread::spawn(move || {
-            let mut node = tensegrity::io::launch(model, params).unwrap();
-            node.run(&flag);
-            node.stats()
-        });
-        Self { stop, handle }
+        Self(SimBuilder::model(model).node_params(params).start().unwrap_or_else(|e| panic!("{e}")))
     }
 
     /// Stops the loop and returns the node's counters.
     pub fn stop(self) -> NodeStats {
-        self.stop.store(true, Ordering::Relaxed);
-        self.handle.join().unwrap()
+        self.0.stop().stats
     }
 }

@@ -1,0 +1,322 @@
+"""`tensegrity_node` as a subprocess for one test: started on a leased DDS domain with its own
+shared-memory prefix, ready when its transports are discoverable, stopped (and waited for) at the
+end, whatever the test did.
+
+    from tensegrity_testing import TensegrityNode
+    with TensegrityNode() as sim:               # the bundled prism3, paused: the test owns time
+        state = sim.lockstep(10)                 # 10 steps (shared memory), the state after them
+        sim.send(0, rate=-0.01)                  # a command over DDS, applied at the next step
+
+The node's exit status tells why it stopped (`EXIT_STATUS`); `stop()` returns it and the fixture
+fails the test's teardown when it is not 0.
+"""
+
+import ctypes
+import itertools
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import leases, msgs
+
+# tensegrity_node's exit statuses (tensegrity_node --help)
+EXIT_STATUS = {
+    0: "stopped by SIGINT, SIGTERM or SetSimulationState(QUITTING)",
+    2: "bad arguments or parameters",
+    3: "the scene cannot be read or is invalid",
+    4: "a transport (DDS, shared memory, the bag recorder) cannot start",
+    5: "a physics failure (the simulation cannot start, or it stopped while faulted)",
+}
+
+_sequence = itertools.count()
+PR_SET_PDEATHSIG = 1
+
+
+class NodeFailed(RuntimeError):
+    """The node exited (or never became ready): `status` (see EXIT_STATUS) and its stderr."""
+
+    def __init__(self, status, stderr, what="the node exited"):
+        meaning = EXIT_STATUS.get(status, "killed by a signal" if status is not None and status < 0 else "")
+        super().__init__(f"{what} with status {status} ({meaning}):\n{stderr}")
+        self.status = status
+        self.stderr = stderr
+
+
+def find_executable():
+    """`tensegrity_node`: $TENSEGRITY_NODE, else on PATH, else this checkout's target/ build."""
+    named = os.environ.get("TENSEGRITY_NODE")
+    if named:
+        return named
+    found = shutil.which("tensegrity_node")
+    if found:
+        return found
+    root = Path(__file__).resolve().parents[2]
+    for profile in ("release", "debug"):
+        candidate = root / "target" / profile / "tensegrity_node"
+        if candidate.exists():
+            return str(candidate)
+    raise FileNotFoundError(
+        "tensegrity_node not found: set TENSEGRITY_NODE, put it on PATH, or build it with "
+        "`cargo build --release --features ros2,shm`"
+    )
+
+
+def _die_with_parent():
+    # the node gets SIGTERM if the test process dies without stopping it (Linux)
+    try:
+        ctypes.CDLL(None).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (AttributeError, OSError):
+        pass
+
+
+def _param_text(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return ",".join(str(v) for v in value)
+    return str(value)
+
+
+@dataclass
+class State:
+    """The state after a step, copied out of shared memory (SI units; arrays in the order of the
+    structure's names)."""
+
+    time: float
+    step: int
+    faulted: bool
+    body_position: list = field(default_factory=list)
+    body_orientation: list = field(default_factory=list)
+    cable_tension: list = field(default_factory=list)
+    cable_length: list = field(default_factory=list)
+    cable_rest_length: list = field(default_factory=list)
+    cable_slack: list = field(default_factory=list)
+    actuator_rest_length: list = field(default_factory=list)
+    actuator_rate: list = field(default_factory=list)
+    commands_rejected: int = 0
+
+    @classmethod
+    def of(cls, s):
+        b, c, a = s.body_count, s.cable_count, s.actuator_count
+        return cls(
+            time=s.time,
+            step=s.step,
+            faulted=bool(s.faulted),
+            body_position=[tuple(s.body_position[i]) for i in range(b)],
+            body_orientation=[tuple(s.body_orientation[i]) for i in range(b)],
+            cable_tension=list(s.cable_tension[:c]),
+            cable_length=list(s.cable_length[:c]),
+            cable_rest_length=list(s.cable_rest_length[:c]),
+            cable_slack=[bool(x) for x in s.cable_slack[:c]],
+            actuator_rest_length=list(s.actuator_rest_length[:a]),
+            actuator_rate=list(s.actuator_rate[:a]),
+            commands_rejected=s.commands_rejected,
+        )
+
+
+class TensegrityNode:
+    """A running `tensegrity_node` (see the module docs).
+
+    scene: a scene file (default: the bundled prism3); params: node parameters ({name: value},
+    as `-p name:=value`); paused: start paused (lockstep) or playing in real time; transports:
+    "dds", "shm" or both; timeout: seconds to wait for readiness and for each answer.
+    """
+
+    def __init__(self, scene=None, params=None, paused=True, transports=("dds", "shm"), executable=None,
+                 timeout=30.0):
+        self.timeout = timeout
+        self.transports = tuple(transports)
+        self.process = None
+        self._participant = None
+        self._writers = {}
+        self.shm = None
+        self.lease = leases.DomainLease() if "dds" in self.transports else None
+        self.domain = self.lease.id if self.lease else None
+        scratch = Path(tempfile.mkdtemp(prefix="tensegrity-node-"))
+        self.ready_file = scratch / "ready"
+        self.log_path = scratch / "stderr.log"
+        args = [executable or find_executable(), "--ready-file", str(self.ready_file)]
+        if scene is not None:
+            args.append(str(scene))
+        args += ["--ros-args", "-p", f"transports:={','.join(self.transports)}",
+                 "-p", f"start_paused:={_param_text(paused)}"]
+        if "shm" in self.transports and not (params and "shm_prefix" in params):
+            args += ["-p", f"shm_prefix:=tensegrity_sim_py{os.getpid()}_{next(_sequence)}"]
+        for name, value in (params or {}).items():
+            args += ["-p", f"{name}:={_param_text(value)}"]
+        env = dict(os.environ)
+        if self.domain is not None:
+            env["ROS_DOMAIN_ID"] = str(self.domain)
+        self._log = open(self.log_path, "w+")
+        self.process = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                        stderr=self._log, env=env, preexec_fn=_die_with_parent)
+        self.pid = self.process.pid
+        try:
+            self.info = self._wait_ready()
+            self.namespace = self.info["namespace"]
+            self.shm_prefix = self.info["shm_prefix"] if "shm" in self.transports else None
+            self._wait_discoverable()
+        except BaseException:
+            self.stop()
+            raise
+
+    # ----- start-up ------------------------------------------------------------------------
+
+    def stderr(self):
+        """Everything the node wrote to stderr so far."""
+        try:
+            return self.log_path.read_text()
+        except OSError:
+            return ""
+
+    def _wait_ready(self):
+        deadline = time.monotonic() + self.timeout
+        while not self.ready_file.exists():
+            status = self.process.poll()
+            if status is not None:
+                raise NodeFailed(status, self.stderr(), "the node exited before it was ready")
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"tensegrity_node not ready within {self.timeout} s:\n{self.stderr()}")
+            time.sleep(0.01)
+        lines = self.ready_file.read_text().splitlines()
+        return dict(line.split("=", 1) for line in lines if "=" in line)
+
+    def _wait_discoverable(self):
+        if self.domain is not None:
+            structure = self.reader("~/structure")
+            if self.next(structure) is None:
+                raise TimeoutError(f"no ~/structure on DDS domain {self.domain} within {self.timeout} s")
+        if self.shm_prefix is not None:
+            from .shm import TensegrityClient
+
+            self.shm = TensegrityClient(self.shm_prefix, timeout=self.timeout)
+            self.names = self.shm.structure(self.timeout)
+
+    # ----- DDS -----------------------------------------------------------------------------
+
+    @property
+    def participant(self):
+        """A Cyclone DDS participant on the node's domain (created on first use)."""
+        if self.domain is None:
+            raise RuntimeError("this node does not serve DDS (transports)")
+        if self._participant is None:
+            from cyclonedds.domain import DomainParticipant
+
+            self._participant = DomainParticipant(self.domain)
+        return self._participant
+
+    def dds_topic_name(self, topic):
+        """The DDS name of a ROS topic (`~/x` is the node's private namespace): `rt/...`."""
+        full = self.namespace + topic[1:] if topic.startswith("~/") else topic
+        return "rt" + full
+
+    def _qos(self, topic, depth):
+        from cyclonedds.core import Policy, Qos
+        from cyclonedds.util import duration
+
+        _, node_depth, transient = msgs.TOPICS[topic]
+        policies = [Policy.Reliability.Reliable(duration(seconds=1)),
+                    Policy.History.KeepLast(depth or max(node_depth, 16))]
+        if transient:
+            policies.append(Policy.Durability.TransientLocal)
+        return Qos(*policies)
+
+    def _topic(self, topic):
+        from cyclonedds.topic import Topic
+
+        if topic not in msgs.TOPICS:
+            raise KeyError(f"unknown topic {topic!r}; the node's topics: {sorted(msgs.TOPICS)}")
+        return Topic(self.participant, self.dds_topic_name(topic), msgs.TOPICS[topic][0])
+
+    def reader(self, topic, depth=None):
+        """A reliable reader of one of the node's topics (`msgs.TOPICS`), typed from msg/."""
+        from cyclonedds.sub import DataReader
+
+        return DataReader(self.participant, self._topic(topic), qos=self._qos(topic, depth))
+
+    def writer(self, topic="~/actuator_commands", depth=None):
+        """A reliable writer of one of the node's input topics."""
+        from cyclonedds.pub import DataWriter
+
+        return DataWriter(self.participant, self._topic(topic), qos=self._qos(topic, depth))
+
+    def next(self, reader, timeout=None):
+        """The next sample `reader` receives (or has), or None after `timeout` seconds."""
+        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+        while True:
+            got = reader.take(N=1)
+            if got:
+                return got[0]
+            if time.monotonic() > deadline:
+                return None
+            time.sleep(0.0005)
+
+    def send(self, actuator, rest_length=None, rate=None):
+        """One command over DDS (`~/actuator_commands`): actuator by name or index."""
+        if isinstance(actuator, int):
+            actuator = self.names["actuator_names"][actuator]
+        w = self._writers.get("cmd")
+        if w is None:
+            w = self._writers["cmd"] = self.writer()
+        w.write(msgs.ActuatorCommand(name=[actuator],
+                                     rest_length=[] if rest_length is None else [rest_length],
+                                     rate=[] if rate is None else [rate]))
+
+    # ----- lockstep (shared memory) --------------------------------------------------------
+
+    def cable_index(self, name):
+        """Index of cable `name` in the state's arrays."""
+        return self.names["cable_names"].index(name)
+
+    def lockstep(self, steps, commands=()):
+        """Applies `commands` (`command(...)` entries) at the next boundary, takes `steps` steps
+        (the node paused) and returns the `State` after them."""
+        if self.shm is None:
+            raise RuntimeError("lockstep needs the shared-memory transport (transports)")
+        answer = self.shm.lockstep(steps, list(commands), timeout=self.timeout)
+        return State.of(answer.state)
+
+    # ----- the end -------------------------------------------------------------------------
+
+    def alive(self):
+        """True while the process runs."""
+        return self.process is not None and self.process.poll() is None
+
+    def stop(self, timeout=10.0):
+        """SIGINT, wait (SIGKILL after `timeout` s), release the domain; returns the exit status."""
+        self.shm = None
+        self._writers.clear()
+        self._participant = None
+        status = None
+        if self.process is not None:
+            if self.process.poll() is None:
+                self.process.send_signal(signal.SIGINT)
+                try:
+                    self.process.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    self.process.kill()
+                    self.process.wait()
+            status = self.process.returncode
+            self._log.close()
+        if self.lease is not None:
+            self.lease.release()
+        return status
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+def command(actuator, rest_length=None, rate=None):
+    """A lockstep command entry: actuator by name or index, rest length (m) and/or rate (m/s)."""
+    from .shm import entry
+
+    return entry(actuator, rest_length=rest_length, rate=rate)

@@ -1,0 +1,77 @@
+//! Invariant: the Python test kit (`python/tensegrity_testing`, `pip install ./python`) works as
+//! its README examples say: its own tests (`python/tests`: the proportional controller in lockstep
+//! and in real time, bit-identical lockstep runs under a CPU hog, a refused command, exit statuses
+//! of a bad scene and a bad parameter) pass against the node binary, and a Python test that fails
+//! on purpose still has its node stopped (the process id it wrote is gone afterwards).
+
+#![cfg(all(feature = "ros2", feature = "shm"))]
+
+use std::path::PathBuf;
+use std::process::Command;
+
+/// The Python with the kit's dependencies, or `None` (and a SKIPPED note) when none is around and
+/// none was named (`bash .ci/test` names target/pyenv, where it installs them).
+fn python() -> Option<String> {
+    let named = std::env::var("TENSEGRITY_PYTHON").ok();
+    let python = named.clone().unwrap_or_else(|| "python3".into());
+    let probe = Command::new(&python).args(["-c", "import cyclonedds, iceoryx2, pytest"]).output();
+    if !probe.map(|o| o.status.success()).unwrap_or(false) {
+        assert!(named.is_none(), "TENSEGRITY_PYTHON={python} lacks cyclonedds, iceoryx2 or pytest");
+        eprintln!("SKIPPED: {python} lacks cyclonedds, iceoryx2 or pytest (bash .ci/test installs them)");
+        return None;
+    }
+    Some(python)
+}
+
+/// `python -m pytest ARGS` with the checkout's kit first on the path and this build's node.
+fn pytest(python: &str, args: &[&str], env: &[(&str, String)]) -> std::process::Output {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut cmd = Command::new(python);
+    cmd.args(["-m", "pytest", "-p", "no:cacheprovider"]);
+    // installed (`pip install ./python`), the plugin loads by its entry point; else name it
+    let installed = Command::new(python)
+        .args(["-c", "import importlib.metadata as m; m.distribution('tensegrity-testing')"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !installed {
+        cmd.args(["-p", "tensegrity_testing.plugin"]);
+    }
+    cmd.args(args)
+        .current_dir(&root)
+        .env("PYTHONPATH", root.join("python"))
+        .env("TENSEGRITY_NODE", env!("CARGO_BIN_EXE_tensegrity_node"));
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("python runs")
+}
+
+#[test]
+fn the_python_kits_examples_pass_and_a_failing_test_still_stops_its_node() {
+    const TEST: &str = "the_python_kits_examples_pass_and_a_failing_test_still_stops_its_node";
+    if !tensegrity::testing::isolated_or_rerun(TEST) {
+        return;
+    }
+    let Some(python) = python() else { return };
+    let out = pytest(&python, &["-v", "python/tests"], &[]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("5 passed"), "{text}");
+
+    let pid_file = std::env::temp_dir().join(format!("tensegrity-kit-pid-{}", std::process::id()));
+    let _ = std::fs::remove_file(&pid_file);
+    let out = pytest(
+        &python,
+        &["-q", "tests/interop/kit_fails_on_purpose.py"],
+        &[("TENSEGRITY_PID_FILE", pid_file.display().to_string())],
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "pytest reports the failure: {text}");
+    assert!(text.contains("failing on purpose"), "{text}");
+    let pid = std::fs::read_to_string(&pid_file).expect("the test wrote its node's pid");
+    let _ = std::fs::remove_file(&pid_file);
+    assert!(
+        !PathBuf::from(format!("/proc/{}", pid.trim())).exists(),
+        "the node (pid {pid}) still runs after the failing test"
+    );
+}
