@@ -9,19 +9,8 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-/// The Python with the kit's dependencies, or `None` (and a SKIPPED note) when none is around and
-/// none was named (`bash .ci/test` names target/pyenv, where it installs them).
-fn python() -> Option<String> {
-    let named = std::env::var("TENSEGRITY_PYTHON").ok();
-    let python = named.clone().unwrap_or_else(|| "python3".into());
-    let probe = Command::new(&python).args(["-c", "import cyclonedds, iceoryx2, pytest"]).output();
-    if !probe.map(|o| o.status.success()).unwrap_or(false) {
-        assert!(named.is_none(), "TENSEGRITY_PYTHON={python} lacks cyclonedds, iceoryx2 or pytest");
-        eprintln!("SKIPPED: {python} lacks cyclonedds, iceoryx2 or pytest (bash .ci/test installs them)");
-        return None;
-    }
-    Some(python)
-}
+#[path = "common/python.rs"]
+mod python;
 
 /// `python -m pytest ARGS` with the checkout's kit first on the path and this build's node.
 fn pytest(python: &str, args: &[&str], env: &[(&str, String)]) -> std::process::Output {
@@ -52,7 +41,7 @@ fn the_python_kits_examples_pass_and_a_failing_test_still_stops_its_node() {
     if !tensegrity::testing::isolated_or_rerun(TEST) {
         return;
     }
-    let Some(python) = python() else { return };
+    let Some(python) = python::python_with("cyclonedds, iceoryx2, pytest") else { return };
     let out = pytest(&python, &["-v", "python/tests"], &[]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}\n{}", String::from_utf8_lossy(&out.stderr));

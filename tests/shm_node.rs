@@ -35,6 +35,8 @@ mod netns;
 #[cfg(feature = "ros2")]
 #[path = "common/peer.rs"]
 mod peer;
+#[path = "common/python.rs"]
+mod python;
 #[path = "common/running_node.rs"]
 mod running_node;
 
@@ -446,15 +448,7 @@ fn a_killed_node_leaves_nothing_that_stops_the_next_and_a_paused_one_is_quiet() 
 fn python_client_reads_state_sends_commands_and_runs_lockstep() {
     // `bash .ci/test` names a Python with iceoryx2==0.10.0 (target/pyenv); a plain `cargo test`
     // runs the test when the system Python has the module and says it skipped otherwise
-    let python = std::env::var("TENSEGRITY_PYTHON").ok();
-    let named = python.is_some();
-    let python = python.unwrap_or_else(|| "python3".into());
-    let probe = Command::new(&python).args(["-c", "import iceoryx2"]).output();
-    if !probe.map(|o| o.status.success()).unwrap_or(false) {
-        assert!(!named, "TENSEGRITY_PYTHON={python} has no iceoryx2 module");
-        eprintln!("SKIPPED: {python} has no iceoryx2 module (bash .ci/test installs iceoryx2==0.10.0 in target/pyenv)");
-        return;
-    }
+    let Some(python) = python::python_with("iceoryx2") else { return };
     let script = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/interop/shm_client.py");
     // the ctypes mirrors have the Rust payloads' names, sizes and alignments
     let out = Command::new(&python).arg(&script).arg("--sizes").output().unwrap();

@@ -134,6 +134,7 @@ class TensegrityNode:
         self.process = None
         self._participant = None
         self._writers = {}
+        self._topics = {}
         self.shm = None
         self.lease = leases.DomainLease() if "dds" in self.transports else None
         self.domain = self.lease.id if self.lease else None
@@ -227,11 +228,15 @@ class TensegrityNode:
         return Qos(*policies)
 
     def _topic(self, topic):
+        """The DDS topic of `topic` on this participant (made once, shared by its readers and
+        writers)."""
         from cyclonedds.topic import Topic
 
         if topic not in msgs.TOPICS:
             raise KeyError(f"unknown topic {topic!r}; the node's topics: {sorted(msgs.TOPICS)}")
-        return Topic(self.participant, self.dds_topic_name(topic), msgs.TOPICS[topic][0])
+        if topic not in self._topics:
+            self._topics[topic] = Topic(self.participant, self.dds_topic_name(topic), msgs.TOPICS[topic][0])
+        return self._topics[topic]
 
     def reader(self, topic, depth=None):
         """A reliable reader of one of the node's topics (`msgs.TOPICS`), typed from msg/."""
@@ -291,6 +296,7 @@ class TensegrityNode:
         """SIGINT, wait (SIGKILL after `timeout` s), release the domain; returns the exit status."""
         self.shm = None
         self._writers.clear()
+        self._topics.clear()
         self._participant = None
         status = None
         if self.process is not None:

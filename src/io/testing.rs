@@ -313,6 +313,13 @@ impl Snapshot {
         }
     }
 
+    /// The state `v` shows, named by `names`.
+    fn of(names: Arc<Names>, v: &NodeView<'_>) -> Self {
+        let mut s = Self::empty(names);
+        s.fill(v);
+        s
+    }
+
     /// Copies `v` in, reusing this snapshot's buffers (no allocation once they have the size).
     fn fill(&mut self, v: &NodeView<'_>) {
         let (model, state, ws) = (v.model, v.state, v.workspace);
@@ -428,7 +435,7 @@ struct Shared {
 struct Latest {
     snapshot: Snapshot,
     stats: NodeStats,
-    paused: bool,
+    /// The fault the node ended in (set when its loop has stopped).
     fault: Option<String>,
     running: bool,
 }
@@ -469,9 +476,7 @@ impl NodeSink for KitTransport {
         }
         let (_, reply) = self.stepping.take().expect("checked above");
         let answer = if result.result == result_code::OK {
-            let mut s = Snapshot::empty(self.names.clone());
-            s.fill(view);
-            Ok(s)
+            Ok(Snapshot::of(self.names.clone(), view))
         } else if view.faulted {
             Err(KitError::Physics(result.error_message))
         } else {
@@ -496,9 +501,7 @@ impl KitTransport {
                 match core.request_steps(steps, &mut sink) {
                     Ok(ticket) => {
                         if steps == 0 {
-                            let mut s = Snapshot::empty(self.names.clone());
-                            s.fill(&core.view());
-                            let _ = reply.send(Ok(s));
+                            let _ = reply.send(Ok(Snapshot::of(self.names.clone(), &core.view())));
                         } else {
                             self.stepping = Some((ticket, reply));
                         }
@@ -537,14 +540,10 @@ impl Transport for KitTransport {
         while let Ok(r) = self.requests.try_recv() {
             self.serve(r, core, others);
         }
-        // counters and pause state for `step_awaiting_commands` and `stats`, every turn
+        // counters for `step_awaiting_commands` and `stats`, every turn
         let mut l = self.shared.lock();
-        let changed =
-            l.stats != core.stats() || l.paused != core.paused() || l.fault.as_deref() != core.fault();
-        if changed {
+        if l.stats != core.stats() {
             l.stats = core.stats();
-            l.paused = core.paused();
-            l.fault = core.fault().map(str::to_string);
             drop(l);
             self.shared.changed.notify_all();
         }
@@ -698,7 +697,6 @@ impl SimBuilder {
             latest: Mutex::new(Latest {
                 snapshot: Snapshot::empty(names.clone()),
                 stats: NodeStats::default(),
-                paused: params.start_paused,
                 fault: None,
                 running: true,
             }),

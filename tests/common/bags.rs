@@ -10,18 +10,13 @@ use serde_json::Value;
 use tensegrity::io::bag::BagReader;
 use tensegrity::io::msg::AppliedCommands;
 
+#[path = "python.rs"]
+mod python;
+
 /// The bag as the Python `rosbags` reader sees it (`tests/interop/read_bag.py`), or `None` (and
 /// a SKIPPED note) when no Python with `rosbags` is around and none was named.
 pub fn rosbags_read(dir: &Path) -> Option<Value> {
-    // `bash .ci/test` names a Python with rosbags (target/pyenv)
-    let named = std::env::var("TENSEGRITY_PYTHON").ok();
-    let python = named.clone().unwrap_or_else(|| "python3".into());
-    let probe = Command::new(&python).args(["-c", "import rosbags"]).output();
-    if !probe.map(|o| o.status.success()).unwrap_or(false) {
-        assert!(named.is_none(), "TENSEGRITY_PYTHON={python} has no rosbags module");
-        eprintln!("SKIPPED: {python} has no rosbags module (bash .ci/test installs it in target/pyenv)");
-        return None;
-    }
+    let python = python::python_with("rosbags")?;
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let out = Command::new(&python)
         .arg(root.join("tests/interop/read_bag.py"))
