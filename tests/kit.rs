@@ -300,4 +300,12 @@ fn careless_starts_are_refused_with_the_reason() {
     assert!(matches!(&e, KitError::Params(_)), "{e}");
     let e = SimBuilder::scene_text("name = 3", "<inline>").start().unwrap_err();
     assert!(e.to_string().contains("<inline>"), "{e}");
+    // transports given as a parameter are served, not silently dropped
+    let e = SimBuilder::bundled("prism3").param("transports", "udp").start().unwrap_err();
+    assert!(matches!(&e, KitError::Params(why) if why.contains("udp")), "{e}");
+    #[cfg(feature = "shm")]
+    {
+        let sim = SimBuilder::bundled("prism3").param("transports", "shm").start().unwrap();
+        assert!(sim.shm_prefix().is_some_and(|p| p.contains("_kit")), "{sim:?}");
+    }
 }

@@ -673,10 +673,10 @@ impl SimBuilder {
         for (name, value) in &self.settings {
             params.set(name, value).map_err(|e| KitError::Params(e.to_string()))?;
         }
+        // a `param("transports", ..)` given after `transports(..)` wins, like any other parameter
         let lease = if given {
             None
         } else {
-            params.transports = self.transports.clone();
             let dds = params.transports.contains(&TransportKind::Dds);
             let lease = match (dds, self.domain) {
                 (true, None) => Some(DomainLease::acquire()?),
