@@ -48,7 +48,10 @@ class DomainLease:
             pass
 
     def __del__(self):
-        self.release()
+        try:
+            self.release()
+        except Exception:  # at interpreter exit the builtins may already be gone
+            pass
 
 
 def _try_take(path):

@@ -48,18 +48,21 @@ class NodeFailed(RuntimeError):
 
 
 def find_executable():
-    """`tensegrity_node`: $TENSEGRITY_NODE, else on PATH, else this checkout's target/ build."""
+    """`tensegrity_node`: $TENSEGRITY_NODE, else on PATH, else a cargo build (target/release, then
+    target/debug) of the checkout this package runs from or of the working directory or one of
+    its parents (pytest run from a checkout with the package installed)."""
     named = os.environ.get("TENSEGRITY_NODE")
     if named:
         return named
     found = shutil.which("tensegrity_node")
     if found:
         return found
-    root = Path(__file__).resolve().parents[2]
-    for profile in ("release", "debug"):
-        candidate = root / "target" / profile / "tensegrity_node"
-        if candidate.exists():
-            return str(candidate)
+    cwd = Path.cwd().resolve()
+    for root in (Path(__file__).resolve().parents[2], cwd, *cwd.parents):
+        for profile in ("release", "debug"):
+            candidate = root / "target" / profile / "tensegrity_node"
+            if candidate.exists():
+                return str(candidate)
     raise FileNotFoundError(
         "tensegrity_node not found: set TENSEGRITY_NODE, put it on PATH, or build it with "
         "`cargo build --release --features ros2,shm`"
@@ -136,12 +139,14 @@ class TensegrityNode:
         self._writers = {}
         self._topics = {}
         self.shm = None
+        self.lease = None
+        self.executable = executable or find_executable()
         self.lease = leases.DomainLease() if "dds" in self.transports else None
         self.domain = self.lease.id if self.lease else None
         scratch = Path(tempfile.mkdtemp(prefix="tensegrity-node-"))
         self.ready_file = scratch / "ready"
         self.log_path = scratch / "stderr.log"
-        args = [executable or find_executable(), "--ready-file", str(self.ready_file)]
+        args = [self.executable, "--ready-file", str(self.ready_file)]
         if scene is not None:
             args.append(str(scene))
         args += ["--ros-args", "-p", f"transports:={','.join(self.transports)}",
@@ -153,11 +158,11 @@ class TensegrityNode:
         env = dict(os.environ)
         if self.domain is not None:
             env["ROS_DOMAIN_ID"] = str(self.domain)
-        self._log = open(self.log_path, "w+")
-        self.process = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                        stderr=self._log, env=env, preexec_fn=_die_with_parent)
-        self.pid = self.process.pid
         try:
+            self._log = open(self.log_path, "w+")
+            self.process = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                            stderr=self._log, env=env, preexec_fn=_die_with_parent)
+            self.pid = self.process.pid
             self.info = self._wait_ready()
             self.namespace = self.info["namespace"]
             self.shm_prefix = self.info["shm_prefix"] if "shm" in self.transports else None
@@ -180,7 +185,7 @@ class TensegrityNode:
         while not self.ready_file.exists():
             status = self.process.poll()
             if status is not None:
-                raise NodeFailed(status, self.stderr(), "the node exited before it was ready")
+                raise NodeFailed(status, self.stderr(), f"{self.executable} exited before it was ready")
             if time.monotonic() > deadline:
                 raise TimeoutError(f"tensegrity_node not ready within {self.timeout} s:\n{self.stderr()}")
             time.sleep(0.01)
