@@ -835,6 +835,41 @@ pub struct Structure {
     pub actuator_cable: Vec<usize>,
 }
 
+/// Wakes a node that blocks on its `to_node` event, for inputs that arrive by another way: an
+/// in-process transport served beside shared memory (the test kit's), which the node then polls
+/// on the turn the event starts. Its ports are iceoryx2's thread-safe variant, so the waker can
+/// be moved between threads; it notifies the same event service as `ShmClient` does.
+pub struct NodeWaker {
+    // fields drop in order: the port before its node
+    notifier: Notifier<ipc_threadsafe::Service>,
+    _node: iceoryx2::node::Node<ipc_threadsafe::Service>,
+}
+
+impl NodeWaker {
+    /// Opens the `to_node` event of the node serving `prefix` (which must be running).
+    pub fn open(prefix: &str) -> Result<Self, ShmError> {
+        let names = ServiceNames::new(prefix);
+        let node = NodeBuilder::new()
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc_threadsafe::Service>()
+            .map_err(ipc("node"))?;
+        let notifier = node
+            .service_builder(&service_name(&names.to_node)?)
+            .event()
+            .open()
+            .map_err(ipc("to_node event"))?
+            .notifier_builder()
+            .create()
+            .map_err(ipc("to_node notifier"))?;
+        Ok(Self { notifier, _node: node })
+    }
+
+    /// Wakes the node's loop (it reads its inputs from every transport on the next turn).
+    pub fn wake(&self) {
+        let _ = self.notifier.notify_with_custom_event_id(EventId::new(EVENT_COMMAND));
+    }
+}
+
 /// A controller's connection to a node over shared memory: state, structure, commands and
 /// lockstep, waking on the node's events (after a short poll, `set_spin`).
 pub struct ShmClient {
@@ -1006,13 +1041,22 @@ impl ShmClient {
         }
     }
 
-    /// Every state sample received so far, oldest first (at most `STATE_BUFFER` are kept).
+    /// Every state sample received so far, oldest first: the newest `STATE_BUFFER` of them
+    /// (older ones are released, so that samples arriving while it drains never exceed what a
+    /// subscriber may hold).
+    ///
+    /// Precondition: the caller holds no other state sample of this client.
     pub fn drain_states(&self) -> Result<Vec<StateRef>, ShmError> {
-        let mut out = Vec::new();
-        while let Some(s) = self.state.receive().map_err(ipc("state"))? {
-            out.push(s);
+        let mut out = std::collections::VecDeque::with_capacity(STATE_BUFFER);
+        loop {
+            if out.len() == STATE_BUFFER {
+                out.pop_front();
+            }
+            match self.state.receive().map_err(ipc("state"))? {
+                Some(s) => out.push_back(s),
+                None => return Ok(out.into()),
+            }
         }
-        Ok(out)
     }
 
     /// Sends one command message (applied at the node's next step boundary, or rejected whole:

@@ -455,6 +455,10 @@ struct KitTransport {
     /// The StepSimulation ticket under way and where to answer it.
     stepping: Option<(u64, Sender<Result<Snapshot, KitError>>)>,
     names: Arc<Names>,
+    /// True when shared memory is served too: the loop blocks on its event (so that
+    /// controllers' requests wake it at once) and the kit, which wakes it through that event
+    /// (`NodeWaker`), is polled.
+    woken_through_shm: bool,
 }
 
 impl NodeSink for KitTransport {
@@ -550,7 +554,7 @@ impl Transport for KitTransport {
     }
 
     fn event_driven(&self) -> bool {
-        true
+        !self.woken_through_shm
     }
 
     fn wait(&mut self, timeout: Duration) {
@@ -709,6 +713,7 @@ impl SimBuilder {
             shared: shared.clone(),
             stepping: None,
             names: names.clone(),
+            woken_through_shm: cfg!(feature = "shm") && params.transports.contains(&TransportKind::Shm),
         };
         let stop = Arc::new(AtomicBool::new(false));
         let (started, start_result) = mpsc::channel();
@@ -719,7 +724,8 @@ impl SimBuilder {
                 .spawn(move || run_node(model, params, kit, &stop, &shared, started))
                 .map_err(|e| KitError::Transport(format!("node thread: {e}")))?
         };
-        let sim = SimUnderTest {
+        #[cfg_attr(not(feature = "shm"), allow(unused_mut))]
+        let mut sim = SimUnderTest {
             requests,
             shared,
             stop,
@@ -727,6 +733,8 @@ impl SimBuilder {
             params,
             names,
             timeout: self.timeout,
+            #[cfg(feature = "shm")]
+            waker: None,
             _lease: lease,
         };
         match start_result.recv_timeout(self.timeout) {
@@ -735,6 +743,12 @@ impl SimBuilder {
             Err(_) => return Err(KitError::Timeout(self.timeout, "the node to start".into())),
         }
         sim.wait_discoverable()?;
+        #[cfg(feature = "shm")]
+        if let Some(prefix) = sim.shm_prefix() {
+            let waker = crate::io::shm::NodeWaker::open(&prefix)
+                .map_err(|e| KitError::Transport(format!("shared memory: {e}")))?;
+            sim.waker = Some(waker);
+        }
         Ok(sim)
     }
 }
@@ -795,6 +809,9 @@ pub struct SimUnderTest {
     params: NodeParams,
     names: Arc<Names>,
     timeout: Duration,
+    /// Wakes the node after each request when it blocks on shared memory's event.
+    #[cfg(feature = "shm")]
+    waker: Option<crate::io::shm::NodeWaker>,
     _lease: Option<DomainLease>,
 }
 
@@ -828,6 +845,10 @@ impl SimUnderTest {
     ) -> Result<T, KitError> {
         let (tx, rx) = mpsc::channel();
         self.requests.send(make(tx)).map_err(|_| KitError::Stopped)?;
+        #[cfg(feature = "shm")]
+        if let Some(waker) = &self.waker {
+            waker.wake();
+        }
         match rx.recv_timeout(self.timeout) {
             Ok(answer) => answer,
             Err(mpsc::RecvTimeoutError::Timeout) => Err(KitError::Timeout(self.timeout, what.to_string())),
