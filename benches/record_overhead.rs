@@ -1,16 +1,19 @@
 //! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
-//! record_overhead`; `-- --quick` for 10 s of sim time instead of 60; without `ros2` only the
-//! first pair of rows).
+//! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
+//! (default 2), `--as-fast-as-possible` to step without pacing; without `ros2` only the rows
+//! that serve nothing).
 //!
-//! The node's core steps a bundled scene at dt = 1 ms with the state published every step
-//! (`state_publish_rate = 0`: every topic, markers at 30 Hz), as fast as it can (no pacing, so
-//! nothing hides in idle time), for 60 s of sim time, serving: nothing (the physics and the core
-//! alone), a `BagRecorder` alone (messages built, CDR-serialized and queued on the node's thread;
-//! compressed and written by the bag's writer thread), DDS (the node as users run it, no
-//! subscriber), and DDS with the bag. Runs alternate, two of each, and the medians of the
-//! per-step medians and means are compared in one table; the process CPU time per step shows the
-//! writer thread's share too. The bag's size per second of sim time is from the file. With `ros2`
-//! the bench first moves itself into a private loopback-only network namespace.
+//! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
+//! 1 ms boundary, as the node's loop does) with the state published every step
+//! (`state_publish_rate = 0`: every topic, markers at 30 Hz) for 60 s of sim time, serving:
+//! nothing (the physics and the core alone), a `BagRecorder` alone (a snapshot of each step
+//! queued on the node's thread; messages built, serialized, compressed and written by the bag's
+//! writer thread), DDS (the node as users run it, no subscriber), and DDS with the bag. The
+//! configurations alternate; the table gives medians over runs of each run's median, mean and
+//! 99th percentile turn time (one `tick`), the node thread's CPU time per step (its own work,
+//! including sleeping and waking between ticks) and the process CPU time per step (the writer
+//! thread's share too). The bag's size per second of sim time is from the file. With `ros2` the
+//! bench first moves itself into a private loopback-only network namespace.
 
 #[cfg(feature = "ros2")]
 #[path = "../tests/common/netns.rs"]
@@ -46,7 +49,17 @@ fn cpu_seconds() -> f64 {
     (ticks(11) + ticks(12)) / 100.0
 }
 
+/// CPU time this thread has run, ns (`/proc/thread-self/schedstat`, first field).
+fn thread_cpu_ns() -> u64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next().and_then(|f| f.parse().ok()))
+        .unwrap_or(0)
+}
+
 struct RunFigures {
+    /// CPU time of the node's thread per step, us (its own work, whatever else runs).
+    thread_cpu_us: f64,
     median_us: f64,
     mean_us: f64,
     p99_us: f64,
@@ -55,7 +68,7 @@ struct RunFigures {
     messages: u64,
 }
 
-fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool) -> RunFigures {
+fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) -> RunFigures {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(scene);
     let model = tensegrity::scene::load(&path).unwrap();
     let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
@@ -81,11 +94,21 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool) -> RunFigures {
     core.start(sink);
     let mut times = Vec::with_capacity(steps as usize);
     let cpu0 = cpu_seconds();
+    let thread0 = thread_cpu_ns();
+    let epoch = Instant::now();
     for k in 0..steps {
+        if paced {
+            // the node's real-time loop: each step at its 1 ms boundary
+            let due = epoch + Duration::from_millis(k);
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
         let t0 = Instant::now();
         core.tick(Duration::from_millis(k), sink);
         times.push(t0.elapsed().as_secs_f64() * 1e6);
     }
+    let thread_cpu_us = thread_cpu_ns().saturating_sub(thread0) as f64 * 1e-3 / steps as f64;
     // the bag closes with its transport
     drop(transports);
     let cpu_us = (cpu_seconds() - cpu0) * 1e6 / steps as f64;
@@ -100,6 +123,7 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool) -> RunFigures {
     let mean_us = times.iter().sum::<f64>() / times.len() as f64;
     times.sort_by(f64::total_cmp);
     RunFigures {
+        thread_cpu_us,
         median_us: times[times.len() / 2],
         mean_us,
         p99_us: times[times.len() * 99 / 100],
@@ -121,30 +145,48 @@ fn main() {
     ) {
         return;
     }
-    let quick = std::env::args().any(|a| a == "--quick");
-    let seconds = if quick { 10 } else { 60 };
+    let args: Vec<String> = std::env::args().collect();
+    let quick = args.iter().any(|a| a == "--quick");
+    let seconds: u64 = args
+        .iter()
+        .position(|a| a == "--seconds")
+        .and_then(|k| args.get(k + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(if quick { 10 } else { 60 });
     let steps = seconds * 1000;
+    let runs: usize = args
+        .iter()
+        .position(|a| a == "--runs")
+        .and_then(|k| args.get(k + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(2);
+    let paced = !args.iter().any(|a| a == "--as-fast-as-possible");
     let dir = std::env::temp_dir().join(format!("tensegrity-record-bench-{}", std::process::id()));
-    println!("Recording {seconds} s of sim time at 1 kHz, state every step, as fast as possible (two alternating runs each; medians)\n");
-    println!("| scene | serving | per step without bag: median / mean / p99 | with bag: median / mean / p99 | mean added | CPU per step without / with bag (all threads) | bag per sim second | messages per sim second |");
-    println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
+    println!(
+        "Recording {seconds} s of sim time at dt = 1 ms, state every step, {} ({runs} run(s) of each, alternating; medians)\n",
+        if paced { "the node in real time at 1 kHz" } else { "as fast as possible" }
+    );
+    println!("| scene | serving | node thread CPU per step without / with bag | added | turn time without bag: median / mean / p99 | with bag: median / mean / p99 | CPU per step, all threads, without / with bag | bag per sim second | messages per sim second |");
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     let serving: &[bool] = if cfg!(feature = "ros2") { &[false, true] } else { &[false] };
     for scene in ["prism3.toml", "tower.toml"] {
         for &dds in serving {
             let mut plain = Vec::new();
             let mut recorded = Vec::new();
-            for _ in 0..2 {
-                plain.push(run(scene, steps, None, dds));
-                recorded.push(run(scene, steps, Some(dir.join(scene)), dds));
+            for _ in 0..runs {
+                plain.push(run(scene, steps, None, dds, paced));
+                recorded.push(run(scene, steps, Some(dir.join(scene)), dds, paced));
             }
             let m = |runs: &[RunFigures], f: fn(&RunFigures) -> f64| median(runs.iter().map(f).collect());
-            let (a_med, a_mean, a_p99, a_cpu) = (
+            let (a_thread, a_med, a_mean, a_p99, a_cpu) = (
+                m(&plain, |r| r.thread_cpu_us),
                 m(&plain, |r| r.median_us),
                 m(&plain, |r| r.mean_us),
                 m(&plain, |r| r.p99_us),
                 m(&plain, |r| r.cpu_us),
             );
-            let (b_med, b_mean, b_p99, b_cpu) = (
+            let (b_thread, b_med, b_mean, b_p99, b_cpu) = (
+                m(&recorded, |r| r.thread_cpu_us),
                 m(&recorded, |r| r.median_us),
                 m(&recorded, |r| r.mean_us),
                 m(&recorded, |r| r.p99_us),
@@ -153,12 +195,11 @@ fn main() {
             let bytes = m(&recorded, |r| r.bag_bytes as f64) / seconds as f64;
             let messages = m(&recorded, |r| r.messages as f64) / seconds as f64;
             println!(
-                "| {} | {} | {a_med:.1} / {a_mean:.1} / {a_p99:.1} us | {b_med:.1} / {b_mean:.1} / {b_p99:.1} us | {:+.1} % ({:+.1} us; {:.1} % of the 1 ms step) | {a_cpu:.1} / {b_cpu:.1} us | {:.0} kB | {messages:.0} |",
+                "| {} | {} | {a_thread:.1} / {b_thread:.1} us | {:+.1} % ({:+.1} us) | {a_med:.1} / {a_mean:.1} / {a_p99:.1} us | {b_med:.1} / {b_mean:.1} / {b_p99:.1} us | {a_cpu:.1} / {b_cpu:.1} us | {:.0} kB | {messages:.0} |",
                 scene.trim_end_matches(".toml"),
                 if dds { "DDS" } else { "nothing" },
-                100.0 * (b_mean / a_mean - 1.0),
-                b_mean - a_mean,
-                100.0 * (b_mean - a_mean) / 1000.0,
+                100.0 * (b_thread / a_thread - 1.0),
+                b_thread - a_thread,
                 bytes / 1000.0,
             );
         }

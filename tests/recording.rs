@@ -319,3 +319,54 @@ fn a_killed_recording_keeps_what_it_flushed() {
     // tens of MB: not left behind
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A writer that cannot keep up (a queue of one job, a step every 0.2 ms) drops whole
+/// states: the failures are counted, every state topic keeps the same steps, and the structure,
+/// the static transforms and the applied commands are all there; replay reports the first
+/// missing state as a difference.
+#[test]
+fn a_full_writer_queue_drops_whole_states_never_commands_or_the_structure() {
+    let dir = bag_dir("full-queue");
+    let model = tensegrity::scene::load(&scene_path("prism3.toml")).unwrap();
+    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+    let run = record::run_info(record::KIND_NODE, &model, "prism3", sim.settings(), &params);
+    let options = BagOptions { queue: 1, ..BagOptions::default() };
+    let mut recorder =
+        record::BagRecorder::create(&dir, &model, &params, &run, record::LogTime::Step, &options).unwrap();
+    let mut core = NodeCore::with_simulator(sim, params.clone());
+    core.start(&mut recorder);
+    let ring = msg::ActuatorCommand {
+        name: vec!["ring_winch".into()],
+        rest_length: vec![4.0],
+        rate: vec![0.5],
+        ..Default::default()
+    };
+    let steps = 300;
+    for k in 0..steps {
+        if k == 100 || k == 200 {
+            core.offer_command(&ring);
+        }
+        core.tick(Duration::from_millis(k), &mut recorder);
+        // slower than the core can step, much faster than the writer takes a job (`DRAIN_PERIOD`)
+        std::thread::sleep(Duration::from_micros(200));
+    }
+    let failures: u64 = core.stats().publish_failures.iter().sum();
+    recorder.finish().unwrap();
+    assert!(failures > 0, "a queue of one cannot hold a step every 0.2 ms");
+
+    let counts = our_counts(&dir);
+    let count = |short: &str| counts.get(&record::topic_name(short, &params)).map_or(0, |(_, n)| *n);
+    assert_eq!(count("~/structure"), 1);
+    assert_eq!(count("/tf_static"), 1);
+    assert_eq!(count("~/applied_commands"), 2, "{counts:?}");
+    let states = count("~/body_poses");
+    assert!(states > 0 && states < steps, "{states} of {steps} states kept");
+    for short in ["/tf", "~/cable_states", "~/actuator_states"] {
+        assert_eq!(count(short), states, "{short}: a state is kept or dropped whole ({counts:?})");
+    }
+    // replay matches messages in order: it stops at the first state the bag is missing, and says so
+    let report = record::replay(&dir, None, None).unwrap();
+    let difference = report.difference.expect("a dropped state is a message the bag lacks");
+    assert!(difference.field.contains("message"), "{difference:?}");
+}

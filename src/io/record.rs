@@ -6,6 +6,12 @@
 //! takes such a bag back (`replay`) and runs it again with the recorded commands (and resets) at
 //! their recorded steps, comparing every recorded message bit for bit.
 //!
+//! On the node's thread a step's state topics cost a copy (`StepSnapshot`: the state, the
+//! cables' responses, the points' positions, into a recycled buffer); the bag's writer thread
+//! builds and serializes their messages (`bag::Compose`). When its queue is full a state is
+//! dropped whole (counted as a publish failure); the structure, the static transforms and the
+//! applied commands never are.
+//!
 //! Each message's MCAP `sequence` is the simulator's step count when it was published (steps
 //! since the start, resets included; modulo 2^32), its log time the wall clock for the node and
 //! the simulation time for offline runs (a quasi-static path: 1 ms per row).
@@ -22,7 +28,7 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use crate::control::ActuatorCommand;
 use crate::forces::Workspace;
 use crate::io::bag::{
-    BagError, BagOptions, BagReader, BagSummary, BagTopic, BagWriter, RunInfo, TopicQos, TopicSpec,
+    BagError, BagOptions, BagReader, BagSummary, BagTopic, BagWriter, Compose, RunInfo, TopicQos, TopicSpec,
 };
 use crate::io::msg::{self, AppliedCommands, TopicMessage};
 use crate::io::node::{NodeCore, NodeSink, NodeStats, NodeView, PublishError, Topic};
@@ -231,10 +237,128 @@ pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
     out
 }
 
+/// One step's state as the recorder hands it to the bag's writer thread, which builds and
+/// serializes that step's state messages (`Compose`): on the node's thread recording a step
+/// costs a copy of the state and of the evaluated cables and points, not the messages.
+struct StepSnapshot {
+    model: std::sync::Arc<Model>,
+    state: State,
+    /// Only what the messages read is copied: points, cable responses, segment lengths.
+    workspace: Workspace,
+    rates: Vec<f64>,
+    reference: Vec<Vec<f64>>,
+    frame_id: String,
+    node_name: String,
+    step: u64,
+    simulation_state: u8,
+    faulted: bool,
+    stats: NodeStats,
+    dt: f64,
+    /// The topics published from this state, in order, with their bag handle and log time.
+    topics: Vec<(Topic, BagTopic, u64)>,
+    /// Reused serialization buffer.
+    buffer: Vec<u8>,
+}
+
+impl StepSnapshot {
+    fn new(model: std::sync::Arc<Model>) -> Self {
+        let workspace = Workspace::for_forces(&model);
+        Self {
+            state: State::initial(&model),
+            workspace,
+            rates: Vec::new(),
+            reference: Vec::new(),
+            frame_id: String::new(),
+            node_name: String::new(),
+            step: 0,
+            simulation_state: 0,
+            faulted: false,
+            stats: NodeStats::default(),
+            dt: 0.0,
+            topics: Vec::with_capacity(Topic::ALL.len()),
+            buffer: Vec::new(),
+            model,
+        }
+    }
+
+    /// Copies what the state messages read from `view` (same model; no allocation once sized).
+    fn fill(&mut self, view: &NodeView<'_>) {
+        self.state.copy_from(view.state);
+        let (to, from) = (&mut self.workspace, view.workspace);
+        // the messages read point positions only (not velocities or Jacobians)
+        for (to, from) in to.points.iter_mut().zip(&from.points) {
+            to.position = from.position;
+        }
+        to.cables.clone_from(&from.cables);
+        to.segment_lengths.clone_from(&from.segment_lengths);
+        self.rates.clear();
+        self.rates.extend_from_slice(view.rates);
+        self.reference.resize_with(view.reference.len(), Vec::new);
+        for (to, from) in self.reference.iter_mut().zip(view.reference) {
+            to.clear();
+            to.extend_from_slice(from);
+        }
+        self.frame_id.clear();
+        self.frame_id.push_str(view.frame_id);
+        self.node_name.clear();
+        self.node_name.push_str(view.node_name);
+        self.step = view.step;
+        self.simulation_state = view.simulation_state;
+        self.faulted = view.faulted;
+        self.stats = view.stats;
+        self.dt = view.dt;
+        self.topics.clear();
+    }
+
+    /// True when `view` is the state this snapshot holds.
+    fn holds(&self, view: &NodeView<'_>) -> bool {
+        self.stats.steps == view.stats.steps && self.state.time.to_bits() == view.state.time.to_bits()
+    }
+}
+
+impl Compose for StepSnapshot {
+    fn compose(&mut self, out: &mut crate::io::bag::MessageOut<'_>) {
+        let view = NodeView {
+            model: &self.model,
+            state: &self.state,
+            workspace: &self.workspace,
+            rates: &self.rates,
+            reference: &self.reference,
+            frame_id: &self.frame_id,
+            node_name: &self.node_name,
+            diagnostics: &[],
+            step: self.step,
+            simulation_state: self.simulation_state,
+            faulted: self.faulted,
+            stats: self.stats,
+            dt: self.dt,
+        };
+        for &(topic, handle, log_time) in &self.topics {
+            // finiteness was checked on the node's thread (`BagRecorder::publish`)
+            if let Ok(Some(message)) = TopicMessage::build(topic, &view) {
+                if crate::io::bag::encode_cdr(&mut self.buffer, &message).is_ok() {
+                    out(handle, self.stats.steps as u32, log_time, &self.buffer);
+                }
+            }
+        }
+    }
+
+    fn into_any(self: Box<Self>) -> Box<dyn std::any::Any + Send> {
+        self
+    }
+}
+
 /// Records what the core publishes and applies: a `NodeSink` and a `Transport` (with no inputs)
 /// of the node's loop, or a sink of an offline run.
 pub struct BagRecorder {
-    writer: BagWriter,
+    /// The bag (taken by `finish`).
+    writer: Option<BagWriter>,
+    model: std::sync::Arc<Model>,
+    /// The state topics of the latest step, not yet handed to the writer thread (they go when
+    /// another state, any other message, or the end comes).
+    pending: Option<Box<StepSnapshot>>,
+    /// The log time of the pending step's messages.
+    pending_log_time: u64,
     /// Bag topic of each `Topic`, in `Topic::ALL` order.
     topics: [Option<BagTopic>; 10],
     applied: BagTopic,
@@ -266,7 +390,10 @@ impl BagRecorder {
             }
         }
         Ok(Self {
-            writer,
+            writer: Some(writer),
+            model: std::sync::Arc::new(model.clone()),
+            pending: None,
+            pending_log_time: 0,
             topics,
             applied,
             actuator_names: model.actuator_names.clone(),
@@ -286,12 +413,32 @@ impl BagRecorder {
 
     /// The bag directory.
     pub fn dir(&self) -> &Path {
-        self.writer.dir()
+        self.writer.as_ref().expect("open until finished").dir()
     }
 
-    /// Closes the bag (see `BagWriter::finish`).
-    pub fn finish(self) -> Result<BagSummary, BagError> {
-        self.writer.finish()
+    fn writer(&mut self) -> &mut BagWriter {
+        self.writer.as_mut().expect("open until finished")
+    }
+
+    /// Hands the pending step's state topics to the writer thread (dropped, and an error, when
+    /// its queue is full).
+    fn send_pending(&mut self) -> Result<(), BagError> {
+        match self.pending.take() {
+            Some(snapshot) => self.writer().compose(snapshot, true),
+            None => Ok(()),
+        }
+    }
+
+    /// Closes the bag (see `BagWriter::finish`), after handing over the last state (dropped,
+    /// like any state, when the queue is full; `dropped` counts it).
+    pub fn finish(mut self) -> Result<BagSummary, BagError> {
+        let _ = self.send_pending();
+        self.writer.take().expect("open until finished").finish()
+    }
+
+    /// States and messages refused because the writer's queue was full.
+    pub fn dropped(&self) -> u64 {
+        self.writer.as_ref().map_or(0, BagWriter::dropped)
     }
 
     fn stamp(&self, time: f64, step: u64) -> u64 {
@@ -305,7 +452,10 @@ impl BagRecorder {
     fn write_applied(&mut self, m: &AppliedCommands) {
         let log_time = self.stamp(m.header.stamp.seconds(), m.step);
         // never dropped: a bag without its commands cannot be replayed
-        if let Err(e) = self.writer.write(self.applied, m.step as u32, log_time, m, false) {
+        // a state dropped for want of room is counted by the writer; the commands still go
+        let _ = self.send_pending();
+        let applied = self.applied;
+        if let Err(e) = self.writer().write(applied, m.step as u32, log_time, m, false) {
             eprintln!("bag {}: applied commands at step {} not recorded: {e}", self.dir().display(), m.step);
         }
     }
@@ -316,15 +466,42 @@ impl NodeSink for BagRecorder {
         let Some(handle) = self.topics[topic.index()] else {
             return Ok(());
         };
-        let Some(message) = TopicMessage::build(topic, view)? else { return Ok(()) };
         let step = view.stats.steps;
         self.last = (view.state.time, step);
+        let failed = |e: BagError| PublishError::Failed(format!("bag: {e}"));
+        if DEFERRED.contains(&topic) {
+            if topic == Topic::CableStates && !cables_finite(view.workspace) {
+                return Err(PublishError::Failed("refusing to publish non-finite cable states".into()));
+            }
+            let mut sent = Ok(());
+            if !self.pending.as_ref().is_some_and(|p| p.holds(view)) {
+                self.pending_log_time = self.stamp(view.state.time, step);
+                // a dropped previous state is reported with this message, which still goes
+                sent = self.send_pending();
+                let model = &self.model;
+                let mut snapshot = self
+                    .writer
+                    .as_ref()
+                    .and_then(BagWriter::recycled::<StepSnapshot>)
+                    .unwrap_or_else(|| Box::new(StepSnapshot::new(model.clone())));
+                snapshot.fill(view);
+                self.pending = Some(snapshot);
+            }
+            // one log time for a state's messages (taken when its first message came)
+            if let Some(p) = &mut self.pending {
+                p.topics.push((topic, handle, self.pending_log_time));
+            }
+            return sent.map_err(failed);
+        }
         let log_time = self.stamp(view.state.time, step);
+        // the pending state goes first (in order); if it was dropped, this message still goes
+        // and the failure is reported with it
+        let pending = self.send_pending();
+        let Some(message) = TopicMessage::build(topic, view)? else { return pending.map_err(failed) };
         // what a late joiner needs is never dropped; state messages are when the queue is full
         let droppable = !matches!(topic, Topic::Structure | Topic::TfStatic);
-        self.writer
-            .write(handle, step as u32, log_time, &message, droppable)
-            .map_err(|e| PublishError::Failed(format!("bag: {e}")))
+        self.writer().write(handle, step as u32, log_time, &message, droppable).map_err(failed)?;
+        pending.map_err(failed)
     }
 
     fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
@@ -342,6 +519,27 @@ impl NodeSink for BagRecorder {
             ..Default::default()
         };
         self.write_applied(&m);
+    }
+}
+
+/// The topics whose messages the writer thread builds from a `StepSnapshot` (the others, rare
+/// or once, are built on the node's thread).
+const DEFERRED: [Topic; 6] =
+    [Topic::Clock, Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers];
+
+/// True when every cable number the cable-states message carries is finite (what
+/// `TopicMessage::build` refuses otherwise, checked before the message is deferred).
+fn cables_finite(ws: &Workspace) -> bool {
+    ws.cables.iter().all(|c| c.tension.is_finite() && c.length.is_finite() && c.rest_length.is_finite())
+        && ws.segment_lengths.iter().all(|l| l.is_finite())
+}
+
+impl Drop for BagRecorder {
+    /// Hands over the last step's topics; the bag itself closes when its writer drops.
+    fn drop(&mut self) {
+        if self.writer.is_some() {
+            let _ = self.send_pending();
+        }
     }
 }
 
