@@ -261,6 +261,31 @@ fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
     }
 }
 
+/// Tight tolerances too (where, before `explicit::local_tolerance` transformed them,
+/// Dormand-Prince's error on prism3 reached 3.3 and 6.6 times 1e-8 and 1e-9 m).
+#[test]
+fn dormand_prince_meets_tight_tolerances() {
+    for (scene, duration) in [("prism3.toml", 1.5), ("tbar.toml", 1.5), ("atwood.toml", 0.5)] {
+        let model = bundled(scene);
+        let (reference, _) = sampled(
+            &model,
+            SimSettings { dt: 2e-5, integrator: Integrator::DormandPrince, ..Default::default() },
+            duration,
+        );
+        for tol in [1e-8, 1e-9] {
+            let settings = SimSettings {
+                dt: 0.01,
+                integrator: Integrator::DormandPrince,
+                tolerance: Some(tol),
+                ..Default::default()
+            };
+            let (run, _) = sampled(&model, settings, duration);
+            let error = largest_distance(&run, &reference);
+            assert!(error <= 3.0 * tol, "{scene} at tolerance {tol:e}: largest point error {error:e}");
+        }
+    }
+}
+
 #[test]
 fn a_tolerance_is_refused_where_no_error_estimate_exists() {
     let model = bundled("prism3.toml");

@@ -462,8 +462,8 @@ impl Dynamics {
             Integrator::Rk4 | Integrator::DormandPrince => {
                 self.previous_step = None;
                 let tableau = if integrator == Integrator::Rk4 { &explicit::RK4 } else { &explicit::DOPRI5 };
-                // the local errors of a run add up to a few times each one's: aim at a third
-                let tolerance = tolerance.map(|t| t * explicit::LOCAL_TOLERANCE_SHARE);
+                // the local errors of a run add up to a few times each one's: aim lower
+                let tolerance = tolerance.map(explicit::local_tolerance);
                 match self.explicit_step(model, tableau, state, rest_now, rest_next, h, tolerance) {
                     Ok(s) => Ok(AttemptStats {
                         iterations: 0,
