@@ -51,8 +51,9 @@ pub const KIND_DYNAMIC: &str = "deploy-dynamic";
 /// `tensegrity deploy --quasi-static`.
 pub const KIND_QUASI_STATIC: &str = "deploy-quasi-static";
 
-/// The ROS type and offered QoS (as the node's DDS writers offer it) of a topic; `None` for the
-/// shared-memory whole-state sample.
+/// The ROS type and offered QoS of a topic; `None` for the shared-memory whole-state sample. The
+/// one table of them: the DDS transport creates its topics and writers from it, the bags
+/// declare their channels with it and the Python kit's `msgs.TOPICS` is generated from it.
 pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
     let q = |depth, transient_local| TopicQos { depth, transient_local };
     // volatile writers keep at least 16 samples (io::ros2::MIN_WRITER_DEPTH)

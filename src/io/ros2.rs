@@ -26,9 +26,11 @@ use ros2_client::{
     QosProfile, Server, ServiceMapping, ServiceTypeName, Subscription,
 };
 
+use crate::io::bag::TopicQos;
 use crate::io::msg;
 use crate::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
 use crate::io::params::NodeParams;
+use crate::io::record;
 use crate::io::runner::{Transport, With};
 
 /// Why the DDS transport could not start.
@@ -186,37 +188,50 @@ impl DdsTransport {
             .new_node(NodeName::new(&params.namespace, &params.node_name).map_err(ros)?, NodeOptions::new())
             .map_err(ros)?;
         let private = params.private_namespace();
-        let topic = |ns: &str, name: &str, pkg: &str, ty: &str, q: &QosProfile| {
-            node.create_topic(&Name::new(ns, name).map_err(ros)?, MessageTypeName::new(pkg, ty), q)
-                .map_err(ros)
-        };
-        let t_clock = topic("/", "clock", "rosgraph_msgs", "Clock", &qos(1, false))?;
-        let t_tf = topic("/", "tf", "tf2_msgs", "TFMessage", &qos(100, false))?;
-        let t_tf_static = topic("/", "tf_static", "tf2_msgs", "TFMessage", &qos(1, true))?;
-        let t_poses = topic(&private, "body_poses", "geometry_msgs", "PoseArray", &qos(10, false))?;
-        let t_cables = topic(&private, "cable_states", "tensegrity_msgs", "CableStates", &qos(10, false))?;
-        let t_actuators = topic(&private, "actuator_states", "sensor_msgs", "JointState", &qos(10, false))?;
-        let t_structure = topic(&private, "structure", "tensegrity_msgs", "Structure", &qos(1, true))?;
-        let t_markers = topic(&private, "markers", "visualization_msgs", "MarkerArray", &qos(1, false))?;
-        let t_diag = topic("/", "diagnostics", "diagnostic_msgs", "DiagnosticArray", &qos(10, false))?;
-        let t_cmd =
-            topic(&private, "actuator_commands", "tensegrity_msgs", "ActuatorCommand", &qos(1, false))?;
-        let t_joint_cmd = topic(&private, "joint_commands", "sensor_msgs", "JointState", &qos(1, false))?;
-        macro_rules! publisher {
-            ($t:expr, $depth:expr, $transient:expr) => {
-                node.create_publisher($t, Some(writer_qos($depth, $transient))).map_err(ros)?
+        // every topic as the bags and the Python kit declare it (`record::topic_type`,
+        // `record::INPUT_TOPICS`): one table of names, types and QoS
+        let declare = |short: &str, type_name: &str, offered: TopicQos| {
+            let (ns, name) = match short.strip_prefix("~/") {
+                Some(rest) => (private.as_str(), rest),
+                None => ("/", short.trim_start_matches('/')),
             };
+            let (pkg, ty) = type_name.split_once("/msg/").ok_or_else(|| {
+                NodeError::Ros(format!("topic {short}: type '{type_name}' is not pkg/msg/Type"))
+            })?;
+            node.create_topic(
+                &Name::new(ns, name).map_err(ros)?,
+                MessageTypeName::new(pkg, ty),
+                &qos(offered.depth as usize, offered.transient_local),
+            )
+            .map_err(ros)
+        };
+        let mut outputs = Vec::new();
+        for t in Topic::ALL {
+            if let Some((type_name, offered)) = record::topic_type(t) {
+                outputs.push((t, declare(t.name(), type_name, offered)?, offered));
+            }
+        }
+        let [(cmd_name, cmd_type, cmd_qos), (joint_name, joint_type, joint_qos)] = record::INPUT_TOPICS;
+        let t_cmd = declare(cmd_name, cmd_type, cmd_qos)?;
+        let t_joint_cmd = declare(joint_name, joint_type, joint_qos)?;
+        macro_rules! publisher {
+            ($topic:expr) => {{
+                let (_, t, offered) =
+                    outputs.iter().find(|(t, _, _)| *t == $topic).expect("every ROS topic is declared");
+                node.create_publisher(t, Some(writer_qos(offered.depth as usize, offered.transient_local)))
+                    .map_err(ros)?
+            }};
         }
         let publishers = Publishers {
-            clock: publisher!(&t_clock, 1, false),
-            poses: publisher!(&t_poses, 10, false),
-            cables: publisher!(&t_cables, 10, false),
-            actuators: publisher!(&t_actuators, 10, false),
-            structure: publisher!(&t_structure, 1, true),
-            tf: publisher!(&t_tf, 100, false),
-            tf_static: publisher!(&t_tf_static, 1, true),
-            diagnostics: publisher!(&t_diag, 10, false),
-            markers: publisher!(&t_markers, 1, false),
+            clock: publisher!(Topic::Clock),
+            poses: publisher!(Topic::BodyPoses),
+            cables: publisher!(Topic::CableStates),
+            actuators: publisher!(Topic::ActuatorStates),
+            structure: publisher!(Topic::Structure),
+            tf: publisher!(Topic::Tf),
+            tf_static: publisher!(Topic::TfStatic),
+            diagnostics: publisher!(Topic::Diagnostics),
+            markers: publisher!(Topic::Markers),
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,
