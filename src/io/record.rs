@@ -255,8 +255,10 @@ struct StepSnapshot {
     faulted: bool,
     stats: NodeStats,
     dt: f64,
-    /// The topics published from this state, in order, with their bag handle and log time.
-    topics: Vec<(Topic, BagTopic, u64)>,
+    /// The log time of this state's messages (when its first message came).
+    log_time: u64,
+    /// The topics published from this state, in order, with their bag handle.
+    topics: Vec<(Topic, BagTopic)>,
     /// Reused serialization buffer.
     buffer: Vec<u8>,
 }
@@ -276,14 +278,17 @@ impl StepSnapshot {
             faulted: false,
             stats: NodeStats::default(),
             dt: 0.0,
+            log_time: 0,
             topics: Vec::with_capacity(Topic::ALL.len()),
             buffer: Vec::new(),
             model,
         }
     }
 
-    /// Copies what the state messages read from `view` (same model; no allocation once sized).
-    fn fill(&mut self, view: &NodeView<'_>) {
+    /// Copies what the state messages read from `view` (same model; no allocation once sized),
+    /// to be logged at `log_time`.
+    fn fill(&mut self, view: &NodeView<'_>, log_time: u64) {
+        self.log_time = log_time;
         self.state.copy_from(view.state);
         let (to, from) = (&mut self.workspace, view.workspace);
         // the messages read point positions only (not velocities or Jacobians)
@@ -334,11 +339,11 @@ impl Compose for StepSnapshot {
             stats: self.stats,
             dt: self.dt,
         };
-        for &(topic, handle, log_time) in &self.topics {
+        for &(topic, handle) in &self.topics {
             // finiteness was checked on the node's thread (`BagRecorder::publish`)
             if let Ok(Some(message)) = TopicMessage::build(topic, &view) {
                 if crate::io::bag::encode_cdr(&mut self.buffer, &message).is_ok() {
-                    out(handle, self.stats.steps as u32, log_time, &self.buffer);
+                    out(handle, self.stats.steps as u32, self.log_time, &self.buffer);
                 }
             }
         }
@@ -358,15 +363,11 @@ pub struct BagRecorder {
     /// The state topics of the latest step, not yet handed to the writer thread (they go when
     /// another state, any other message, or the end comes).
     pending: Option<Box<StepSnapshot>>,
-    /// The log time of the pending step's messages.
-    pending_log_time: u64,
     /// Bag topic of each `Topic`, in `Topic::ALL` order.
     topics: [Option<BagTopic>; 10],
     applied: BagTopic,
     actuator_names: Vec<String>,
     log_time: LogTime,
-    /// The last sim time and step seen (stamps of applied commands for `LogTime::SimTime`).
-    last: (f64, u64),
 }
 
 impl BagRecorder {
@@ -394,12 +395,10 @@ impl BagRecorder {
             writer: Some(writer),
             model: std::sync::Arc::new(model.clone()),
             pending: None,
-            pending_log_time: 0,
             topics,
             applied,
             actuator_names: model.actuator_names.clone(),
             log_time,
-            last: (0.0, 0),
         })
     }
 
@@ -468,7 +467,6 @@ impl NodeSink for BagRecorder {
             return Ok(());
         };
         let step = view.stats.steps;
-        self.last = (view.state.time, step);
         let failed = |e: BagError| PublishError::Failed(format!("bag: {e}"));
         if DEFERRED.contains(&topic) {
             if topic == Topic::CableStates && !cables_finite(view.workspace) {
@@ -476,7 +474,7 @@ impl NodeSink for BagRecorder {
             }
             let mut sent = Ok(());
             if !self.pending.as_ref().is_some_and(|p| p.holds(view)) {
-                self.pending_log_time = self.stamp(view.state.time, step);
+                let log_time = self.stamp(view.state.time, step);
                 // a dropped previous state is reported with this message, which still goes
                 sent = self.send_pending();
                 let model = &self.model;
@@ -485,12 +483,11 @@ impl NodeSink for BagRecorder {
                     .as_ref()
                     .and_then(BagWriter::recycled::<StepSnapshot>)
                     .unwrap_or_else(|| Box::new(StepSnapshot::new(model.clone())));
-                snapshot.fill(view);
+                snapshot.fill(view, log_time);
                 self.pending = Some(snapshot);
             }
-            // one log time for a state's messages (taken when its first message came)
             if let Some(p) = &mut self.pending {
-                p.topics.push((topic, handle, self.pending_log_time));
+                p.topics.push((topic, handle));
             }
             return sent.map_err(failed);
         }
