@@ -138,6 +138,11 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// The value after `name` in `args`, parsed (`None` when absent or not parseable).
+fn option<T: std::str::FromStr>(args: &[String], name: &str) -> Option<T> {
+    args.iter().position(|a| a == name).and_then(|k| args.get(k + 1)).and_then(|v| v.parse().ok())
+}
+
 fn main() {
     #[cfg(feature = "ros2")]
     if !netns::isolated_or_rerun(
@@ -147,19 +152,9 @@ fn main() {
     }
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
-    let seconds: u64 = args
-        .iter()
-        .position(|a| a == "--seconds")
-        .and_then(|k| args.get(k + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(if quick { 10 } else { 60 });
+    let seconds: u64 = option(&args, "--seconds").unwrap_or(if quick { 10 } else { 60 });
     let steps = seconds * 1000;
-    let runs: usize = args
-        .iter()
-        .position(|a| a == "--runs")
-        .and_then(|k| args.get(k + 1))
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(2);
+    let runs: usize = option(&args, "--runs").unwrap_or(2);
     let paced = !args.iter().any(|a| a == "--as-fast-as-possible");
     let dir = std::env::temp_dir().join(format!("tensegrity-record-bench-{}", std::process::id()));
     println!(

@@ -212,21 +212,43 @@ fn sampled(model: &Model, settings: SimSettings, duration: f64) -> (Vec<Vec<Vect
     (out, substeps)
 }
 
+/// A scene of the error-control tests: file name, duration (s), model, and its Dormand-Prince
+/// reference at dt = 2e-5 s sampled every 0.01 s.
+struct ErrorControlCase {
+    scene: &'static str,
+    duration: f64,
+    model: Model,
+    reference: Vec<Vec<Vector3<f64>>>,
+}
+
+/// prism3, tbar and the Atwood machine with their references, computed once for the tests that
+/// share them.
+fn error_control_cases() -> &'static [ErrorControlCase] {
+    static CASES: std::sync::OnceLock<Vec<ErrorControlCase>> = std::sync::OnceLock::new();
+    CASES.get_or_init(|| {
+        [("prism3.toml", 1.5), ("tbar.toml", 1.5), ("atwood.toml", 0.5)]
+            .into_iter()
+            .map(|(scene, duration)| {
+                let model = bundled(scene);
+                let settings =
+                    SimSettings { dt: 2e-5, integrator: Integrator::DormandPrince, ..Default::default() };
+                let (reference, _) = sampled(&model, settings, duration);
+                ErrorControlCase { scene, duration, model, reference }
+            })
+            .collect()
+    })
+}
+
 #[test]
 fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
-    for (scene, duration) in [("prism3.toml", 1.5), ("tbar.toml", 1.5), ("atwood.toml", 0.5)] {
-        let model = bundled(scene);
-        let (reference, _) = sampled(
-            &model,
-            SimSettings { dt: 2e-5, integrator: Integrator::DormandPrince, ..Default::default() },
-            duration,
-        );
+    for ErrorControlCase { scene, duration, model, reference } in error_control_cases() {
+        let (scene, duration) = (*scene, *duration);
         for integrator in [Integrator::GeneralizedAlpha { rho_inf: 0.8 }, Integrator::DormandPrince] {
             for tol in [1e-4, 1e-6] {
                 let settings =
                     SimSettings { dt: 0.01, integrator, tolerance: Some(tol), ..Default::default() };
-                let (run, substeps) = sampled(&model, settings, duration);
-                let error = largest_distance(&run, &reference);
+                let (run, substeps) = sampled(model, settings, duration);
+                let error = largest_distance(&run, reference);
                 let what = format!("{scene}, {} at tolerance {tol:e}", integrator.name());
                 assert!(error <= 3.0 * tol, "{what}: largest point error {error:e}");
                 // the fixed step of equal accuracy: the largest of 10 ms / k that is as accurate
@@ -239,8 +261,8 @@ fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
                     if Simulator::new(model.clone(), settings).is_err() {
                         continue; // above an explicit method's stability limit
                     }
-                    let (fixed, steps) = sampled(&model, settings, duration);
-                    if largest_distance(&fixed, &reference) <= error {
+                    let (fixed, steps) = sampled(model, settings, duration);
+                    if largest_distance(&fixed, reference) <= error {
                         fixed_steps = Some(steps);
                         break;
                     }
@@ -265,13 +287,8 @@ fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
 /// Dormand-Prince's error on prism3 reached 3.3 and 6.6 times 1e-8 and 1e-9 m).
 #[test]
 fn dormand_prince_meets_tight_tolerances() {
-    for (scene, duration) in [("prism3.toml", 1.5), ("tbar.toml", 1.5), ("atwood.toml", 0.5)] {
-        let model = bundled(scene);
-        let (reference, _) = sampled(
-            &model,
-            SimSettings { dt: 2e-5, integrator: Integrator::DormandPrince, ..Default::default() },
-            duration,
-        );
+    for ErrorControlCase { scene, duration, model, reference } in error_control_cases() {
+        let (scene, duration) = (*scene, *duration);
         for tol in [1e-8, 1e-9] {
             let settings = SimSettings {
                 dt: 0.01,
@@ -279,8 +296,8 @@ fn dormand_prince_meets_tight_tolerances() {
                 tolerance: Some(tol),
                 ..Default::default()
             };
-            let (run, _) = sampled(&model, settings, duration);
-            let error = largest_distance(&run, &reference);
+            let (run, _) = sampled(model, settings, duration);
+            let error = largest_distance(&run, reference);
             assert!(error <= 3.0 * tol, "{scene} at tolerance {tol:e}: largest point error {error:e}");
         }
     }

@@ -168,16 +168,18 @@ fn a_quasi_static_bag_reads_back_and_replays_identically() {
     assert!(ring(12) < ring(0), "{} -> {}", ring(0), ring(12));
 }
 
-/// Records `steps` steps of the bundled prism through the node core (ring commands at steps 20
-/// and 60, a reset at 90) into `dir` with small chunks, the way the CLI and the node record.
-fn record_through_the_core(dir: &Path, steps: u64, chunk_size: u64) -> u64 {
+/// The bundled prism's node core (state every step, no pacing), started into a recorder of
+/// `dir` with `options` (logged by step), and a command for its ring winch.
+fn prism_core_recording(
+    dir: &Path,
+    options: &BagOptions,
+) -> (NodeCore, record::BagRecorder, msg::ActuatorCommand) {
     let model = tensegrity::scene::load(&scene_path("prism3.toml")).unwrap();
     let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
     let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
     let run = record::run_info(record::KIND_NODE, &model, "prism3", sim.settings(), &params);
-    let options = BagOptions { chunk_size, ..BagOptions::default() };
     let mut recorder =
-        record::BagRecorder::create(dir, &model, &params, &run, record::LogTime::Step, &options).unwrap();
+        record::BagRecorder::create(dir, &model, &params, &run, record::LogTime::Step, options).unwrap();
     let mut core = NodeCore::with_simulator(sim, params);
     core.start(&mut recorder);
     let ring = msg::ActuatorCommand {
@@ -186,6 +188,14 @@ fn record_through_the_core(dir: &Path, steps: u64, chunk_size: u64) -> u64 {
         rate: vec![0.5],
         ..Default::default()
     };
+    (core, recorder, ring)
+}
+
+/// Records `steps` steps of the bundled prism through the node core (ring commands at steps 20
+/// and 60, a reset at 90) into `dir` with small chunks, the way the CLI and the node record.
+fn record_through_the_core(dir: &Path, steps: u64, chunk_size: u64) -> u64 {
+    let (mut core, mut recorder, ring) =
+        prism_core_recording(dir, &BagOptions { chunk_size, ..BagOptions::default() });
     for k in 0..steps {
         let now = Duration::from_millis(k);
         match k {
@@ -327,21 +337,9 @@ fn a_killed_recording_keeps_what_it_flushed() {
 #[test]
 fn a_full_writer_queue_drops_whole_states_never_commands_or_the_structure() {
     let dir = bag_dir("full-queue");
-    let model = tensegrity::scene::load(&scene_path("prism3.toml")).unwrap();
-    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
-    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
-    let run = record::run_info(record::KIND_NODE, &model, "prism3", sim.settings(), &params);
-    let options = BagOptions { queue: 1, ..BagOptions::default() };
-    let mut recorder =
-        record::BagRecorder::create(&dir, &model, &params, &run, record::LogTime::Step, &options).unwrap();
-    let mut core = NodeCore::with_simulator(sim, params.clone());
-    core.start(&mut recorder);
-    let ring = msg::ActuatorCommand {
-        name: vec!["ring_winch".into()],
-        rest_length: vec![4.0],
-        rate: vec![0.5],
-        ..Default::default()
-    };
+    let (mut core, mut recorder, ring) =
+        prism_core_recording(&dir, &BagOptions { queue: 1, ..BagOptions::default() });
+    let params = core.params().clone();
     let steps = 300;
     for k in 0..steps {
         if k == 100 || k == 200 {
