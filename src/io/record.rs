@@ -6,7 +6,7 @@
 //! takes such a bag back (`replay`) and runs it again with the recorded commands (and resets) at
 //! their recorded steps, comparing every recorded message bit for bit.
 //!
-//! On the node's thread a step's state topics cost a copy (`StepSnapshot`: the state, the
+//! On the node's thread a step's state topics (not `/clock`) cost a copy (`StepSnapshot`: the state, the
 //! cables' responses, the points' positions, into a recycled buffer); the bag's writer thread
 //! builds and serializes their messages (`bag::Compose`). When its queue is full a state is
 //! dropped whole (counted as a publish failure); the structure, the static transforms and the
@@ -520,10 +520,12 @@ impl NodeSink for BagRecorder {
     }
 }
 
-/// The topics whose messages the writer thread builds from a `StepSnapshot` (the others, rare
-/// or once, are built on the node's thread).
-const DEFERRED: [Topic; 6] =
-    [Topic::Clock, Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers];
+/// The topics whose messages the writer thread builds from a `StepSnapshot`. The others are
+/// built on the node's thread: those sent once or rarely, and `/clock`, which the node sends
+/// every step whatever its state rate and whose message is one time stamp (a snapshot for it
+/// alone would copy the whole state).
+const DEFERRED: [Topic; 5] =
+    [Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers];
 
 /// True when every cable number the cable-states message carries is finite (what
 /// `TopicMessage::build` refuses otherwise, checked before the message is deferred).
