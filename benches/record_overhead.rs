@@ -22,7 +22,6 @@ mod netns;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use tensegrity::io::bag::BagOptions;
 use tensegrity::io::msg::SimResult;
 use tensegrity::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
 use tensegrity::io::params::NodeParams;
@@ -84,7 +83,8 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
         let _ = std::fs::remove_dir_all(dir);
         let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
         let recorder =
-            BagRecorder::create(dir, &model, &params, &run, LogTime::Wall, &BagOptions::default()).unwrap();
+            BagRecorder::create(dir, &model, &params, &run, LogTime::Wall, &record::node_bag_options())
+                .unwrap();
         transports.push(Box::new(recorder));
     }
     let mut core = NodeCore::with_simulator(sim, params);

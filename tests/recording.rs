@@ -368,3 +368,45 @@ fn a_full_writer_queue_drops_whole_states_never_commands_or_the_structure() {
     let difference = report.difference.expect("a dropped state is a message the bag lacks");
     assert!(difference.field.contains("message"), "{difference:?}");
 }
+
+/// Nice values of this process's threads named `name` (Linux `/proc`: field 19 of a task's
+/// `stat`).
+fn nice_values_of_threads(name: &str) -> Vec<i64> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir("/proc/self/task").unwrap().flatten() {
+        let comm = std::fs::read_to_string(task.path().join("comm")).unwrap_or_default();
+        let stat = std::fs::read_to_string(task.path().join("stat")).unwrap_or_default();
+        if comm.trim_end() != name {
+            continue;
+        }
+        // the fields after the command name, which may itself hold spaces, start at field 3
+        let after = stat.rsplit(')').next().unwrap_or("");
+        if let Some(nice) = after.split_whitespace().nth(19 - 3).and_then(|p| p.parse::<i64>().ok()) {
+            out.push(nice);
+        }
+    }
+    out
+}
+
+/// A node's recorder writes from a background thread (nice 10) so that on a two-core machine the
+/// writer never delays the real-time step; offline recorders keep the default priority. The only
+/// background writers of this test binary are this test's.
+#[test]
+fn a_nodes_bag_writer_runs_in_the_background_and_an_offline_one_does_not() {
+    let dir = bag_dir("background-writer");
+    let (core, _, _) = prism_core_recording(&dir.join("setup"), &BagOptions::default());
+    let background =
+        || nice_values_of_threads("bag writer").iter().filter(|&&n| n == bag::BACKGROUND_NICE as i64).count();
+    let offline = BagOptions::default();
+    assert!(!offline.background);
+    let node = record::BagRecorder::for_node(&core, &dir.join("node")).unwrap();
+    // the thread lowers its own priority first thing: give it the moment it needs
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while background() == 0 && std::time::Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    assert_eq!(background(), 1, "the node's bag writer is not at nice {}", bag::BACKGROUND_NICE);
+    node.finish().unwrap();
+    assert_eq!(background(), 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -354,6 +354,12 @@ impl Compose for StepSnapshot {
     }
 }
 
+/// The bag options of a node's recording: the defaults with the writer thread in the
+/// background (`BagOptions::background`), as the node steps in real time.
+pub fn node_bag_options() -> BagOptions {
+    BagOptions { background: true, ..BagOptions::default() }
+}
+
 /// Records what the core publishes and applies: a `NodeSink` and a `Transport` (with no inputs)
 /// of the node's loop, or a sink of an offline run.
 pub struct BagRecorder {
@@ -408,7 +414,7 @@ impl BagRecorder {
         let label = params.scene.as_ref().map_or("<bundled prism3>".into(), |p| p.display().to_string());
         let sim = core.simulator();
         let run = run_info(KIND_NODE, sim.model(), &label, sim.settings(), params);
-        Self::create(dir, sim.model(), params, &run, LogTime::Wall, &BagOptions::default())
+        Self::create(dir, sim.model(), params, &run, LogTime::Wall, &node_bag_options())
     }
 
     /// The bag directory.
