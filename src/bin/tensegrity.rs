@@ -582,6 +582,12 @@ fn replay(bag: &Path, scene: Option<&Path>, out: Option<&Path>) -> Result<(), St
     if let Some(cut) = &report.cut_short {
         say!("note: the bag stops early ({cut}); compared up to there");
     }
+    if report.missing > 0 {
+        say!(
+            "note: {} messages of the re-run are missing from the bag (its writer dropped them on a full queue); skipped",
+            report.missing
+        );
+    }
     if let Some(out) = out {
         say!("re-run written to {}", out.display());
     }

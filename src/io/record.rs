@@ -671,6 +671,9 @@ pub struct ReplayReport {
     pub command_batches: u64,
     /// Resets applied from the bag.
     pub resets: u64,
+    /// Messages of the re-run that the bag lacks because its writer dropped them (a full queue
+    /// drops whole states, `BagWriter::write`): skipped, the rest is compared.
+    pub missing: u64,
     /// The first difference, if any.
     pub difference: Option<Difference>,
     /// Why the bag stopped before its end (a cut bag: compared up to there), if it did.
@@ -785,6 +788,8 @@ pub fn replay(
     }
     let applied_topic = applied_commands_topic(&params);
     let diagnostics = topic_name(Topic::Diagnostics.name(), &params);
+    // what a late joiner needs is never dropped from a bag; any other message may have been
+    let never_dropped = [names[Topic::Structure.index()].clone(), names[Topic::TfStatic.index()].clone()];
     let mut rerun;
     let mut sink;
     if kind == KIND_QUASI_STATIC {
@@ -818,6 +823,7 @@ pub fn replay(
         steps: 0,
         command_batches: 0,
         resets: 0,
+        missing: 0,
         difference: None,
         cut_short: None,
     };
@@ -860,7 +866,20 @@ pub fn replay(
             if matches!(rerun, Rerun::Path) {
                 continue;
             }
-            while steps_of(&rerun) < a.step && sink.produced.is_empty() {
+            loop {
+                // what the re-run published before these commands and the bag lacks was dropped
+                // by its writer (a full queue): skipped, unless it is never dropped
+                while sink
+                    .produced
+                    .front()
+                    .is_some_and(|m| !never_dropped.iter().flatten().any(|t| *t == m.0))
+                {
+                    sink.produced.pop_front();
+                    report.missing += 1;
+                }
+                if steps_of(&rerun) >= a.step || !sink.produced.is_empty() {
+                    break;
+                }
                 if let Err(why) = advance(&mut rerun, &mut sink, &mut report) {
                     report.difference = Some(differ(
                         a.step,
@@ -926,19 +945,30 @@ pub fn replay(
             }
             continue;
         }
-        while sink.produced.is_empty() {
-            if let Err(why) = advance(&mut rerun, &mut sink, &mut report) {
-                report.difference = Some(differ(
-                    recorded.sequence as u64,
-                    &recorded.topic,
-                    "message",
-                    "present".into(),
-                    format!("missing: {why}"),
-                ));
-                return Ok(report);
+        let (topic, sequence, data) = loop {
+            while sink.produced.is_empty() {
+                if let Err(why) = advance(&mut rerun, &mut sink, &mut report) {
+                    report.difference = Some(differ(
+                        recorded.sequence as u64,
+                        &recorded.topic,
+                        "message",
+                        "present".into(),
+                        format!("missing: {why}"),
+                    ));
+                    return Ok(report);
+                }
             }
-        }
-        let (topic, sequence, data) = sink.produced.pop_front().expect("not empty");
+            let next = sink.produced.pop_front().expect("not empty");
+            // a message the bag lacks from a step before the recorded one, or from the same step
+            // before it, is one its writer dropped (publishing is deterministic): skipped
+            let earlier =
+                next.1 < recorded.sequence || (next.1 == recorded.sequence && next.0 != recorded.topic);
+            if earlier && !never_dropped.iter().flatten().any(|t| *t == next.0) {
+                report.missing += 1;
+                continue;
+            }
+            break next;
+        };
         if topic != recorded.topic || sequence != recorded.sequence {
             report.difference = Some(differ(
                 recorded.sequence as u64,
