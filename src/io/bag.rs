@@ -6,8 +6,8 @@
 //!
 //! Writing happens on a thread of its own (`BagWriter`): the caller serializes a message into a
 //! recycled buffer and queues it, the thread compresses (zstd) and writes. The thread takes the
-//! queue in batches, sleeping `DRAIN_PERIOD` between them rather than blocking on the queue, so
-//! queueing a message never has to wake it: on a real-time node's thread a wake-up is a system
+//! queue in batches, waking `DRAIN_PERIOD` after the latest queued job rather than blocking on the
+//! queue, so queueing a message never has to wake it: on a real-time node's thread a wake-up is a system
 //! call per message (tens of microseconds per step on our 2-core virtual machine). Chunks close at
 //! `BagOptions::chunk_size` bytes or after `BagOptions::flush_period`, whichever comes first, and
 //! `metadata.yaml` is rewritten then; a closed chunk is in the file (in the kernel's page cache:
@@ -197,6 +197,33 @@ pub struct BagWriter {
     recycled_snapshots: Receiver<Box<dyn Compose>>,
     thread: Option<JoinHandle<Result<BagSummary, BagError>>>,
     dropped: u64,
+    /// When the latest job was queued (`QueueClock`), for the writer thread's wake-ups.
+    queued: QueueClock,
+}
+
+/// When the caller last queued a job, in nanoseconds since the writer was created: one atomic
+/// store per job on the caller's side, read by the writer thread to time its wake-ups.
+#[derive(Clone)]
+struct QueueClock {
+    epoch: Instant,
+    latest: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl QueueClock {
+    fn new() -> Self {
+        Self { epoch: Instant::now(), latest: Default::default() }
+    }
+
+    fn mark(&self) {
+        let now = self.epoch.elapsed().as_nanos() as u64;
+        self.latest.store(now, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Time since the latest job was queued.
+    fn since_latest(&self) -> Duration {
+        let latest = Duration::from_nanos(self.latest.load(std::sync::atomic::Ordering::Relaxed));
+        self.epoch.elapsed().saturating_sub(latest)
+    }
 }
 
 /// The MCAP file of a bag directory `dir`: `<dir name>_0.mcap`, as rosbag2 names it.
@@ -264,13 +291,15 @@ impl BagWriter {
         let flush_period = options.flush_period;
         let back = GiveBack { buffers: give_back, snapshots: give_back_snapshots };
         let background = options.background;
+        let queued = QueueClock::new();
+        let clock = queued.clone();
         let thread = std::thread::Builder::new()
             .name("bag writer".into())
             .spawn(move || {
                 if background {
                     lower_this_threads_priority(BACKGROUND_NICE);
                 }
-                write_loop(writer, path, channels, yaml_state, inbox, back, flush_period)
+                write_loop(writer, path, channels, yaml_state, inbox, back, flush_period, clock)
             })
             .map_err(|e| io_err(dir, e))?;
         Ok(Self {
@@ -281,6 +310,7 @@ impl BagWriter {
             recycled_snapshots,
             thread: Some(thread),
             dropped: 0,
+            queued,
         })
     }
 
@@ -345,6 +375,7 @@ impl BagWriter {
         } else {
             jobs.send(job).map_err(|_| ())
         };
+        self.queued.mark();
         sent.map_err(|()| stopped())
     }
 
@@ -389,7 +420,11 @@ impl Drop for BagWriter {
     }
 }
 
-/// How long the writer thread sleeps when it has emptied its queue.
+/// How long after the latest queued job the writer thread wakes when it has emptied its queue
+/// (at most this long asleep). Timed from the latest job, not from when the queue emptied, the
+/// wake-ups lock onto a caller that queues in bursts (a node's step every millisecond): the
+/// writer drains just after a burst, in the caller's quiet time, instead of beside its next
+/// step on a machine with few cores.
 pub const DRAIN_PERIOD: Duration = Duration::from_millis(5);
 
 /// Composed snapshots the writer thread keeps for reuse.
@@ -425,6 +460,7 @@ fn write_loop(
     inbox: Receiver<Job>,
     give_back: GiveBack,
     flush_period: Duration,
+    queued: QueueClock,
 ) -> Result<BagSummary, BagError> {
     let mut counts = vec![0u64; channels.len()];
     let mut range: Option<(u64, u64)> = None;
@@ -463,8 +499,12 @@ fn write_loop(
             }
             Ok(Job::Finish) | Err(TryRecvError::Disconnected) => break,
             Err(TryRecvError::Empty) => {
-                // the queue is empty: sleep (the caller never waits on this thread)
-                let mut nap = DRAIN_PERIOD;
+                // the queue is empty: sleep (the caller never waits on this thread) until
+                // `DRAIN_PERIOD` after the latest job, or that long when it is older
+                let mut nap = match DRAIN_PERIOD.saturating_sub(queued.since_latest()) {
+                    Duration::ZERO => DRAIN_PERIOD,
+                    left => left,
+                };
                 if unflushed {
                     nap = nap.min(flush_period.saturating_sub(last_flush.elapsed()));
                 }
