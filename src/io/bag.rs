@@ -7,8 +7,8 @@
 //! Writing happens on a thread of its own (`BagWriter`): the caller serializes a message into a
 //! recycled buffer and queues it, the thread compresses (zstd) and writes. The thread takes the
 //! queue in batches, waking `DRAIN_PERIOD` after the latest queued job rather than blocking on the
-//! queue, so queueing a message never has to wake it: on a real-time node's thread a wake-up is a system
-//! call per message (tens of microseconds per step on our 2-core virtual machine). Chunks close at
+//! queue, so queueing a message never has to wake it: on a real-time node's thread a wake-up is a
+//! system call per message (tens of microseconds per step on our 2-core virtual machine). Chunks close at
 //! `BagOptions::chunk_size` bytes or after `BagOptions::flush_period`, whichever comes first, and
 //! `metadata.yaml` is rewritten then; a closed chunk is in the file (in the kernel's page cache:
 //! a killed process loses nothing written before it, a power cut may). So a run of hours never
@@ -437,8 +437,6 @@ struct GiveBack {
     snapshots: SyncSender<Box<dyn Compose>>,
 }
 
-/// The writer thread: writes queued messages (in batches, `DRAIN_PERIOD` apart), closes a chunk
-/// every `flush_period`, and finishes.
 /// Sets the calling thread's nice value to `nice` (best effort: where it fails, or off Linux,
 /// the thread keeps its priority). On Linux a nice value belongs to one thread, not the process.
 fn lower_this_threads_priority(nice: i32) {
@@ -453,6 +451,8 @@ fn lower_this_threads_priority(nice: i32) {
     let _ = nice;
 }
 
+/// The writer thread: writes queued messages (in batches, each `DRAIN_PERIOD` after the latest
+/// queued job), closes a chunk every `flush_period`, and finishes.
 fn write_loop(
     mut writer: mcap::Writer<BufWriter<File>>,
     path: PathBuf,

@@ -6,11 +6,11 @@
 //! takes such a bag back (`replay`) and runs it again with the recorded commands (and resets) at
 //! their recorded steps, comparing every recorded message bit for bit.
 //!
-//! On the node's thread a step's state topics (not `/clock`) cost a copy (`StepSnapshot`: the state, the
-//! cables' responses, the points' positions, into a recycled buffer); the bag's writer thread
-//! builds and serializes their messages (`bag::Compose`). When its queue is full a state is
-//! dropped whole (counted as a publish failure); the structure, the static transforms and the
-//! applied commands never are.
+//! On the node's thread a step's state topics (not `/clock`) cost a copy (`StepSnapshot`: the
+//! state, the cables' responses, the points' positions, into a recycled buffer); the bag's writer
+//! thread builds and serializes their messages (`bag::Compose`). When its queue is full a state
+//! is dropped whole (counted as a publish failure); the structure, the static transforms and the
+//! applied commands never are (`droppable`).
 //!
 //! Each message's MCAP `sequence` is the simulator's step count when it was published (steps
 //! since the start, resets included; modulo 2^32), its log time the wall clock for the node and
@@ -502,9 +502,7 @@ impl NodeSink for BagRecorder {
         // and the failure is reported with it
         let pending = self.send_pending();
         let Some(message) = TopicMessage::build(topic, view)? else { return pending.map_err(failed) };
-        // what a late joiner needs is never dropped; state messages are when the queue is full
-        let droppable = !matches!(topic, Topic::Structure | Topic::TfStatic);
-        self.writer().write(handle, step as u32, log_time, &message, droppable).map_err(failed)?;
+        self.writer().write(handle, step as u32, log_time, &message, droppable(topic)).map_err(failed)?;
         pending.map_err(failed)
     }
 
@@ -524,6 +522,12 @@ impl NodeSink for BagRecorder {
         };
         self.write_applied(&m);
     }
+}
+
+/// True when a full writer queue may drop `topic`'s messages from a bag: every topic but what a
+/// late joiner needs (the structure, the static transforms). Applied commands are never dropped.
+fn droppable(topic: Topic) -> bool {
+    !matches!(topic, Topic::Structure | Topic::TfStatic)
 }
 
 /// The topics whose messages the writer thread builds from a `StepSnapshot`. The others are
@@ -696,11 +700,20 @@ pub enum ReplayError {
     },
 }
 
+/// A message of the re-run: topic name, sequence (step), serialized bytes, and whether a bag
+/// may lack it (`droppable`).
+struct Produced {
+    topic: String,
+    sequence: u32,
+    data: Vec<u8>,
+    droppable: bool,
+}
+
 /// Collects what a re-run publishes, serialized as the recorder would, and passes it on to an
 /// optional recorder (`--out`).
 struct RerunSink {
     names: [Option<String>; 10],
-    produced: VecDeque<(String, u32, Vec<u8>)>,
+    produced: VecDeque<Produced>,
     applied: u64,
     out: Option<BagRecorder>,
 }
@@ -716,7 +729,12 @@ impl NodeSink for RerunSink {
         let Some(message) = TopicMessage::build(topic, view)? else { return Ok(()) };
         let mut data = Vec::new();
         crate::io::bag::encode_cdr(&mut data, &message).map_err(|e| PublishError::Failed(e.to_string()))?;
-        self.produced.push_back((name.clone(), view.stats.steps as u32, data));
+        self.produced.push_back(Produced {
+            topic: name.clone(),
+            sequence: view.stats.steps as u32,
+            data,
+            droppable: droppable(topic),
+        });
         Ok(())
     }
     fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
@@ -788,8 +806,6 @@ pub fn replay(
     }
     let applied_topic = applied_commands_topic(&params);
     let diagnostics = topic_name(Topic::Diagnostics.name(), &params);
-    // what a late joiner needs is never dropped from a bag; any other message may have been
-    let never_dropped = [names[Topic::Structure.index()].clone(), names[Topic::TfStatic.index()].clone()];
     let mut rerun;
     let mut sink;
     if kind == KIND_QUASI_STATIC {
@@ -869,11 +885,7 @@ pub fn replay(
             loop {
                 // what the re-run published before these commands and the bag lacks was dropped
                 // by its writer (a full queue): skipped, unless it is never dropped
-                while sink
-                    .produced
-                    .front()
-                    .is_some_and(|m| !never_dropped.iter().flatten().any(|t| *t == m.0))
-                {
+                while sink.produced.front().is_some_and(|m| m.droppable) {
                     sink.produced.pop_front();
                     report.missing += 1;
                 }
@@ -892,10 +904,10 @@ pub fn replay(
                 }
             }
             let Rerun::Core { core, clock } = &mut rerun else { continue };
-            if let Some((topic, seq, _)) = sink.produced.front() {
+            if let Some(m) = sink.produced.front() {
                 report.difference = Some(differ(
-                    *seq as u64,
-                    topic,
+                    m.sequence as u64,
+                    &m.topic,
                     "message",
                     "none (the bag has the applied commands next)".into(),
                     "one more".into(),
@@ -945,7 +957,7 @@ pub fn replay(
             }
             continue;
         }
-        let (topic, sequence, data) = loop {
+        let Produced { topic, sequence, data, .. } = loop {
             while sink.produced.is_empty() {
                 if let Err(why) = advance(&mut rerun, &mut sink, &mut report) {
                     report.difference = Some(differ(
@@ -961,9 +973,9 @@ pub fn replay(
             let next = sink.produced.pop_front().expect("not empty");
             // a message the bag lacks from a step before the recorded one, or from the same step
             // before it, is one its writer dropped (publishing is deterministic): skipped
-            let earlier =
-                next.1 < recorded.sequence || (next.1 == recorded.sequence && next.0 != recorded.topic);
-            if earlier && !never_dropped.iter().flatten().any(|t| *t == next.0) {
+            let earlier = next.sequence < recorded.sequence
+                || (next.sequence == recorded.sequence && next.topic != recorded.topic);
+            if earlier && next.droppable {
                 report.missing += 1;
                 continue;
             }
