@@ -8,8 +8,12 @@
 //! - RK4 conserves the undamped Atwood machine's energy, with a drift that shrinks like h^4;
 //! - error-controlled runs (generalized-alpha and Dormand-Prince with a tolerance) meet it against
 //!   a fine reference on prism3, tbar and the Atwood machine (largest point error at most 3 times
-//!   the tolerance), with fewer steps than the fixed step of equal accuracy, and never leave a
-//!   non-finite number in the state or the outputs, rejected sub-steps or not.
+//!   the tolerance), with fewer steps than the fixed step of equal accuracy (generalized-alpha on
+//!   prism3: at most 1.3 times), and never leave a non-finite number in the state or the
+//!   outputs, rejected sub-steps or not;
+//! - generalized-alpha's error-controlled step stays the same through an oscillation (the jerk's
+//!   envelope, `dynamics::jerk_envelope`, not the jerk), and that envelope is the amplitude times
+//!   w^3 at every phase of a sine.
 
 mod common;
 
@@ -268,12 +272,15 @@ fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
                     }
                 }
                 let fixed_steps = fixed_steps.unwrap_or(usize::MAX);
-                // Dormand-Prince: never more steps than the fixed step of equal accuracy;
-                // generalized-alpha: at most 1.5 times (its estimate keeps the steps small while a
-                // structure rings after an actuator starts or stops, where a uniform step would
-                // not need them: README, error-controlled steps)
-                let allowed =
-                    if integrator == Integrator::DormandPrince { fixed_steps } else { fixed_steps * 3 / 2 };
+                // never more steps than the fixed step of equal accuracy, but generalized-alpha on
+                // prism3: at most 1.3 times (1.18 and 1.26 measured; its estimate keeps the steps
+                // small while the structure rings after the actuator starts and stops, where a
+                // uniform step does not need them: README, error-controlled steps)
+                let allowed = if integrator != Integrator::DormandPrince && scene == "prism3.toml" {
+                    fixed_steps * 13 / 10
+                } else {
+                    fixed_steps
+                };
                 assert!(
                     substeps <= allowed,
                     "{what}: {substeps} attempted sub-steps, fixed step of equal error {fixed_steps}"
@@ -281,6 +288,54 @@ fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
             }
         }
     }
+}
+
+/// The elastic Atwood machine oscillates about its equilibrium: after the first 50 ms, every
+/// 10 ms output interval takes the same number of generalized-alpha sub-steps within 10 %.
+/// With the jerk alone in the estimate this ranged from 33 to 94 at 1e-6 m, following the jerk
+/// through the cycle, and took 1.39 times the sub-steps of the fixed step of equal error.
+#[test]
+fn error_controlled_generalized_alpha_keeps_its_step_through_an_oscillation() {
+    let model = bundled("atwood.toml");
+    let settings = SimSettings {
+        dt: 0.01,
+        integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
+        tolerance: Some(1e-6),
+        ..Default::default()
+    };
+    let mut sim = Simulator::new(model, settings).unwrap();
+    let per_interval: Vec<usize> = (0..50).map(|_| sim.step().unwrap().substeps).collect();
+    let settled = &per_interval[5..];
+    let (least, most) = (settled.iter().min().unwrap(), settled.iter().max().unwrap());
+    assert!(*most as f64 <= 1.1 * *least as f64, "sub-steps per 10 ms interval: {per_interval:?}");
+}
+
+#[test]
+fn the_jerk_envelope_of_a_sine_is_its_amplitude_times_w_cubed_at_every_phase() {
+    let (amplitude, w) = (0.02, 40.0);
+    let acceleration = |t: f64| -amplitude * w * w * (w * t).sin();
+    let (h_prev, h) = (2e-4, 3e-4); // unequal steps
+    let exact = amplitude * w.powi(3);
+    for k in 0..64 {
+        let t = k as f64 * std::f64::consts::PI / (32.0 * w);
+        let envelope = tensegrity::solve::dynamics::jerk_envelope(
+            acceleration(t - h_prev),
+            acceleration(t),
+            acceleration(t + h),
+            h_prev,
+            h,
+            0.0,
+        );
+        // the differences are accurate to O(w h) (the central difference's first-order term on
+        // unequal steps): 1.2 % here
+        assert!((envelope - exact).abs() <= 0.02 * exact, "phase {t}: {envelope} against {exact}");
+        // the jerk alone: zero at the sine's extremes
+        let jerk = (acceleration(t + h) - acceleration(t - h_prev)) / (h_prev + h);
+        assert!(jerk.abs() <= envelope * 1.0001);
+    }
+    // noise in the accelerations: the snap's share goes, the jerk's stays
+    let noisy = tensegrity::solve::dynamics::jerk_envelope(-1.0, -1.0, -1.0, h_prev, h, 1e3);
+    assert_eq!(noisy, 0.0);
 }
 
 /// Tight tolerances too (where, before `explicit::local_tolerance` transformed them,
