@@ -662,11 +662,10 @@ impl Dynamics {
                 error = error.max(weight * envelope * lever);
             }
         }
-        // the joints' noise in the accelerations, 1e-12 L / (beta h^2), is a floor of
-        // 2 |beta - 1/6| / beta 1e-12 L in the jerk term whatever the step: below it the
+        // the joints' noise in the accelerations, `joint_noise` at each of two samples, is a
+        // floor of 2 |beta - 1/6| / beta 1e-12 L in the jerk term whatever the step: below it the
         // estimate says nothing
-        let noise =
-            if nc > 0 { 2.0 * (c.beta - 1.0 / 6.0).abs() / c.beta * 1e-12 * length_scale } else { 0.0 };
+        let noise = 2.0 * weight * joint_noise / h;
         let error = (error - noise).max(0.0);
         stats.error = Some(error);
         if let Some(tol) = tolerance {
