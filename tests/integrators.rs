@@ -13,7 +13,9 @@
 //!   outputs, rejected sub-steps or not;
 //! - generalized-alpha's error-controlled step stays the same through an oscillation (the jerk's
 //!   envelope, `dynamics::jerk_envelope`, not the jerk), and that envelope is the amplitude times
-//!   w^3 at every phase of a sine.
+//!   w^3 at every phase of a sine;
+//! - on a structure that rings while it deploys (prism3) it refuses at most 5 % of its attempts
+//!   (the held envelope, `dynamics::ENVELOPE_HOLD`).
 
 mod common;
 
@@ -273,7 +275,7 @@ fn error_controlled_runs_meet_their_tolerance_with_fewer_steps() {
                 }
                 let fixed_steps = fixed_steps.unwrap_or(usize::MAX);
                 // never more steps than the fixed step of equal accuracy, but generalized-alpha on
-                // prism3: at most 1.3 times (1.18 and 1.26 measured; its estimate keeps the steps
+                // prism3: at most 1.3 times (1.18 and 1.12 measured; its estimate keeps the steps
                 // small while the structure rings after the actuator starts and stops, where a
                 // uniform step does not need them: README, error-controlled steps)
                 let allowed = if integrator != Integrator::DormandPrince && scene == "prism3.toml" {
@@ -308,6 +310,29 @@ fn error_controlled_generalized_alpha_keeps_its_step_through_an_oscillation() {
     let settled = &per_interval[5..];
     let (least, most) = (settled.iter().min().unwrap(), settled.iter().max().unwrap());
     assert!(*most as f64 <= 1.1 * *least as f64, "sub-steps per 10 ms interval: {per_interval:?}");
+}
+
+/// prism3 rings while its ring cable is wound in. The jerk envelope of that sum dips once per
+/// cycle of the ring, and without `dynamics::ENVELOPE_HOLD` every dip let the step grow fivefold
+/// into a refusal: 965 of 7573 attempts (13 %) were refused at 1e-6 m. With the hold, 251 of
+/// 6717 (3.7 %).
+#[test]
+fn error_controlled_generalized_alpha_rarely_refuses_a_step_on_a_ringing_prism() {
+    let settings = SimSettings {
+        dt: 0.01,
+        integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
+        tolerance: Some(1e-6),
+        ..Default::default()
+    };
+    let mut sim = Simulator::new(bundled("prism3.toml"), settings).unwrap();
+    let (mut accepted, mut refused) = (0, 0);
+    for _ in 0..150 {
+        let stats = sim.step().unwrap();
+        accepted += stats.substeps;
+        refused += stats.rejected;
+    }
+    let attempts = accepted + refused;
+    assert!(refused * 20 <= attempts, "{refused} of {attempts} attempts refused");
 }
 
 #[test]
