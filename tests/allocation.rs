@@ -1,7 +1,9 @@
 //! Invariant: once running, a simulation step allocates no memory — generalized-alpha and
 //! symplectic Euler, dense (prism3: LU, and the joints' Schur complement for Euler) and sparse
-//! (tower: supernodal LDL^T of the symmetric part, and LU), with joints, sliding cables, damping
-//! and actuation. A counting global allocator watches the stepping thread.
+//! (tower: supernodal LDL^T of the symmetric part, and LU), RK4 and Dormand-Prince, and
+//! error-controlled steps (generalized-alpha on prism3 and the tower, Dormand-Prince: sub-steps,
+//! refused attempts and the error estimate), with joints, sliding cables, damping and actuation.
+//! A counting global allocator watches the stepping thread.
 
 // A global allocator can only be written with `unsafe`; it forwards to `System` unchanged.
 #![allow(unsafe_code)]
@@ -70,7 +72,23 @@ fn stepping_allocates_nothing() {
         linear,
         ..Default::default()
     };
+    let explicit = |integrator, dt| SimSettings { dt, integrator, ..Default::default() };
+    let controlled =
+        |integrator| SimSettings { dt: 1e-3, integrator, tolerance: Some(1e-6), ..Default::default() };
     for (scene, settings, what) in [
+        ("prism3.toml", explicit(Integrator::Rk4, 1e-3), "RK4"),
+        ("prism3.toml", explicit(Integrator::DormandPrince, 1e-3), "Dormand-Prince"),
+        ("prism3.toml", controlled(Integrator::DormandPrince), "Dormand-Prince, error-controlled"),
+        (
+            "prism3.toml",
+            controlled(Integrator::GeneralizedAlpha { rho_inf: 0.8 }),
+            "generalized-alpha, error-controlled",
+        ),
+        (
+            "tower.toml",
+            controlled(Integrator::GeneralizedAlpha { rho_inf: 0.8 }),
+            "generalized-alpha, error-controlled, tower",
+        ),
         ("prism3.toml", ga(LinearBackend::Dense), "generalized-alpha, dense"),
         ("prism3.toml", euler(LinearBackend::Dense), "symplectic Euler, dense"),
         ("tower.toml", ga(LinearBackend::Sparse), "generalized-alpha, sparse"),
