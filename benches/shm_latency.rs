@@ -114,8 +114,7 @@ fn command_to_effect(samples: usize, with_dds: bool) {
     std::thread::sleep(Duration::from_millis(500));
     let modes = if with_dds { 2 } else { 1 };
 
-    // shm with the client's default wait (sleeps until 200 us before the sample it forecasts, polls
-    // from there for at most 400 us, then blocks on the node's event), and DDS
+    // shm with the client's default wait (polls 200 us, then blocks on the node's event), and DDS
     const MODES: [&str; 2] = ["shm (iceoryx2)", "DDS (RustDDS, loopback)"];
     let mut total: [Vec<f64>; 2] = Default::default();
     let (mut wait, mut node_side, mut delivery, mut rest) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());

@@ -23,8 +23,8 @@ use tensegrity::control::ActuatorCommand;
 use tensegrity::io::node::NodeCore;
 use tensegrity::io::params::{NodeParams, TransportKind};
 use tensegrity::io::shm::{
-    check_capacity, ArrivalForecast, CommandEntry, ShmClient, ShmError, StateSample, MAX_ACTUATORS,
-    MAX_BODIES, MAX_CONTROLLERS,
+    check_capacity, CommandEntry, ShmClient, ShmError, StateSample, MAX_ACTUATORS, MAX_BODIES,
+    MAX_CONTROLLERS,
 };
 use tensegrity::model::ActuatorId;
 use tensegrity::sim::Simulator;
@@ -233,60 +233,6 @@ fn a_playing_shm_node_keeps_real_time() {
         last - first,
         stats.overruns
     );
-}
-
-#[test]
-fn the_arrival_forecast_follows_the_publish_period_and_its_stride() {
-    let mut f = ArrivalForecast::default();
-    assert_eq!(f.next_ns(), None, "nothing before a sample");
-    f.observe(1_000_000_000, 10);
-    assert_eq!(f.next_ns(), None, "nothing from one sample");
-    // every 5th step of a 1 ms node, each publish late by up to 80 us
-    let late = [30_000u64, 80_000, 0, 50_000, 10_000, 70_000, 20_000, 60_000];
-    let mut published = 0;
-    for (k, late) in late.iter().cycle().take(64).enumerate() {
-        published = 1_000_000_000 + 5_000_000 * (k as u64 + 1) + late;
-        f.observe(published, 10 + 5 * (k as u64 + 1));
-    }
-    let next = f.next_ns().unwrap();
-    // the mean of the jittered intervals stays within the jitter of 5 ms
-    assert!(next.abs_diff(published + 5_000_000) <= 80_000, "next {next}, last {published}");
-    assert!((f.interval_ns().unwrap() - 5e6).abs() <= 8e4);
-    // a reset (the steps go back) drops the forecast until two samples again
-    f.observe(published + 5_000_000, 0);
-    assert_eq!(f.next_ns(), None);
-    f.observe(published + 6_000_000, 1);
-    assert_eq!(f.next_ns(), Some(published + 7_000_000));
-}
-
-#[test]
-fn a_client_waiting_on_a_real_time_node_gets_every_state_and_its_timeout_when_the_node_stops() {
-    // state at 200 Hz from a 1 kHz node: the client's forecast interval is 5 steps
-    let params = NodeParams { state_publish_rate: 200.0, ..shm_params("forecast") };
-    let prefix = params.shm_prefix();
-    let node = RunningNode::start_serving(bundled("prism3.toml"), params);
-    let mut client = ShmClient::connect(&prefix, WAIT).unwrap();
-    let mut steps = Vec::new();
-    for _ in 0..60 {
-        steps.push(client.next_state(WAIT).unwrap().expect("a state within the timeout").payload().step);
-    }
-    let interval = client.forecast().interval_ns().expect("a forecast from the node's samples");
-    assert!((2.5e6..1e7).contains(&interval), "forecast interval {interval} ns");
-    // the forecast waits (blocking until just before each sample) lose nothing
-    assert!(steps.windows(2).all(|w| w[1] == w[0] + 5), "steps {steps:?}");
-    // and with no spin at all the client blocks at once, still in order
-    client.set_spin(Duration::ZERO);
-    let a = client.next_state(WAIT).unwrap().unwrap().payload().step;
-    let b = client.next_state(WAIT).unwrap().unwrap().payload().step;
-    assert_eq!(b, a + 5);
-    node.stop();
-    // the node gone, its samples stop: the overdue forecast must not hold the wait past its
-    // timeout
-    client.set_spin(Duration::from_micros(200));
-    drop(client.drain_states().unwrap());
-    let start = Instant::now();
-    assert!(client.next_state(Duration::from_millis(200)).unwrap().is_none());
-    assert!(start.elapsed() < Duration::from_secs(2), "waited {:?}", start.elapsed());
 }
 
 #[test]

@@ -215,11 +215,6 @@ class TensegrityClient:
     def __init__(self, prefix="tensegrity_sim", timeout=10.0, spin_us=200):
         self.prefix = prefix
         self.spin = spin_us * 1e-6
-        # when the node's next state sample is due: the newest sample's (published_ns, step) and
-        # the mean wall-clock ns per step with the steps between the last two samples (the Rust
-        # client's ArrivalForecast)
-        self._last = None
-        self._period = None
         # iceoryx2 warns that it found no config file; errors still show (IOX2_LOG_LEVEL overrides)
         iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
         self.node = (
@@ -268,35 +263,10 @@ class TensegrityClient:
         self.wake_node = self._service("to_node").event().open().notifier_builder().create()
         self.updates = self._service("from_node").event().open().listener_builder().create()
 
-    def _observe(self, published_ns, step):
-        if self._last is not None:
-            last_ns, last_step = self._last
-            if step > last_step and published_ns > last_ns:
-                stride = step - last_step
-                per_step = (published_ns - last_ns) / stride
-                mean = per_step if self._period is None else self._period[0] + (per_step - self._period[0]) / 8
-                self._period = (mean, stride)
-            elif step <= last_step:
-                self._period = None
-        self._last = (published_ns, step)
-
-    def _wait(self, ready, timeout, poll_from_ns=None):
-        """Polls `ready()` for the spin time, then blocks on the node's events until `timeout`.
-        With `poll_from_ns` (wall clock), sleeps until then first and polls for twice the spin."""
+    def _wait(self, ready, timeout):
+        """Polls `ready()` for the spin time, then blocks on the node's events until `timeout`."""
         start = time.monotonic()
-        spin = self.spin
-        if poll_from_ns is not None:
-            got = ready()
-            if got is not None:
-                return got
-            # a plain sleep: an event wait's timeout rounds up to the kernel tick and would end
-            # at the node's event instead, late by a wake-up
-            early = (poll_from_ns - time.time_ns()) * 1e-9
-            if early > 0:
-                time.sleep(min(early, timeout))
-            spin = 2 * self.spin
-        poll_start = time.monotonic()
-        while time.monotonic() - poll_start < min(spin, timeout - (poll_start - start)):
+        while time.monotonic() - start < min(self.spin, timeout):
             got = ready()
             if got is not None:
                 return got
@@ -334,9 +304,7 @@ class TensegrityClient:
         }
 
     def next_state(self, timeout=1.0):
-        """A copy of the next unread state sample, or None after `timeout` seconds. While the
-        node publishes in real time, sleeps until the spin time before the sample is due and
-        polls from there (awake when it lands, instead of woken by it)."""
+        """A copy of the next unread state sample, or None after `timeout` seconds."""
 
         def ready():
             sample = self.state_sub.receive()
@@ -346,16 +314,7 @@ class TensegrityClient:
             ctypes.memmove(ctypes.byref(copy), sample.payload_ptr, ctypes.sizeof(StateSample))
             return copy
 
-        poll_from_ns = None
-        if self._last is not None and self._period is not None and self.spin > 0:
-            interval = self._period[0] * self._period[1]
-            due = self._last[0] + interval
-            if time.time_ns() < due + interval:
-                poll_from_ns = due - self.spin * 1e9
-        got = self._wait(ready, timeout, poll_from_ns)
-        if got is not None:
-            self._observe(got.published_ns, got.step)
-        return got
+        return self._wait(ready, timeout)
 
     @staticmethod
     def _fill(command, entries):

@@ -18,17 +18,13 @@
 //! - events `to_node` (controllers notify after sending, and on asking for the structure) and `from_node` (the node notifies
 //!   after each state sample, `EVENT_STATE`, and lockstep answer, `EVENT_RESPONSE`), so neither
 //!   side busy-spins: after an answer each side polls for at most `NodeParams::shm_spin_us`
-//!   (`ShmClient::set_spin`), then blocks on its listener. A client waiting for the state of a
-//!   node stepping in real time sleeps until just before the sample it expects
-//!   (`ArrivalForecast`) and polls only around it, so the wake-up's latency falls before the
-//!   sample instead of after it.
+//!   (`ShmClient::set_spin`), then blocks on its listener.
 //!
 //! Capacities (`MAX_BODIES`, `MAX_CABLES`, `MAX_ACTUATORS`, `NAME_BYTES`) are compile-time
 //! constants checked against the scene at start-up. Dead iceoryx2 nodes (a controller or node
 //! killed with SIGKILL) are cleaned up at start and every `CLEANUP_PERIOD`, so their ports do not
 //! hold the service's slots. Only one node can serve a namespace: a second fails to start.
 
-use std::cell::Cell;
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -874,18 +870,6 @@ impl NodeWaker {
     }
 }
 
-/// Calls `ready` until it says true or `duration` has passed (a busy poll).
-fn poll_for(duration: Duration, ready: &mut impl FnMut() -> bool) -> bool {
-    let start = Instant::now();
-    while start.elapsed() < duration {
-        if ready() {
-            return true;
-        }
-        std::hint::spin_loop();
-    }
-    false
-}
-
 /// A controller's connection to a node over shared memory: state, structure, commands and
 /// lockstep, waking on the node's events (after a short poll, `set_spin`).
 pub struct ShmClient {
@@ -899,56 +883,6 @@ pub struct ShmClient {
     updates: Listener<Svc>,
     wake_node: Notifier<Svc>,
     spin: Duration,
-    /// When the node's next state sample is due (from the samples received so far).
-    forecast: Cell<ArrivalForecast>,
-}
-
-/// When a node stepping in real time will publish its next state sample, from the
-/// `published_ns` and `step` of the samples a client received: `next = last + stride period`,
-/// with `period` the wall-clock time per step (a running mean over the intervals between
-/// received samples, weight `1/8` for the newest; jitter in a publish time shifts one interval
-/// and the next one back, so the mean stays near the node's period) and `stride` the steps
-/// between the last two received samples (the node's publish rate). Nothing is forecast before
-/// two samples, or from samples whose steps did not advance (a reset, or a paused node's repeated
-/// sample).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct ArrivalForecast {
-    /// The newest sample's `published_ns` and `step`.
-    last: Option<(u64, u64)>,
-    /// Wall-clock ns per step, and the steps between the last two samples.
-    period: Option<(f64, u64)>,
-}
-
-impl ArrivalForecast {
-    /// Takes in one received sample's publish time (ns since the epoch) and step index.
-    pub fn observe(&mut self, published_ns: u64, step: u64) {
-        if let Some((last_ns, last_step)) = self.last {
-            if step > last_step && published_ns > last_ns {
-                let stride = step - last_step;
-                let per_step = (published_ns - last_ns) as f64 / stride as f64;
-                let mean = match self.period {
-                    Some((mean, _)) => mean + (per_step - mean) / 8.0,
-                    None => per_step,
-                };
-                self.period = Some((mean, stride));
-            } else if step <= last_step {
-                self.period = None;
-            }
-        }
-        self.last = Some((published_ns, step));
-    }
-
-    /// The publish time of the next sample, ns since the epoch; `None` before two samples.
-    pub fn next_ns(&self) -> Option<u64> {
-        let (last_ns, _) = self.last?;
-        let (period, stride) = self.period?;
-        Some(last_ns + (period * stride as f64).round() as u64)
-    }
-
-    /// The forecast interval between samples, ns.
-    pub fn interval_ns(&self) -> Option<f64> {
-        self.period.map(|(period, stride)| period * stride as f64)
-    }
 }
 
 /// A state sample as received (zero-copy; dereferences to `StateSample` through `payload()`).
@@ -1021,14 +955,11 @@ impl ShmClient {
             wake_node: to_node.notifier_builder().create().map_err(ipc("to_node notifier"))?,
             _node: None,
             spin: Duration::from_micros(200),
-            forecast: Cell::new(ArrivalForecast::default()),
         })
     }
 
     /// How long to poll for an answer before blocking on the node's event (default 200 us; 0
-    /// blocks at once, which costs tens of microseconds per wake-up). For the state of a node
-    /// stepping in real time, `next_state` instead sleeps until `spin` before the sample it
-    /// expects and polls from there, for at most twice `spin`.
+    /// blocks at once, which costs tens of microseconds per wake-up).
     pub fn set_spin(&mut self, spin: Duration) {
         self.spin = spin;
     }
@@ -1036,11 +967,12 @@ impl ShmClient {
     /// Waits for `ready` for up to `timeout`: polls for the spin time, then blocks on events.
     fn wait_for(&self, timeout: Duration, mut ready: impl FnMut() -> bool) -> bool {
         let start = Instant::now();
-        poll_for(self.spin.min(timeout), &mut ready) || self.block_for(start, timeout, &mut ready)
-    }
-
-    /// Blocks on the node's events until `ready` or until `timeout` after `start`.
-    fn block_for(&self, start: Instant, timeout: Duration, ready: &mut impl FnMut() -> bool) -> bool {
+        while start.elapsed() < self.spin.min(timeout) {
+            if ready() {
+                return true;
+            }
+            std::hint::spin_loop();
+        }
         loop {
             if ready() {
                 return true;
@@ -1089,17 +1021,10 @@ impl ShmClient {
     }
 
     /// The next state sample in arrival order, waiting up to `timeout`; `None` on timeout.
-    ///
-    /// While the node publishes in real time (`ArrivalForecast` has a forecast that is not
-    /// overdue by more than one interval), the wait sleeps until `spin` before the forecast
-    /// publish time and polls from there for at most `2 spin`, then blocks on events: the thread is
-    /// awake when the sample lands, instead of being woken by it (tens of microseconds on a
-    /// virtual machine). Otherwise (a paused node, the first samples) it polls for `spin` and
-    /// blocks.
     pub fn next_state(&self, timeout: Duration) -> Result<Option<StateRef>, ShmError> {
         let mut got = None;
         let mut failure = None;
-        let mut ready = || match self.state.receive() {
+        self.wait_for(timeout, || match self.state.receive() {
             Ok(Some(s)) => {
                 got = Some(s);
                 true
@@ -1109,53 +1034,11 @@ impl ShmClient {
                 failure = Some(format!("{e:?}"));
                 true
             }
-        };
-        let forecast = self.forecast.get();
-        let spin_ns = self.spin.as_nanos() as u64;
-        let now = realtime_ns();
-        match (forecast.next_ns(), forecast.interval_ns()) {
-            (Some(next), Some(interval)) if spin_ns > 0 && now < next + interval as u64 => {
-                self.wait_until_due(timeout, next.saturating_sub(spin_ns), &mut ready);
-            }
-            _ => {
-                self.wait_for(timeout, ready);
-            }
-        }
-        if let Some(s) = &got {
-            self.observe(s.payload());
-        }
+        });
         match failure {
             Some(e) => Err(ShmError::Ipc(format!("state: {e}"))),
             None => Ok(got),
         }
-    }
-
-    /// When this client expects the node's next state sample (from the samples received).
-    pub fn forecast(&self) -> ArrivalForecast {
-        self.forecast.get()
-    }
-
-    /// Takes a received state sample's publish time into the forecast.
-    fn observe(&self, sample: &StateSample) {
-        let mut forecast = self.forecast.get();
-        forecast.observe(sample.published_ns, sample.step);
-        self.forecast.set(forecast);
-    }
-
-    /// Waits for `ready` for up to `timeout`: sleeps until `poll_from_ns` (wall clock, ns since
-    /// the epoch), then polls for at most twice the spin time, then blocks on events. The sleep
-    /// is the thread's own (`nanosleep`, precise to tens of microseconds), not an event wait with
-    /// a timeout, which rounds the timeout up to the kernel's tick (4 ms here) and would instead
-    /// end at the node's event, late by a wake-up.
-    fn wait_until_due(&self, timeout: Duration, poll_from_ns: u64, ready: &mut impl FnMut() -> bool) -> bool {
-        let start = Instant::now();
-        if ready() {
-            return true;
-        }
-        let early = Duration::from_nanos(poll_from_ns.saturating_sub(realtime_ns()));
-        std::thread::sleep(early.min(timeout));
-        poll_for((2 * self.spin).min(timeout.saturating_sub(start.elapsed())), ready)
-            || self.block_for(start, timeout, ready)
     }
 
     /// Every state sample received so far, oldest first: the newest `STATE_BUFFER` of them
@@ -1170,10 +1053,7 @@ impl ShmClient {
                 out.pop_front();
             }
             match self.state.receive().map_err(ipc("state"))? {
-                Some(s) => {
-                    self.observe(s.payload());
-                    out.push_back(s)
-                }
+                Some(s) => out.push_back(s),
                 None => return Ok(out.into()),
             }
         }
