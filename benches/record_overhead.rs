@@ -1,6 +1,6 @@
 //! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
 //! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
-//! (default 2), `--as-fast-as-possible` to step without pacing; without `ros2` only the rows
+//! (default 2; 0 for the interleaved table alone), `--as-fast-as-possible` to step without pacing; without `ros2` only the rows
 //! that serve nothing).
 //!
 //! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
@@ -133,6 +133,62 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
     }
 }
 
+/// The interleaved measurement of one scene and serving: the node's core as in `run`, the bag
+/// open the whole time but handed the core's outputs only in alternate seconds of sim time
+/// (on, off, on, ...), for `pairs` seconds of each. Returns the median turn time of every
+/// second, on seconds and off seconds in order, us.
+fn run_interleaved(scene: &str, pairs: u64, bag: PathBuf, dds: bool) -> (Vec<f64>, Vec<f64>) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(scene);
+    let model = tensegrity::scene::load(&path).unwrap();
+    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+    let mut transports: Vec<Box<dyn Transport>> = Vec::new();
+    if dds {
+        #[cfg(feature = "ros2")]
+        transports.push(Box::new(
+            tensegrity::io::ros2::DdsTransport::new(&NodeParams { domain_id: 91, ..params.clone() }).unwrap(),
+        ));
+    }
+    let served = transports.len();
+    let _ = std::fs::remove_dir_all(&bag);
+    let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
+    let recorder =
+        BagRecorder::create(&bag, &model, &params, &run, LogTime::Wall, &record::node_bag_options()).unwrap();
+    transports.push(Box::new(recorder));
+    let mut core = NodeCore::with_simulator(sim, params);
+    core.start(&mut TransportSinks::all(&mut transports));
+    let (mut on, mut off) = (Vec::new(), Vec::new());
+    let mut times = Vec::with_capacity(1000);
+    let epoch = Instant::now();
+    for k in 0..pairs * 2000 {
+        let due = epoch + Duration::from_millis(k);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        let recording = (k / 1000) % 2 == 0;
+        let t0 = Instant::now();
+        if recording {
+            core.tick(Duration::from_millis(k), &mut TransportSinks::all(&mut transports));
+        } else if served > 0 {
+            core.tick(Duration::from_millis(k), &mut TransportSinks::all(&mut transports[..served]));
+        } else {
+            core.tick(Duration::from_millis(k), &mut Nowhere);
+        }
+        times.push(t0.elapsed().as_secs_f64() * 1e6);
+        if times.len() == 1000 {
+            let second = median(std::mem::take(&mut times));
+            if recording {
+                on.push(second)
+            } else {
+                off.push(second)
+            }
+        }
+    }
+    drop(transports);
+    assert_eq!(core.stats().publish_failures.iter().sum::<u64>(), 0, "nothing dropped");
+    (on, off)
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -164,7 +220,7 @@ fn main() {
     println!("| scene | serving | node thread CPU per step without / with bag | added | turn time without bag: median / mean / p99 | with bag: median / mean / p99 | CPU per step, all threads, without / with bag | bag per sim second | messages per sim second |");
     println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
     let serving: &[bool] = if cfg!(feature = "ros2") { &[false, true] } else { &[false] };
-    for scene in ["prism3.toml", "tower.toml"] {
+    for scene in ["prism3.toml", "tower.toml"].into_iter().filter(|_| runs > 0) {
         for &dds in serving {
             let mut plain = Vec::new();
             let mut recorded = Vec::new();
@@ -197,6 +253,41 @@ fn main() {
                 b_thread - a_thread,
                 bytes / 1000.0,
             );
+        }
+    }
+    if paced {
+        let pairs: u64 = option(&args, "--interleaved-seconds").unwrap_or(seconds);
+        println!(
+            "\nInterleaved: one node, the bag open throughout and recording in alternate seconds ({pairs} s recorded, {} s run); each second's median turn time, and the ratio of each recorded second to the mean of the seconds beside it, so that slow drifts of the machine cancel\n",
+            2 * pairs
+        );
+        println!("| scene | serving | turn time median, seconds without / with bag | added (median of the per-second ratios) | seconds where recording added more than 10 % |");
+        println!("| --- | --- | --- | --- | --- |");
+        for scene in ["prism3.toml", "tower.toml"] {
+            for &dds in serving {
+                let (on, off) = run_interleaved(scene, pairs, dir.join(scene), dds);
+                // recorded second i lies between unrecorded seconds i - 1 and i
+                let ratios: Vec<f64> = (0..on.len())
+                    .filter_map(|i| {
+                        let beside: Vec<f64> = [i.checked_sub(1), Some(i)]
+                            .into_iter()
+                            .flatten()
+                            .filter_map(|j| off.get(j).copied())
+                            .collect();
+                        (!beside.is_empty()).then(|| on[i] * beside.len() as f64 / beside.iter().sum::<f64>())
+                    })
+                    .collect();
+                let above = ratios.iter().filter(|&&r| r > 1.1).count();
+                println!(
+                    "| {} | {} | {:.1} / {:.1} us | {:+.1} % | {above} of {} |",
+                    scene.trim_end_matches(".toml"),
+                    if dds { "DDS" } else { "nothing" },
+                    median(off.clone()),
+                    median(on.clone()),
+                    100.0 * (median(ratios.clone()) - 1.0),
+                    ratios.len(),
+                );
+            }
         }
     }
     let _ = std::fs::remove_dir_all(&dir);
