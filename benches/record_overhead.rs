@@ -19,7 +19,7 @@
 #[path = "../tests/common/netns.rs"]
 mod netns;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use tensegrity::io::msg::SimResult;
@@ -67,7 +67,16 @@ struct RunFigures {
     messages: u64,
 }
 
-fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) -> RunFigures {
+/// A node as the bench runs it: `scene`'s simulator at the default settings, the core's
+/// parameters (no pacing of its own, the state every step), and its transports: DDS on
+/// `domain_id` when `dds`, then a bag in `bag` when given.
+struct Setup {
+    sim: Simulator,
+    params: NodeParams,
+    transports: Vec<Box<dyn Transport>>,
+}
+
+fn setup(scene: &str, dds: bool, domain_id: u16, bag: Option<&Path>) -> Setup {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(scene);
     let model = tensegrity::scene::load(&path).unwrap();
     let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
@@ -76,10 +85,12 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
     if dds {
         #[cfg(feature = "ros2")]
         transports.push(Box::new(
-            tensegrity::io::ros2::DdsTransport::new(&NodeParams { domain_id: 90, ..params.clone() }).unwrap(),
+            tensegrity::io::ros2::DdsTransport::new(&NodeParams { domain_id, ..params.clone() }).unwrap(),
         ));
+        #[cfg(not(feature = "ros2"))]
+        let _ = domain_id;
     }
-    if let Some(dir) = &bag {
+    if let Some(dir) = bag {
         let _ = std::fs::remove_dir_all(dir);
         let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
         let recorder =
@@ -87,6 +98,11 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
                 .unwrap();
         transports.push(Box::new(recorder));
     }
+    Setup { sim, params, transports }
+}
+
+fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) -> RunFigures {
+    let Setup { sim, params, mut transports } = setup(scene, dds, 90, bag.as_deref());
     let mut core = NodeCore::with_simulator(sim, params);
     let mut nowhere = Nowhere;
     let mut all = TransportSinks::all(&mut transports);
@@ -138,23 +154,9 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
 /// (on, off, on, ...), for `pairs` seconds of each. Returns the median turn time of every
 /// second, on seconds and off seconds in order, us.
 fn run_interleaved(scene: &str, pairs: u64, bag: PathBuf, dds: bool) -> (Vec<f64>, Vec<f64>) {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(scene);
-    let model = tensegrity::scene::load(&path).unwrap();
-    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
-    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
-    let mut transports: Vec<Box<dyn Transport>> = Vec::new();
-    if dds {
-        #[cfg(feature = "ros2")]
-        transports.push(Box::new(
-            tensegrity::io::ros2::DdsTransport::new(&NodeParams { domain_id: 91, ..params.clone() }).unwrap(),
-        ));
-    }
-    let served = transports.len();
-    let _ = std::fs::remove_dir_all(&bag);
-    let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
-    let recorder =
-        BagRecorder::create(&bag, &model, &params, &run, LogTime::Wall, &record::node_bag_options()).unwrap();
-    transports.push(Box::new(recorder));
+    let Setup { sim, params, mut transports } = setup(scene, dds, 91, Some(&bag));
+    // the bag is the last transport; the others are served every second
+    let served = transports.len() - 1;
     let mut core = NodeCore::with_simulator(sim, params);
     core.start(&mut TransportSinks::all(&mut transports));
     let (mut on, mut off) = (Vec::new(), Vec::new());
