@@ -28,6 +28,7 @@ pub mod error;
 pub mod forces;
 pub mod io;
 pub mod kinematics;
+pub mod machine;
 pub mod model;
 pub mod plot;
 pub mod report;

@@ -256,6 +256,25 @@ fn step_and_scaling_benches_time_real_steps_and_refuse_bad_targets() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+#[test]
+fn machine_bench_reports_both_measurements_and_refuses_bad_arguments() {
+    let out = tensegrity(&["bench", "machine", "--seconds", "0.05", "--period", "0.002"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    let wakeups: u64 = text.split(": ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    // 25 deadlines 2 ms apart in 50 ms, fewer when the machine was more than a period late
+    assert!((1..=26).contains(&wakeups), "{text}");
+    assert!(text.contains("deadlines 2000 us apart") && text.contains("never sleeping for 0.05 s"), "{text}");
+    for bad in [["--period", "0"], ["--period", "nan"], ["--seconds", "0"], ["--seconds", "inf"]] {
+        let out = tensegrity(&["bench", "machine", bad[0], bad[1]]);
+        assert!(!out.status.success(), "{bad:?} accepted");
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(bad[0]),
+            "{bad:?}: the message names the option"
+        );
+    }
+}
+
 /// Parallel studies and benchmarks give exactly the serial results: every run is independent and
 /// deterministic, so only the wall-time columns may differ (the files are compared with them
 /// blanked out).

@@ -244,6 +244,18 @@ enum BenchKind {
         #[arg(long, default_value_t = 5000)]
         steps: usize,
     },
+    /// Whether this machine can keep a real-time node on time: how late a loop sleeping to
+    /// each period's deadline wakes (the node's loop without its step) and how long a thread
+    /// that never sleeps is kept off its core. Run it where the node runs (e.g. under the same
+    /// `taskset` and `chrt`).
+    Machine {
+        /// Period, s (the node's physics_dt over its real-time factor).
+        #[arg(long, default_value_t = 1e-3)]
+        period: f64,
+        /// Seconds for each of the two measurements.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+    },
     /// Step time against structure size (towers of stacked prisms), dense vs sparse LU.
     Scaling {
         /// Tower stages to run.
@@ -1061,6 +1073,36 @@ fn run(cli: Cli) -> Result<(), String> {
                 1e6 * t.max,
                 t.newton_per_step,
                 t.factorizations_per_step
+            );
+            Ok(())
+        }
+        Command::Bench { kind: BenchKind::Machine { period, seconds } } => {
+            if !(period.is_finite() && (1e-6..=1.0).contains(&period)) {
+                return Err(format!("--period must be in [1e-6, 1] s, got {period}"));
+            }
+            if !(seconds.is_finite() && (0.0..=3600.0).contains(&seconds) && seconds > 0.0) {
+                return Err(format!("--seconds must be in (0, 3600], got {seconds}"));
+            }
+            let (period, duration) =
+                (std::time::Duration::from_secs_f64(period), std::time::Duration::from_secs_f64(seconds));
+            let us = |s: f64| 1e6 * s;
+            let timer = tensegrity::machine::timer_lateness(period, duration);
+            say!(
+                "sleeping to deadlines {:.0} us apart for {seconds} s: {} wake-ups, late by p50 {:.1} us, p99 {:.1} us, max {:.1} us; {} later than a period (a node would count each as an overrun)",
+                us(period.as_secs_f64()),
+                timer.wakeups,
+                us(timer.lateness.p50),
+                us(timer.lateness.p99),
+                us(timer.lateness.max),
+                timer.later_than_period
+            );
+            let stalls = tensegrity::machine::run_stalls(period, duration);
+            say!(
+                "never sleeping for {seconds} s: kept off the core {} times for more than {:.0} us, {} times for more than a period; longest {:.1} us",
+                stalls.over_threshold,
+                us(tensegrity::machine::RunStalls::THRESHOLD.as_secs_f64()),
+                stalls.over_period,
+                us(stalls.longest)
             );
             Ok(())
         }
