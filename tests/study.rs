@@ -273,6 +273,10 @@ fn machine_bench_reports_both_measurements_and_refuses_bad_arguments() {
             "{bad:?}: the message names the option"
         );
     }
+    // a measurement shorter than one period would sleep past its own end
+    let out = tensegrity(&["bench", "machine", "--seconds", "0.2", "--period", "1"]);
+    assert!(!out.status.success(), "a run shorter than its period accepted");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("at least one --period"));
 }
 
 /// Parallel studies and benchmarks give exactly the serial results: every run is independent and

@@ -1084,6 +1084,9 @@ fn run(cli: Cli) -> Result<(), String> {
             if !(seconds > 0.0 && seconds <= 3600.0) {
                 return Err(format!("--seconds must be in (0, 3600], got {seconds}"));
             }
+            if seconds < period {
+                return Err(format!("--seconds ({seconds}) must cover at least one --period ({period} s)"));
+            }
             let (period, duration) =
                 (std::time::Duration::from_secs_f64(period), std::time::Duration::from_secs_f64(seconds));
             let us = |s: f64| 1e6 * s;
