@@ -1,7 +1,8 @@
 //! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
 //! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
-//! (default 2; 0 for the interleaved table alone), `--as-fast-as-possible` to step without pacing; without `ros2` only the rows
-//! that serve nothing).
+//! (default 2; 0 for the interleaved table alone), `--interleaved-seconds N` (default:
+//! `--seconds`; 0 skips that table), `--as-fast-as-possible` to step without pacing; without
+//! `ros2` only the rows that serve nothing).
 //!
 //! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
 //! 1 ms boundary, as the node's loop does) with the state published every step
@@ -257,8 +258,8 @@ fn main() {
             );
         }
     }
-    if paced {
-        let pairs: u64 = option(&args, "--interleaved-seconds").unwrap_or(seconds);
+    let pairs: u64 = option(&args, "--interleaved-seconds").unwrap_or(seconds);
+    if paced && pairs > 0 {
         println!(
             "\nInterleaved: one node, the bag open throughout and recording in alternate seconds ({pairs} s recorded, {} s run); each second's median turn time, and the ratio of each recorded second to the mean of the seconds beside it, so that slow drifts of the machine cancel\n",
             2 * pairs
