@@ -7,9 +7,9 @@
 //! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
 //! 1 ms boundary, as the node's loop does) with the state published every step
 //! (`state_publish_rate = 0`: every topic, markers at 30 Hz) for 60 s of sim time, serving:
-//! nothing (the physics and the core alone), a `BagRecorder` alone (a snapshot of each step
-//! queued on the node's thread; messages built, serialized, compressed and written by the bag's
-//! writer thread), DDS (the node as users run it, no subscriber), and DDS with the bag. The
+//! nothing (the physics and the core alone), a `BagRecorder` alone (each step's numbers
+//! appended to a batch on the node's thread, handed over every `record::BATCH_RECORDS` records;
+//! messages built, serialized, compressed and written by the bag's writer thread), DDS (the node as users run it, no subscriber), and DDS with the bag. The
 //! configurations alternate; the table gives medians over runs of each run's median, mean and
 //! 99th percentile turn time (one `tick`), the node thread's CPU time per step (its own work,
 //! including sleeping and waking between ticks) and the process CPU time per step (the writer

@@ -126,8 +126,8 @@ pub struct BagOptions {
     /// A chunk closes after this long at the latest, and `metadata.yaml` is rewritten (default
     /// 1 s): at most this much is lost when the process is killed.
     pub flush_period: Duration,
-    /// Messages the writer thread may have queued; beyond that `write` refuses droppable
-    /// messages and waits for the others (default 65536).
+    /// Jobs the writer thread may have queued (a message, or a snapshot of several, `compose`);
+    /// beyond that `write` refuses droppable ones and waits for the others (default 65536).
     pub queue: usize,
     /// Run the writer thread at a lower priority (nice `BACKGROUND_NICE`, Linux), so that on a
     /// machine with few cores it never delays the thread that records (a node stepping in real
@@ -174,6 +174,12 @@ pub trait Compose: Send + 'static {
     /// Serializes the snapshot's messages in order, calling `out(topic, sequence, log_time,
     /// cdr)` for each (`cdr` starts with the CDR encapsulation header).
     fn compose(&mut self, out: &mut MessageOut<'_>);
+    /// How many of the caller's items (states, messages) the snapshot carries: what
+    /// `BagWriter::dropped` counts when a full queue refuses it, and what a queue of
+    /// `BagOptions::queue` items holds (default 1).
+    fn items(&self) -> u64 {
+        1
+    }
     /// The snapshot as `Any`, for the caller to take its own type back (`BagWriter::recycled`).
     fn into_any(self: Box<Self>) -> Box<dyn std::any::Any + Send>;
 }
@@ -323,7 +329,8 @@ impl BagWriter {
     pub fn topics(&self) -> &[TopicSpec] {
         &self.topics
     }
-    /// Messages refused because the queue was full (`droppable` ones only).
+    /// Messages (and a snapshot's items, `Compose::items`) refused because the queue was full
+    /// (`droppable` ones only).
     pub fn dropped(&self) -> u64 {
         self.dropped
     }
@@ -364,11 +371,15 @@ impl BagWriter {
         let stopped =
             || BagError::Write("the bag writer has stopped (see the error when the bag closes)".into());
         let jobs = self.jobs.as_ref().ok_or_else(stopped)?;
+        let items = match &job {
+            Job::Compose(snapshot) => snapshot.items(),
+            _ => 1,
+        };
         let sent = if droppable {
             match jobs.try_send(job) {
                 Ok(()) => Ok(()),
                 Err(TrySendError::Full(_)) => {
-                    self.dropped += 1;
+                    self.dropped += items;
                     return Err(BagError::Write("bag writer queue full: message dropped".into()));
                 }
                 Err(TrySendError::Disconnected(_)) => Err(()),
@@ -429,7 +440,7 @@ impl Drop for BagWriter {
 pub const DRAIN_PERIOD: Duration = Duration::from_millis(5);
 
 /// Composed snapshots the writer thread keeps for reuse.
-const SNAPSHOTS_KEPT: usize = 64;
+const SNAPSHOTS_KEPT: usize = 16;
 
 /// Where the writer thread hands back what the caller may reuse.
 struct GiveBack {

@@ -6,11 +6,13 @@
 //! takes such a bag back (`replay`) and runs it again with the recorded commands (and resets) at
 //! their recorded steps, comparing every recorded message bit for bit.
 //!
-//! On the node's thread a step's state topics (not `/clock`) cost a copy (`StepSnapshot`: the
-//! state, the cables' responses, the points' positions, into a recycled buffer); the bag's writer
-//! thread builds and serializes their messages (`bag::Compose`). When its queue is full a state
-//! is dropped whole (counted as a publish failure); the structure, the static transforms and the
-//! applied commands never are (`droppable`).
+//! On the node's thread a step's `/clock` and state topics cost a few hundred nanoseconds: the
+//! state's numbers are appended to a batch (`StepBatch`: poses, rest lengths, cable responses,
+//! segment lengths, rates, and point positions when the markers go) that is handed to the
+//! bag's writer thread every `BATCH_RECORDS` records; that thread builds and serializes their
+//! messages (`bag::Compose`). When its queue is full a batch is dropped whole (counted as a
+//! publish failure); the structure, the static transforms and the applied commands never are
+//! (`droppable`), and they hand the batch over first, so messages keep their order.
 //!
 //! Each message's MCAP `sequence` is the simulator's step count when it was published (steps
 //! since the start, resets included; modulo 2^32), its log time the wall clock for the node and
@@ -26,6 +28,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use crate::control::ActuatorCommand;
+use crate::forces::cable::CableResponse;
 use crate::forces::Workspace;
 use crate::io::bag::{
     BagError, BagOptions, BagReader, BagSummary, BagTopic, BagWriter, Compose, RunInfo, TopicQos, TopicSpec,
@@ -39,6 +42,7 @@ use crate::sim::{SimSettings, Simulator};
 use crate::solve::dynamics::{Integrator, NewtonSettings};
 use crate::solve::linear::LinearBackend;
 use crate::state::State;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 /// Name of the applied-commands topic in the node's private namespace.
 pub const APPLIED_COMMANDS: &str = "applied_commands";
@@ -238,115 +242,310 @@ pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
     out
 }
 
-/// One step's state as the recorder hands it to the bag's writer thread, which builds and
-/// serializes that step's state messages (`Compose`): on the node's thread recording a step
-/// costs a copy of the state and of the evaluated cables and points, not the messages.
-struct StepSnapshot {
-    model: std::sync::Arc<Model>,
-    state: State,
-    /// Only what the messages read is copied: points, cable responses, segment lengths.
-    workspace: Workspace,
-    rates: Vec<f64>,
+/// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
+/// record is one step's `/clock` or one state, whatever topics it is published on): one queue
+/// operation per batch instead of two per step. A node stepping at 1 kHz with its state every
+/// step hands over a batch every 32 ms. Until then its records wait on the node's thread: a
+/// process killed with SIGKILL loses them with the chunk the writer had open.
+pub const BATCH_RECORDS: usize = 64;
+
+/// The numbers a `StepBatch` has room for (128 KiB), or one state's when that is more: a batch
+/// of large states (a 64-stage tower packs about 5000 numbers) is handed over before it holds
+/// `BATCH_RECORDS` records.
+pub const BATCH_NUMBERS: usize = 16 * 1024;
+
+/// One record of a `StepBatch`: what the writer thread builds the messages of.
+#[derive(Debug, Clone, Copy)]
+enum BatchRecord {
+    /// `/clock` at sim time `time`, s.
+    Clock { time: f64, sequence: u32, log_time: u64 },
+    /// A state packed in `StepBatch::numbers`.
+    State(StateRecord),
+}
+
+/// A packed state's header: where its numbers are, its counters, and its topics.
+#[derive(Debug, Clone, Copy)]
+struct StateRecord {
+    /// Offset of the state's numbers in `StepBatch::numbers` (`pack_state`).
+    start: usize,
+    /// Offset of its point positions there, when packed (`pack_points`).
+    points: Option<usize>,
+    /// Sim time, s, and the node's step count (`NodeStats::steps`, the MCAP sequence): to
+    /// tell whether a view is this state (`StepBatch::latest_state_of`).
+    time: f64,
+    steps: u64,
+    /// The log time of this state's messages.
+    log_time: u64,
+    /// The topics published from this state, in order.
+    topics: [Topic; DEFERRED.len()],
+    topic_count: u8,
+}
+
+/// The view the writer thread builds a batch's messages from: the unpacked state and the
+/// batch's constants. The state messages (`DEFERRED`, `/clock`) read no counters, so those are
+/// zero but the step count (`NodeStats::steps`).
+fn rebuilt_view<'a>(
+    unpacked: &'a UnpackedState,
+    reference: &'a [Vec<f64>],
+    frame_id: &'a str,
+    node_name: &'a str,
+    steps: u64,
+) -> NodeView<'a> {
+    NodeView {
+        model: &unpacked.model,
+        state: &unpacked.state,
+        workspace: &unpacked.workspace,
+        rates: &unpacked.rates,
+        reference,
+        frame_id,
+        node_name,
+        diagnostics: &[],
+        step: 0,
+        simulation_state: 0,
+        faulted: false,
+        stats: NodeStats { steps, ..NodeStats::default() },
+        dt: 0.0,
+    }
+}
+
+/// The states (and `/clock` messages) of up to `BATCH_RECORDS` steps as the recorder hands
+/// them to the bag's writer thread, which builds and serializes their messages (`Compose`).
+/// On the node's thread recording a step appends its numbers to one flat vector (`pack_state`:
+/// poses, velocities, multipliers, rest lengths, point positions, cable responses, segment
+/// lengths, rates), memory the node's thread wrote itself, and a small header: a few hundred
+/// nanoseconds, no allocation once the batch is sized, no queue operation but every
+/// `BATCH_RECORDS` records. The writer thread unpacks each state into `view` (`unpack_state`,
+/// the same bits) to build its messages.
+struct StepBatch {
+    records: Vec<BatchRecord>,
+    /// The states' numbers (capacity fixed at creation, `full`).
+    numbers: Vec<f64>,
+    /// The numbers of one state with its points.
+    state_len: usize,
+    /// Constant over a batch (a view that differs starts a new batch).
     reference: Vec<Vec<f64>>,
     frame_id: String,
     node_name: String,
-    step: u64,
-    simulation_state: u8,
-    faulted: bool,
-    stats: NodeStats,
-    dt: f64,
-    /// The log time of this state's messages (when its first message came).
-    log_time: u64,
-    /// The topics published from this state, in order, with their bag handle.
-    topics: Vec<(Topic, BagTopic)>,
+    /// Bag topic of each `Topic`, in `Topic::ALL` order (the recorder's).
+    handles: [Option<BagTopic>; 10],
+    /// The writer thread's unpacked state, to build messages from.
+    view: UnpackedState,
     /// Reused serialization buffer.
     buffer: Vec<u8>,
 }
 
-impl StepSnapshot {
-    fn new(model: std::sync::Arc<Model>) -> Self {
-        let workspace = Workspace::for_forces(&model);
+/// A state as `unpack_state` rebuilds it on the writer thread: only what the messages read.
+struct UnpackedState {
+    model: std::sync::Arc<Model>,
+    state: State,
+    /// Points (positions only), cable responses and segment lengths.
+    workspace: Workspace,
+    rates: Vec<f64>,
+}
+
+impl StepBatch {
+    fn new(model: std::sync::Arc<Model>, handles: [Option<BagTopic>; 10]) -> Self {
+        let state_len = packed_len(&model) + 3 * model.points.len();
         Self {
-            state: State::initial(&model),
-            workspace,
-            rates: Vec::new(),
+            handles,
+            records: Vec::with_capacity(BATCH_RECORDS),
+            numbers: Vec::with_capacity(BATCH_NUMBERS.max(state_len)),
+            state_len,
             reference: Vec::new(),
             frame_id: String::new(),
             node_name: String::new(),
-            step: 0,
-            simulation_state: 0,
-            faulted: false,
-            stats: NodeStats::default(),
-            dt: 0.0,
-            log_time: 0,
-            topics: Vec::with_capacity(Topic::ALL.len()),
+            view: UnpackedState {
+                state: State::initial(&model),
+                workspace: Workspace::for_forces(&model),
+                rates: vec![0.0; model.cables.len()],
+                model,
+            },
             buffer: Vec::new(),
-            model,
         }
     }
 
-    /// Copies what the state messages read from `view` (same model; no allocation once sized),
-    /// to be logged at `log_time`.
-    fn fill(&mut self, view: &NodeView<'_>, log_time: u64) {
-        self.log_time = log_time;
-        self.state.copy_from(view.state);
-        let (to, from) = (&mut self.workspace, view.workspace);
-        // the messages read point positions only (not velocities or Jacobians)
-        for (to, from) in to.points.iter_mut().zip(&from.points) {
-            to.position = from.position;
-        }
-        to.cables.clone_from(&from.cables);
-        to.segment_lengths.clone_from(&from.segment_lengths);
-        self.rates.clear();
-        self.rates.extend_from_slice(view.rates);
-        self.reference.resize_with(view.reference.len(), Vec::new);
-        for (to, from) in self.reference.iter_mut().zip(view.reference) {
-            to.clear();
-            to.extend_from_slice(from);
-        }
-        self.frame_id.clear();
-        self.frame_id.push_str(view.frame_id);
-        self.node_name.clear();
-        self.node_name.push_str(view.node_name);
-        self.step = view.step;
-        self.simulation_state = view.simulation_state;
-        self.faulted = view.faulted;
-        self.stats = view.stats;
-        self.dt = view.dt;
-        self.topics.clear();
+    /// True when a new record might not fit: `BATCH_RECORDS` records, or numbers within one
+    /// state (with its points) of their capacity, so that a batch never grows once sized.
+    fn full(&self) -> bool {
+        self.records.len() >= BATCH_RECORDS || self.numbers.len() + self.state_len > self.numbers.capacity()
     }
 
-    /// True when `view` is the state this snapshot holds.
-    fn holds(&self, view: &NodeView<'_>) -> bool {
-        self.stats.steps == view.stats.steps && self.state.time.to_bits() == view.state.time.to_bits()
+    /// True when the batch's constants (pulley reference, frame, node name) are `view`'s, or it
+    /// is empty (and takes `view`'s).
+    fn accepts(&mut self, view: &NodeView<'_>) -> bool {
+        if self.records.is_empty() {
+            self.reference.resize_with(view.reference.len(), Vec::new);
+            for (to, from) in self.reference.iter_mut().zip(view.reference) {
+                to.clear();
+                to.extend_from_slice(from);
+            }
+            self.frame_id.clear();
+            self.frame_id.push_str(view.frame_id);
+            self.node_name.clear();
+            self.node_name.push_str(view.node_name);
+            return true;
+        }
+        self.reference.as_slice() == view.reference
+            && self.frame_id == view.frame_id
+            && self.node_name == view.node_name
+    }
+
+    /// The latest record when it is a state, and `view`'s state.
+    fn latest_state_of(&mut self, view: &NodeView<'_>) -> Option<&mut StateRecord> {
+        match self.records.last_mut() {
+            // (room for one more topic: a topic published twice makes a new record)
+            Some(BatchRecord::State(r))
+                if r.steps == view.stats.steps
+                    && r.time.to_bits() == view.state.time.to_bits()
+                    && usize::from(r.topic_count) < r.topics.len() =>
+            {
+                Some(r)
+            }
+            _ => None,
+        }
+    }
+
+    /// Appends `view`'s state, to be logged at `log_time` (`accepts(view)` first).
+    fn push_state(&mut self, view: &NodeView<'_>, log_time: u64) {
+        let start = self.numbers.len();
+        pack_state(view, &mut self.numbers);
+        self.records.push(BatchRecord::State(StateRecord {
+            start,
+            points: None,
+            time: view.state.time,
+            steps: view.stats.steps,
+            log_time,
+            topics: [Topic::Clock; DEFERRED.len()],
+            topic_count: 0,
+        }));
+    }
+
+    /// Empties the batch for reuse (its capacity stays).
+    fn clear(&mut self) {
+        self.records.clear();
+        self.numbers.clear();
     }
 }
 
-impl Compose for StepSnapshot {
-    fn compose(&mut self, out: &mut crate::io::bag::MessageOut<'_>) {
-        let view = NodeView {
-            model: &self.model,
-            state: &self.state,
-            workspace: &self.workspace,
-            rates: &self.rates,
-            reference: &self.reference,
-            frame_id: &self.frame_id,
-            node_name: &self.node_name,
-            diagnostics: &[],
-            step: self.step,
-            simulation_state: self.simulation_state,
-            faulted: self.faulted,
-            stats: self.stats,
-            dt: self.dt,
+/// Appends what the state messages read from `view` to `out`, in the order `unpack_state`
+/// reads it back: time; per body position (3) and rotation quaternion (i, j, k, w); rest
+/// lengths; per cable length, rest length, tension and slack (1 or 0); segment lengths; rates.
+/// Sizes are the model's. Point positions, which the markers alone read, are appended by
+/// `pack_points` when a state is published on `~/markers`. What no message reads (velocities,
+/// multipliers, length rates, energies) is not copied: a message that comes to read more must
+/// be packed here too (the replay tests compare every recorded message with the live one).
+fn pack_state(view: &NodeView<'_>, out: &mut Vec<f64>) {
+    let (state, ws) = (view.state, view.workspace);
+    let len = packed_len(view.model);
+    // sized once, then written in place: no capacity check per number
+    let start = out.len();
+    out.resize(start + len, 0.0);
+    let (time, rest) = out[start..].split_at_mut(1);
+    time[0] = state.time;
+    let (poses, rest) = rest.split_at_mut(7 * state.poses.len());
+    for (to, pose) in poses.chunks_exact_mut(7).zip(&state.poses) {
+        to[..3].copy_from_slice(pose.position.as_slice());
+        to[3..].copy_from_slice(pose.rotation.coords.as_slice());
+    }
+    let (rest_lengths, rest) = rest.split_at_mut(state.rest_lengths.len());
+    rest_lengths.copy_from_slice(&state.rest_lengths);
+    let (cables, rest) = rest.split_at_mut(4 * ws.cables.len());
+    for (to, c) in cables.chunks_exact_mut(4).zip(&ws.cables) {
+        to.copy_from_slice(&[c.length, c.rest_length, c.tension, if c.slack { 1.0 } else { 0.0 }]);
+    }
+    let (segments, rates) = rest.split_at_mut(ws.segment_lengths.len());
+    segments.copy_from_slice(&ws.segment_lengths);
+    rates.copy_from_slice(view.rates);
+}
+
+/// How many numbers `pack_state` packs for a state of `model`.
+fn packed_len(model: &Model) -> usize {
+    let segments: usize = model.cables.iter().map(|c| c.segment_count()).sum();
+    1 + 7 * model.bodies.len() + 5 * model.cables.len() + segments + model.cables.len()
+}
+
+/// Appends every point's position (3 each) of `view` to `out`.
+fn pack_points(view: &NodeView<'_>, out: &mut Vec<f64>) {
+    for p in &view.workspace.points {
+        out.extend_from_slice(p.position.as_slice());
+    }
+}
+
+/// Reads a state packed by `pack_state` from `numbers` into `to` (sized for the same model),
+/// bit for bit, and the point positions from `points` when given (`pack_points`).
+fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut UnpackedState) {
+    let mut at = 0;
+    let mut take = |n: usize| {
+        let part = &numbers[at..at + n];
+        at += n;
+        part
+    };
+    let state = &mut to.state;
+    state.time = take(1)[0];
+    for pose in &mut state.poses {
+        pose.position = Vector3::from_column_slice(take(3));
+        let q = take(4);
+        pose.rotation = UnitQuaternion::new_unchecked(Quaternion::new(q[3], q[0], q[1], q[2]));
+    }
+    let n = state.rest_lengths.len();
+    state.rest_lengths.copy_from_slice(take(n));
+    let ws = &mut to.workspace;
+    for c in &mut ws.cables {
+        let v = take(4);
+        *c = CableResponse {
+            length: v[0],
+            rest_length: v[1],
+            tension: v[2],
+            slack: v[3] != 0.0,
+            // not read by any message (`pack_state`)
+            length_rate: 0.0,
+            energy: 0.0,
         };
-        for &(topic, handle) in &self.topics {
-            // finiteness was checked on the node's thread (`BagRecorder::publish`)
-            if let Ok(Some(message)) = TopicMessage::build(topic, &view) {
-                if crate::io::bag::encode_cdr(&mut self.buffer, &message).is_ok() {
-                    out(handle, self.stats.steps as u32, self.log_time, &self.buffer);
+    }
+    let n = ws.segment_lengths.len();
+    ws.segment_lengths.copy_from_slice(take(n));
+    let n = to.rates.len();
+    to.rates.copy_from_slice(take(n));
+    if let Some(points) = points {
+        for (p, xyz) in ws.points.iter_mut().zip(points.chunks_exact(3)) {
+            p.position = Vector3::from_column_slice(xyz);
+        }
+    }
+}
+
+impl Compose for StepBatch {
+    fn compose(&mut self, out: &mut crate::io::bag::MessageOut<'_>) {
+        let Self {
+            records, numbers, reference, frame_id, node_name, handles, view: unpacked, buffer, ..
+        } = self;
+        for record in records.iter() {
+            let (topics, steps, log_time): (&[Topic], _, _) = match record {
+                BatchRecord::Clock { time, sequence, log_time } => {
+                    // `/clock` reads the time alone
+                    unpacked.state.time = *time;
+                    (&[Topic::Clock], u64::from(*sequence), *log_time)
+                }
+                BatchRecord::State(r) => {
+                    let points = r.points.map(|at| &numbers[at..at + 3 * unpacked.workspace.points.len()]);
+                    unpack_state(&numbers[r.start..], points, unpacked);
+                    (&r.topics[..usize::from(r.topic_count)], r.steps, r.log_time)
+                }
+            };
+            let view = rebuilt_view(unpacked, reference, frame_id, node_name, steps);
+            for &topic in topics {
+                let Some(handle) = handles[topic.index()] else { continue };
+                // finiteness was checked on the node's thread (`BagRecorder::publish`)
+                if let Ok(Some(message)) = TopicMessage::build(topic, &view) {
+                    if crate::io::bag::encode_cdr(buffer, &message).is_ok() {
+                        out(handle, steps as u32, log_time, buffer);
+                    }
                 }
             }
         }
+    }
+
+    fn items(&self) -> u64 {
+        self.records.len() as u64
     }
 
     fn into_any(self: Box<Self>) -> Box<dyn std::any::Any + Send> {
@@ -366,19 +565,23 @@ pub struct BagRecorder {
     /// The bag (taken by `finish`).
     writer: Option<BagWriter>,
     model: std::sync::Arc<Model>,
-    /// The state topics of the latest step, not yet handed to the writer thread (they go when
-    /// another state, any other message, or the end comes).
-    pending: Option<Box<StepSnapshot>>,
+    /// The latest states and clocks, not yet handed to the writer thread (they go when the
+    /// batch is full, any other message comes, or the bag closes).
+    batch: Option<Box<StepBatch>>,
     /// Bag topic of each `Topic`, in `Topic::ALL` order.
     topics: [Option<BagTopic>; 10],
     applied: BagTopic,
     actuator_names: Vec<String>,
     log_time: LogTime,
+    /// The latest state stamped (steps, time bits) and its log time (`stamp_of`).
+    latest_stamp: Option<((u64, u64), u64)>,
 }
 
 impl BagRecorder {
     /// Creates the bag `dir` for a run of `model` whose outputs a core with `params` publishes;
-    /// `run` is its run record (`run_info`, plus any keys of the run's own).
+    /// `run` is its run record (`run_info`, plus any keys of the run's own). `options.queue`
+    /// counts records (states, clocks, messages): the writer's queue holds that many divided by
+    /// `BATCH_RECORDS` jobs, at least one.
     pub fn create(
         dir: &Path,
         model: &Model,
@@ -388,7 +591,9 @@ impl BagRecorder {
         options: &BagOptions,
     ) -> Result<Self, BagError> {
         let specs = node_topics(params);
-        let writer = BagWriter::create(dir, specs.iter().map(|(_, s)| s.clone()).collect(), run, options)?;
+        // the queue holds batches of states: as many states as `options.queue` messages
+        let options = BagOptions { queue: options.queue.div_ceil(BATCH_RECORDS), ..options.clone() };
+        let writer = BagWriter::create(dir, specs.iter().map(|(_, s)| s.clone()).collect(), run, &options)?;
         let mut topics = [None; 10];
         let mut applied = BagTopic(0);
         for (k, (topic, _)) in specs.iter().enumerate() {
@@ -400,11 +605,12 @@ impl BagRecorder {
         Ok(Self {
             writer: Some(writer),
             model: std::sync::Arc::new(model.clone()),
-            pending: None,
+            batch: None,
             topics,
             applied,
             actuator_names: model.actuator_names.clone(),
             log_time,
+            latest_stamp: None,
         })
     }
 
@@ -426,23 +632,48 @@ impl BagRecorder {
         self.writer.as_mut().expect("open until finished")
     }
 
-    /// Hands the pending step's state topics to the writer thread (dropped, and an error, when
-    /// its queue is full).
+    /// Hands the batch of states and clocks to the writer thread (dropped whole, and an error,
+    /// when its queue is full).
     fn send_pending(&mut self) -> Result<(), BagError> {
-        match self.pending.take() {
-            Some(snapshot) => self.writer().compose(snapshot, true),
+        match self.batch.take_if(|b| !b.records.is_empty()) {
+            Some(batch) => self.writer().compose(batch, true),
             None => Ok(()),
         }
     }
 
-    /// Closes the bag (see `BagWriter::finish`), after handing over the last state (dropped,
-    /// like any state, when the queue is full; `dropped` counts it).
+    /// The batch to append a record of `view` to: the current one unless it is full or (when
+    /// `constants` is true, for a state) holds other constants, in which case it is handed over
+    /// first and the result says whether that worked; else one the writer gave back, else a new
+    /// one.
+    fn batch_for(&mut self, view: &NodeView<'_>, constants: bool) -> (&mut StepBatch, Result<(), BagError>) {
+        let mut sent = Ok(());
+        if self.batch.as_mut().is_some_and(|b| b.full() || (constants && !b.accepts(view))) {
+            sent = self.send_pending();
+        }
+        let (model, writer, topics) = (&self.model, &self.writer, self.topics);
+        let batch = self.batch.get_or_insert_with(|| {
+            let mut batch = writer
+                .as_ref()
+                .and_then(BagWriter::recycled::<StepBatch>)
+                .unwrap_or_else(|| Box::new(StepBatch::new(model.clone(), topics)));
+            batch.clear();
+            batch
+        });
+        if batch.records.is_empty() {
+            // an empty batch takes the view's constants
+            batch.accepts(view);
+        }
+        (batch, sent)
+    }
+
+    /// Closes the bag (see `BagWriter::finish`), after handing over the last batch (dropped,
+    /// like any batch, when the queue is full; `dropped` counts its records).
     pub fn finish(mut self) -> Result<BagSummary, BagError> {
         let _ = self.send_pending();
         self.writer.take().expect("open until finished").finish()
     }
 
-    /// States and messages refused because the writer's queue was full.
+    /// Records (states, clocks) and messages refused because the writer's queue was full.
     pub fn dropped(&self) -> u64 {
         self.writer.as_ref().map_or(0, BagWriter::dropped)
     }
@@ -452,6 +683,20 @@ impl BagRecorder {
             LogTime::Wall => SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64),
             LogTime::SimTime => (time.max(0.0) * 1e9).round() as u64,
             LogTime::Step => step.saturating_mul(1_000_000),
+        }
+    }
+
+    /// The log time of `view`'s messages: that of the first message of the same state (one
+    /// clock reading per step, not one per topic).
+    fn stamp_of(&mut self, view: &NodeView<'_>) -> u64 {
+        let key = (view.stats.steps, view.state.time.to_bits());
+        match self.latest_stamp {
+            Some((k, log_time)) if k == key => log_time,
+            _ => {
+                let log_time = self.stamp(view.state.time, view.stats.steps);
+                self.latest_stamp = Some((key, log_time));
+                log_time
+            }
         }
     }
 
@@ -474,32 +719,40 @@ impl NodeSink for BagRecorder {
         };
         let step = view.stats.steps;
         let failed = |e: BagError| PublishError::Failed(format!("bag: {e}"));
+        if topic == Topic::Clock {
+            let log_time = self.stamp_of(view);
+            let (batch, sent) = self.batch_for(view, false);
+            batch.records.push(BatchRecord::Clock { time: view.state.time, sequence: step as u32, log_time });
+            // a dropped batch is reported with this message, which still goes
+            return sent.map_err(failed);
+        }
         if DEFERRED.contains(&topic) {
             if topic == Topic::CableStates && !cables_finite(view.workspace) {
                 return Err(PublishError::Failed("refusing to publish non-finite cable states".into()));
             }
             let mut sent = Ok(());
-            if !self.pending.as_ref().is_some_and(|p| p.holds(view)) {
-                let log_time = self.stamp(view.state.time, step);
-                // a dropped previous state is reported with this message, which still goes
-                sent = self.send_pending();
-                let model = &self.model;
-                let mut snapshot = self
-                    .writer
-                    .as_ref()
-                    .and_then(BagWriter::recycled::<StepSnapshot>)
-                    .unwrap_or_else(|| Box::new(StepSnapshot::new(model.clone())));
-                snapshot.fill(view, log_time);
-                self.pending = Some(snapshot);
+            let held =
+                self.batch.as_mut().is_some_and(|b| b.accepts(view) && b.latest_state_of(view).is_some());
+            if !held {
+                let log_time = self.stamp_of(view);
+                let (batch, result) = self.batch_for(view, true);
+                batch.push_state(view, log_time);
+                sent = result;
             }
-            if let Some(p) = &mut self.pending {
-                p.topics.push((topic, handle));
+            let batch = self.batch.as_mut().expect("holds the state");
+            let at = batch.numbers.len();
+            let record = batch.latest_state_of(view).expect("the latest record is this state");
+            record.topics[usize::from(record.topic_count)] = topic;
+            record.topic_count += 1;
+            if topic == Topic::Markers && record.points.is_none() {
+                record.points = Some(at);
+                pack_points(view, &mut batch.numbers);
             }
             return sent.map_err(failed);
         }
-        let log_time = self.stamp(view.state.time, step);
-        // the pending state goes first (in order); if it was dropped, this message still goes
-        // and the failure is reported with it
+        let log_time = self.stamp_of(view);
+        // the batch goes first (in order); if it was dropped, this message still goes and the
+        // failure is reported with it
         let pending = self.send_pending();
         let Some(message) = TopicMessage::build(topic, view)? else { return pending.map_err(failed) };
         self.writer().write(handle, step as u32, log_time, &message, droppable(topic)).map_err(failed)?;
@@ -530,10 +783,9 @@ fn droppable(topic: Topic) -> bool {
     !matches!(topic, Topic::Structure | Topic::TfStatic)
 }
 
-/// The topics whose messages the writer thread builds from a `StepSnapshot`. The others are
-/// built on the node's thread: those sent once or rarely, and `/clock`, which the node sends
-/// every step whatever its state rate and whose message is one time stamp (a snapshot for it
-/// alone would copy the whole state).
+/// The topics whose messages the writer thread builds from a `StepBatch`'s states. `/clock`
+/// goes in the batch too (its time alone); the others are built on the node's thread: those
+/// sent once or rarely.
 const DEFERRED: [Topic; 5] =
     [Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers];
 
@@ -545,7 +797,7 @@ fn cables_finite(ws: &Workspace) -> bool {
 }
 
 impl Drop for BagRecorder {
-    /// Hands over the last step's topics; the bag itself closes when its writer drops.
+    /// Hands over the last batch; the bag itself closes when its writer drops.
     fn drop(&mut self) {
         if self.writer.is_some() {
             let _ = self.send_pending();
@@ -1089,5 +1341,68 @@ fn first_json_difference(
         }
         _ if a == b => None,
         _ => Some((path.to_string(), a.clone(), b.clone())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Nowhere;
+
+    impl NodeSink for Nowhere {
+        fn publish(&mut self, _topic: Topic, _view: &NodeView<'_>) -> Result<(), PublishError> {
+            Ok(())
+        }
+        fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
+    }
+
+    fn cdr(topic: Topic, view: &NodeView<'_>) -> Vec<u8> {
+        let message = TopicMessage::build(topic, view).unwrap().unwrap();
+        let mut out = Vec::new();
+        crate::io::bag::encode_cdr(&mut out, &message).unwrap();
+        out
+    }
+
+    /// A state packed on the node's thread and unpacked on the writer's gives every deferred
+    /// topic's message bit for bit, slack flags and markers included, for a prism whose ring
+    /// cable is being wound in (moving poses, nonzero rates, pulley slip).
+    #[test]
+    fn a_packed_state_gives_the_same_messages_as_the_live_one() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scenes/prism3.toml");
+        let model = crate::scene::load(&path).unwrap();
+        let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+        let mut core = NodeCore::new(model.clone(), params).unwrap();
+        core.start(&mut Nowhere);
+        core.offer_command(&msg::ActuatorCommand {
+            name: vec!["ring_winch".into()],
+            rest_length: vec![4.0],
+            rate: vec![0.5],
+            ..Default::default()
+        });
+        for k in 0..40 {
+            core.tick(Duration::from_millis(k), &mut Nowhere);
+        }
+        let live = core.view();
+        assert!(live.rates.iter().any(|r| *r != 0.0), "the winch moves");
+        // one cable slack, as a live one may be
+        let mut workspace = live.workspace.clone();
+        workspace.cables[0].slack = true;
+        let live = NodeView { workspace: &workspace, ..live };
+
+        let mut numbers = vec![f64::NAN; 3]; // a state need not start the batch
+        let start = numbers.len();
+        pack_state(&live, &mut numbers);
+        let points = numbers.len();
+        pack_points(&live, &mut numbers);
+        let mut unpacked = StepBatch::new(std::sync::Arc::new(model.clone()), [None; 10]).view;
+        let point_numbers = &numbers[points..];
+        assert_eq!(point_numbers.len(), 3 * model.points.len());
+        unpack_state(&numbers[start..], Some(point_numbers), &mut unpacked);
+        let rebuilt =
+            rebuilt_view(&unpacked, live.reference, live.frame_id, live.node_name, live.stats.steps);
+        for topic in DEFERRED.into_iter().chain([Topic::Clock]) {
+            assert_eq!(cdr(topic, &rebuilt), cdr(topic, &live), "{topic:?}");
+        }
     }
 }
