@@ -13,7 +13,8 @@
 //! configurations alternate; the table gives medians over runs of each run's median, mean and
 //! 99th percentile turn time (one `tick`), the node thread's CPU time per step (its own work,
 //! including sleeping and waking between ticks) and the process CPU time per step (the writer
-//! thread's share too). The bag's size per second of sim time is from the file. With `ros2` the
+//! thread's share too). The bag's size per second of sim time is from the file. A last table
+//! times the recorder's own calls on the node's thread. With `ros2` the
 //! bench first moves itself into a private loopback-only network namespace.
 
 #[cfg(feature = "ros2")]
@@ -192,6 +193,86 @@ fn run_interleaved(scene: &str, pairs: u64, bag: PathBuf, dds: bool) -> (Vec<f64
     (on, off)
 }
 
+/// A transport around another that adds the time spent in its calls to `spent` (ns).
+struct Timed {
+    inner: Box<dyn Transport>,
+    spent: std::rc::Rc<std::cell::Cell<u64>>,
+}
+
+impl Timed {
+    fn time<R>(&mut self, f: impl FnOnce(&mut dyn Transport) -> R) -> R {
+        let t0 = Instant::now();
+        let r = f(self.inner.as_mut());
+        self.spent.set(self.spent.get() + t0.elapsed().as_nanos() as u64);
+        r
+    }
+}
+
+impl NodeSink for Timed {
+    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
+        self.time(|t| t.publish(topic, view))
+    }
+    fn step_request_done(&mut self, ticket: u64, result: SimResult, view: &NodeView<'_>) {
+        self.time(|t| t.step_request_done(ticket, result, view))
+    }
+    fn commands_applied(
+        &mut self,
+        time: f64,
+        step: u64,
+        commands: &[(tensegrity::model::ActuatorId, tensegrity::control::ActuatorCommand)],
+    ) {
+        self.time(|t| t.commands_applied(time, step, commands))
+    }
+    fn simulation_reset(&mut self, time: f64, step: u64) {
+        self.time(|t| t.simulation_reset(time, step))
+    }
+}
+
+impl Transport for Timed {
+    fn name(&self) -> &'static str {
+        self.inner.name()
+    }
+    fn take_inputs(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
+        self.time(|t| t.take_inputs(core, others))
+    }
+    fn takes_inputs(&self) -> bool {
+        self.inner.takes_inputs()
+    }
+}
+
+/// The time a node's turn spends in the recorder's calls (the node's thread's direct cost of
+/// recording, without what the writer thread does to it): `scene` paced at 1 kHz for `steps`
+/// steps serving only a bag, each call timed (about 20 ns of timer per call is included).
+/// Returns the median and the 99th percentile per turn, us.
+fn recorder_calls(scene: &str, steps: u64, bag: PathBuf) -> (f64, f64) {
+    let Setup { sim, params, transports } = setup(scene, false, 92, Some(&bag));
+    let spent = std::rc::Rc::new(std::cell::Cell::new(0));
+    let mut transports: Vec<Box<dyn Transport>> = transports
+        .into_iter()
+        .map(|inner| Box::new(Timed { inner, spent: spent.clone() }) as Box<dyn Transport>)
+        .collect();
+    let mut core = NodeCore::with_simulator(sim, params);
+    core.start(&mut TransportSinks::all(&mut transports));
+    let mut per_turn = Vec::with_capacity(steps as usize);
+    let epoch = Instant::now();
+    for k in 0..steps {
+        let due = epoch + Duration::from_millis(k);
+        if let Some(wait) = due.checked_duration_since(Instant::now()) {
+            std::thread::sleep(wait);
+        }
+        let before = spent.get();
+        core.tick(Duration::from_millis(k), &mut TransportSinks::all(&mut transports));
+        per_turn.push((spent.get() - before) as f64 * 1e-3);
+    }
+    drop(transports);
+    let p99 = {
+        let mut v = per_turn.clone();
+        v.sort_by(f64::total_cmp);
+        v[v.len() * 99 / 100]
+    };
+    (median(per_turn), p99)
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
@@ -291,6 +372,17 @@ fn main() {
                     ratios.len(),
                 );
             }
+        }
+    }
+    if paced && pairs > 0 {
+        println!(
+            "\nThe recorder's own calls on the node's thread (every call timed), {pairs} s paced at 1 kHz serving only the bag\n"
+        );
+        println!("| scene | per turn: median / p99 |");
+        println!("| --- | --- |");
+        for scene in ["prism3.toml", "tower.toml"] {
+            let (p50, p99) = recorder_calls(scene, pairs * 1000, dir.join(scene));
+            println!("| {} | {p50:.2} / {p99:.2} us |", scene.trim_end_matches(".toml"));
         }
     }
     let _ = std::fs::remove_dir_all(&dir);

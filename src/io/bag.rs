@@ -439,8 +439,9 @@ impl Drop for BagWriter {
 /// step on a machine with few cores.
 pub const DRAIN_PERIOD: Duration = Duration::from_millis(5);
 
-/// Composed snapshots the writer thread keeps for reuse.
-const SNAPSHOTS_KEPT: usize = 16;
+/// Composed snapshots the writer thread keeps for reuse (a recorder's batches: 64 of them are
+/// about 0.3 s of a 1 kHz node's states, slack for a writer held up that long).
+const SNAPSHOTS_KEPT: usize = 64;
 
 /// Where the writer thread hands back what the caller may reuse.
 struct GiveBack {

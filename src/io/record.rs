@@ -245,13 +245,16 @@ pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
 /// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
 /// record is one step's `/clock` or one state, whatever topics it is published on): one queue
 /// operation per batch instead of two per step. A node stepping at 1 kHz with its state every
-/// step hands over a batch every 32 ms. Until then its records wait on the node's thread: a
-/// process killed with SIGKILL loses them with the chunk the writer had open.
-pub const BATCH_RECORDS: usize = 64;
+/// step hands over a batch every 5 ms, the writer's `bag::DRAIN_PERIOD`: the writer's work on a
+/// batch (about 17 us per prism3 step, 40 us per tower step) then fits in the node's idle time
+/// after a step, where 32 steps a batch (64 records) kept it busy through the node's next steps
+/// and slowed them. Until then its records wait on the node's thread: a process killed with
+/// SIGKILL loses them with the chunk the writer had open.
+pub const BATCH_RECORDS: usize = 10;
 
-/// The numbers a `StepBatch` has room for (128 KiB), or one state's when that is more: a batch
-/// of large states (a 64-stage tower packs about 5000 numbers) is handed over before it holds
-/// `BATCH_RECORDS` records.
+/// The most numbers a `StepBatch` has room for (128 KiB; `BATCH_RECORDS` states when those
+/// take less, one state when it takes more): a batch of large states (a 64-stage tower packs
+/// about 5000 numbers) is handed over before it holds `BATCH_RECORDS` records.
 pub const BATCH_NUMBERS: usize = 16 * 1024;
 
 /// One record of a `StepBatch`: what the writer thread builds the messages of.
@@ -349,7 +352,7 @@ impl StepBatch {
         Self {
             handles,
             records: Vec::with_capacity(BATCH_RECORDS),
-            numbers: Vec::with_capacity(BATCH_NUMBERS.max(state_len)),
+            numbers: Vec::with_capacity((BATCH_RECORDS * state_len).min(BATCH_NUMBERS).max(state_len)),
             state_len,
             reference: Vec::new(),
             frame_id: String::new(),
