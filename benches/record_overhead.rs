@@ -1,7 +1,8 @@
 //! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
 //! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
 //! (default 2; 0 for the interleaved table alone), `--interleaved-seconds N` (default:
-//! `--seconds`; 0 skips that table), `--as-fast-as-possible` to step without pacing; without
+//! `--seconds`; 0 skips that table), `--calls-seconds N` (the recorder's calls; default: the
+//! interleaved seconds; 0 skips), `--as-fast-as-possible` to step without pacing; without
 //! `ros2` only the rows that serve nothing).
 //!
 //! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
@@ -374,14 +375,15 @@ fn main() {
             }
         }
     }
-    if paced && pairs > 0 {
+    let calls: u64 = option(&args, "--calls-seconds").unwrap_or(pairs);
+    if paced && calls > 0 {
         println!(
-            "\nThe recorder's own calls on the node's thread (every call timed), {pairs} s paced at 1 kHz serving only the bag\n"
+            "\nThe recorder's own calls on the node's thread (every call timed), {calls} s paced at 1 kHz serving only the bag\n"
         );
         println!("| scene | per turn: median / p99 |");
         println!("| --- | --- |");
         for scene in ["prism3.toml", "tower.toml"] {
-            let (p50, p99) = recorder_calls(scene, pairs * 1000, dir.join(scene));
+            let (p50, p99) = recorder_calls(scene, calls * 1000, dir.join(scene));
             println!("| {} | {p50:.2} / {p99:.2} us |", scene.trim_end_matches(".toml"));
         }
     }
