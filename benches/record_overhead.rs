@@ -10,13 +10,13 @@
 //! (`state_publish_rate = 0`: every topic, markers at 30 Hz) for 60 s of sim time, serving:
 //! nothing (the physics and the core alone), a `BagRecorder` alone (each step's numbers
 //! appended to a batch on the node's thread, handed over every `record::BATCH_RECORDS` records;
-//! messages built, serialized, compressed and written by the bag's writer thread), DDS (the node as users run it, no subscriber), and DDS with the bag. The
-//! configurations alternate; the table gives medians over runs of each run's median, mean and
+//! messages built, serialized, compressed and written by the bag's writer thread), DDS (the node
+//! as users run it, no subscriber), and DDS with the bag. The configurations alternate; the table gives medians over runs of each run's median, mean and
 //! 99th percentile turn time (one `tick`), the node thread's CPU time per step (its own work,
 //! including sleeping and waking between ticks) and the process CPU time per step (the writer
 //! thread's share too). The bag's size per second of sim time is from the file. A last table
-//! times the recorder's own calls on the node's thread. With `ros2` the
-//! bench first moves itself into a private loopback-only network namespace.
+//! times the recorder's own calls on the node's thread. With `ros2` the bench first moves
+//! itself into a private loopback-only network namespace.
 
 #[cfg(feature = "ros2")]
 #[path = "../tests/common/netns.rs"]
@@ -117,11 +117,7 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
     let epoch = Instant::now();
     for k in 0..steps {
         if paced {
-            // the node's real-time loop: each step at its 1 ms boundary
-            let due = epoch + Duration::from_millis(k);
-            if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                std::thread::sleep(wait);
-            }
+            sleep_until_tick(epoch, k);
         }
         let t0 = Instant::now();
         core.tick(Duration::from_millis(k), sink);
@@ -166,10 +162,7 @@ fn run_interleaved(scene: &str, pairs: u64, bag: PathBuf, dds: bool) -> (Vec<f64
     let mut times = Vec::with_capacity(1000);
     let epoch = Instant::now();
     for k in 0..pairs * 2000 {
-        let due = epoch + Duration::from_millis(k);
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
+        sleep_until_tick(epoch, k);
         let recording = (k / 1000) % 2 == 0;
         let t0 = Instant::now();
         if recording {
@@ -257,26 +250,31 @@ fn recorder_calls(scene: &str, steps: u64, bag: PathBuf) -> (f64, f64) {
     let mut per_turn = Vec::with_capacity(steps as usize);
     let epoch = Instant::now();
     for k in 0..steps {
-        let due = epoch + Duration::from_millis(k);
-        if let Some(wait) = due.checked_duration_since(Instant::now()) {
-            std::thread::sleep(wait);
-        }
+        sleep_until_tick(epoch, k);
         let before = spent.get();
         core.tick(Duration::from_millis(k), &mut TransportSinks::all(&mut transports));
         per_turn.push((spent.get() - before) as f64 * 1e-3);
     }
     drop(transports);
-    let p99 = {
-        let mut v = per_turn.clone();
-        v.sort_by(f64::total_cmp);
-        v[v.len() * 99 / 100]
-    };
-    (median(per_turn), p99)
+    (median(per_turn.clone()), percentile(per_turn, 99))
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// The node's real-time loop: sleeps until tick `k`'s 1 ms boundary after `epoch`.
+fn sleep_until_tick(epoch: Instant, k: u64) {
+    let due = epoch + Duration::from_millis(k);
+    if let Some(wait) = due.checked_duration_since(Instant::now()) {
+        std::thread::sleep(wait);
+    }
+}
+
+/// The `p`-th percentile of `v` (the value at index `len p / 100` of the sorted values).
+fn percentile(mut v: Vec<f64>, p: usize) -> f64 {
     v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    v[v.len() * p / 100]
+}
+
+fn median(v: Vec<f64>) -> f64 {
+    percentile(v, 50)
 }
 
 /// The value after `name` in `args`, parsed (`None` when absent or not parseable).

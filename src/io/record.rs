@@ -260,8 +260,9 @@ pub const BATCH_NUMBERS: usize = 16 * 1024;
 /// One record of a `StepBatch`: what the writer thread builds the messages of.
 #[derive(Debug, Clone, Copy)]
 enum BatchRecord {
-    /// `/clock` at sim time `time`, s.
-    Clock { time: f64, sequence: u32, log_time: u64 },
+    /// `/clock` at sim time `time`, s, after `steps` steps (`NodeStats::steps`, the MCAP
+    /// sequence).
+    Clock { time: f64, steps: u64, log_time: u64 },
     /// A state packed in `StepBatch::numbers`.
     State(StateRecord),
 }
@@ -313,9 +314,8 @@ fn rebuilt_view<'a>(
 
 /// The states (and `/clock` messages) of up to `BATCH_RECORDS` steps as the recorder hands
 /// them to the bag's writer thread, which builds and serializes their messages (`Compose`).
-/// On the node's thread recording a step appends its numbers to one flat vector (`pack_state`:
-/// poses, velocities, multipliers, rest lengths, point positions, cable responses, segment
-/// lengths, rates), memory the node's thread wrote itself, and a small header: a few hundred
+/// On the node's thread recording a step appends the numbers its messages read to one flat
+/// vector (`pack_state`, and `pack_points` with the markers) and a small header: a few hundred
 /// nanoseconds, no allocation once the batch is sized, no queue operation but every
 /// `BATCH_RECORDS` records. The writer thread unpacks each state into `view` (`unpack_state`,
 /// the same bits) to build its messages.
@@ -323,8 +323,10 @@ struct StepBatch {
     records: Vec<BatchRecord>,
     /// The states' numbers (capacity fixed at creation, `full`).
     numbers: Vec<f64>,
-    /// The numbers of one state with its points.
-    state_len: usize,
+    /// The numbers `pack_state` packs for one state of the model (`packed_len`), and those of
+    /// its points (`pack_points`).
+    packed_len: usize,
+    points_len: usize,
     /// Constant over a batch (a view that differs starts a new batch).
     reference: Vec<Vec<f64>>,
     frame_id: String,
@@ -348,12 +350,14 @@ struct UnpackedState {
 
 impl StepBatch {
     fn new(model: std::sync::Arc<Model>, handles: [Option<BagTopic>; 10]) -> Self {
-        let state_len = packed_len(&model) + 3 * model.points.len();
+        let (packed_len, points_len) = (packed_len(&model), 3 * model.points.len());
+        let state_len = packed_len + points_len;
         Self {
             handles,
             records: Vec::with_capacity(BATCH_RECORDS),
             numbers: Vec::with_capacity((BATCH_RECORDS * state_len).min(BATCH_NUMBERS).max(state_len)),
-            state_len,
+            packed_len,
+            points_len,
             reference: Vec::new(),
             frame_id: String::new(),
             node_name: String::new(),
@@ -370,7 +374,8 @@ impl StepBatch {
     /// True when a new record might not fit: `BATCH_RECORDS` records, or numbers within one
     /// state (with its points) of their capacity, so that a batch never grows once sized.
     fn full(&self) -> bool {
-        self.records.len() >= BATCH_RECORDS || self.numbers.len() + self.state_len > self.numbers.capacity()
+        self.records.len() >= BATCH_RECORDS
+            || self.numbers.len() + self.packed_len + self.points_len > self.numbers.capacity()
     }
 
     /// True when the batch's constants (pulley reference, frame, node name) are `view`'s, or it
@@ -411,7 +416,7 @@ impl StepBatch {
     /// Appends `view`'s state, to be logged at `log_time` (`accepts(view)` first).
     fn push_state(&mut self, view: &NodeView<'_>, log_time: u64) {
         let start = self.numbers.len();
-        pack_state(view, &mut self.numbers);
+        pack_state(view, self.packed_len, &mut self.numbers);
         self.records.push(BatchRecord::State(StateRecord {
             start,
             points: None,
@@ -430,16 +435,15 @@ impl StepBatch {
     }
 }
 
-/// Appends what the state messages read from `view` to `out`, in the order `unpack_state`
-/// reads it back: time; per body position (3) and rotation quaternion (i, j, k, w); rest
+/// Appends what the state messages read from `view` to `out` (`len` numbers, `packed_len` of
+/// its model), in the order `unpack_state` reads it back: time; per body position (3) and rotation quaternion (i, j, k, w); rest
 /// lengths; per cable length, rest length, tension and slack (1 or 0); segment lengths; rates.
 /// Sizes are the model's. Point positions, which the markers alone read, are appended by
 /// `pack_points` when a state is published on `~/markers`. What no message reads (velocities,
 /// multipliers, length rates, energies) is not copied: a message that comes to read more must
 /// be packed here too (the replay tests compare every recorded message with the live one).
-fn pack_state(view: &NodeView<'_>, out: &mut Vec<f64>) {
+fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
     let (state, ws) = (view.state, view.workspace);
-    let len = packed_len(view.model);
     // sized once, then written in place: no capacity check per number
     let start = out.len();
     out.resize(start + len, 0.0);
@@ -519,17 +523,26 @@ fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut UnpackedState)
 impl Compose for StepBatch {
     fn compose(&mut self, out: &mut crate::io::bag::MessageOut<'_>) {
         let Self {
-            records, numbers, reference, frame_id, node_name, handles, view: unpacked, buffer, ..
+            records,
+            numbers,
+            reference,
+            frame_id,
+            node_name,
+            handles,
+            view: unpacked,
+            buffer,
+            points_len,
+            ..
         } = self;
         for record in records.iter() {
             let (topics, steps, log_time): (&[Topic], _, _) = match record {
-                BatchRecord::Clock { time, sequence, log_time } => {
+                BatchRecord::Clock { time, steps, log_time } => {
                     // `/clock` reads the time alone
                     unpacked.state.time = *time;
-                    (&[Topic::Clock], u64::from(*sequence), *log_time)
+                    (&[Topic::Clock], *steps, *log_time)
                 }
                 BatchRecord::State(r) => {
-                    let points = r.points.map(|at| &numbers[at..at + 3 * unpacked.workspace.points.len()]);
+                    let points = r.points.map(|at| &numbers[at..at + *points_len]);
                     unpack_state(&numbers[r.start..], points, unpacked);
                     (&r.topics[..usize::from(r.topic_count)], r.steps, r.log_time)
                 }
@@ -725,7 +738,7 @@ impl NodeSink for BagRecorder {
         if topic == Topic::Clock {
             let log_time = self.stamp_of(view);
             let (batch, sent) = self.batch_for(view, false);
-            batch.records.push(BatchRecord::Clock { time: view.state.time, sequence: step as u32, log_time });
+            batch.records.push(BatchRecord::Clock { time: view.state.time, steps: step, log_time });
             // a dropped batch is reported with this message, which still goes
             return sent.map_err(failed);
         }
@@ -1395,7 +1408,7 @@ mod tests {
 
         let mut numbers = vec![f64::NAN; 3]; // a state need not start the batch
         let start = numbers.len();
-        pack_state(&live, &mut numbers);
+        pack_state(&live, packed_len(&model), &mut numbers);
         let points = numbers.len();
         pack_points(&live, &mut numbers);
         let mut unpacked = StepBatch::new(std::sync::Arc::new(model.clone()), [None; 10]).view;
