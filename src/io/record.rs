@@ -246,7 +246,8 @@ pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
 /// record is one step's `/clock` or one state, whatever topics it is published on): one queue
 /// operation per batch instead of two per step. A node stepping at 1 kHz with its state every
 /// step hands over a batch every 5 ms, the writer's `bag::DRAIN_PERIOD`: the writer's work on a
-/// batch (about 17 us per prism3 step, 40 us per tower step) then fits in the node's idle time
+/// batch (about 17 us per prism3 step, 40 us per tower step: `record_overhead`'s CPU per step
+/// of all threads less the node thread's, with the bag) then fits in the node's idle time
 /// after a step, where 32 steps a batch (64 records) kept it busy through the node's next steps
 /// and slowed them. Until then its records wait on the node's thread: a process killed with
 /// SIGKILL loses them with the chunk the writer had open.
