@@ -370,7 +370,9 @@ impl Simulator {
             // the acceleration (a cable going slack) would otherwise shrink the step without end
             let forced = tolerance.is_some() && h_try <= dt * MIN_CONTROLLED_STEP;
             // generalized-alpha gets the same share of the tolerance every step, scaled by the
-            // running mean step (`dynamics::TOLERANCE_TIME`); Dormand-Prince takes it per step
+            // running mean step (`dynamics::TOLERANCE_TIME`; the step raises it where its error
+            // goes into damped modes, `dynamics::damped_mode_relief`); Dormand-Prince takes it
+            // per step
             let step_tolerance = match (tolerance, implicit) {
                 (Some(tol), true) => {
                     Some(tol * (self.mean_h / crate::solve::dynamics::TOLERANCE_TIME).min(1.0))
