@@ -16,7 +16,7 @@
 //! - on a structure that rings while it deploys (prism3) it refuses at most 5 % of its attempts
 //!   (the held envelope, `dynamics::ENVELOPE_HOLD`);
 //! - the decay rate of a jerk under the cables' damping (`dynamics::jerk_decay_rate`) is a damped
-//!   oscillator's `c / 2m` along its cable and 0 across it, and the relief it gives the estimate
+//!   oscillator's `c / 2m` along its cable (its slower root when overdamped) and 0 across it, and the relief it gives the estimate
 //!   (`dynamics::damped_mode_relief`) is 1 without damping and grows with the damped share.
 
 mod common;
@@ -397,7 +397,7 @@ fn a_tolerance_is_refused_where_no_error_estimate_exists() {
 /// The Atwood machine with a damped rope (c = 8 N s/m): moving m1 alone stretches the rope at its
 /// own speed, a damped oscillator of decay rate `c / 2 m1`; m1 and m2 moving together slide the
 /// rope over the pulleys without stretching it (the machine's undamped mode), as does m1 moving
-/// across the rope.
+/// across the rope. With c = 400 N s/m the oscillator is overdamped and decays at its slower root.
 #[test]
 fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() {
     use tensegrity::solve::dynamics::{damped_mode_relief, jerk_decay_rate, DECAY_RELIEF, TOLERANCE_TIME};
@@ -420,6 +420,18 @@ fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() 
     assert!(rate([0.0, 0.0, -1.0, 0.0, 0.0, 1.0]).abs() < 1e-12, "the rope slides");
     assert!(rate([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]).abs() < 1e-12, "across the rope");
     assert_eq!(rate([0.0; 6]), 0.0);
+    // heavily damped (c = 400 N s/m, sigma_c = 100/s for m1 against w^2 = EA / (L0 m1)): the slower
+    // root of the overdamped oscillator, sigma_c - sqrt(sigma_c^2 - w^2)
+    let mut overdamped = model.clone();
+    overdamped.cables[0].damping = 400.0;
+    let slow = jerk_decay_rate(
+        &overdamped,
+        &ws,
+        &nalgebra::DVector::from_row_slice(&[0.0, 0.0, -3.0, 0.0, 0.0, 0.0]),
+    );
+    let (sigma, w2) = (100.0, 2200.0 / ws.cables[0].rest_length / 2.0);
+    let expected = sigma - (sigma * sigma - w2).sqrt();
+    assert!((slow - expected).abs() < 1e-9 * expected, "overdamped: {slow} against {expected}");
     // the relief: none without damping or for an undamped jerk, the whole ratio in a pure ring,
     // growing with the damped share in between
     let largest = m2_up;
