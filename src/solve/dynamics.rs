@@ -325,9 +325,9 @@ pub const DAMPED_SHARE_SPREAD: f64 = 0.9;
 /// oscillator is underdamped (`sigma_c <= w`; `zeta w` for one damped mode), the slower root
 /// `sigma_c - sqrt(sigma_c^2 - w^2)` when it is overdamped (about `w / (2 zeta)`: a heavily
 /// damped structure creeps back, and its errors with it: prism3 at damping ratio 2 and 1e-6 m
-/// lands at 2.37 times the tolerance with 6 % fewer steps than without any relief (1.57); with
-/// `sigma_c` alone at 2.67 with 3 % fewer). Motion that stretches no cable (a mechanism, a rigid body's drift, a pendulum)
-/// gives 0, as does `j = 0`.
+/// lands at 2.37 times the tolerance with 6 % fewer attempts than without any relief (1.57);
+/// with `sigma_c` alone at 2.67 with 3 % fewer). Motion that stretches no cable (a mechanism, a
+/// rigid body's drift, a pendulum) gives 0, as does `j = 0`.
 ///
 /// Preconditions: `ws` holds the evaluation of the state `j` belongs to (its points' positions and
 /// Jacobians, its cables' rest lengths and slack flags); `j.len() == model.dof_count`.
