@@ -21,11 +21,13 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError, TrySendError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+
+use mcap::sans_io::LinearReaderOptions;
 
 use byteorder::LittleEndian;
 use serde::Serialize;
@@ -615,6 +617,9 @@ pub fn metadata_yaml(
 
 // ----- reading ----------------------------------------------------------------------------------
 
+/// What an MCAP file starts and (when closed) ends with.
+const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+
 /// One recorded message.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RecordedMessage {
@@ -646,12 +651,15 @@ impl RecordedMessage {
     }
 }
 
-/// A bag read into memory (the MCAP file's bytes; messages are decompressed as they are
-/// iterated): its run record, topics and messages.
+/// A bag on disk, read as a stream: its run record, topics and messages. Nothing holds the file:
+/// each call opens it and reads what it needs (the run record from the file's start, the topics
+/// from its summary at the end, the messages chunk by chunk), so memory stays at about a chunk's
+/// size whatever the bag's (`tests/recording.rs`).
 pub struct BagReader {
     /// The MCAP file.
     pub path: PathBuf,
-    bytes: Vec<u8>,
+    /// Its size when opened, bytes.
+    file_bytes: u64,
 }
 
 /// A bag's topics and counts, as `tensegrity bag info` prints them.
@@ -676,11 +684,17 @@ impl BagReader {
     /// or an `.mcap` file.
     pub fn open(path: &Path) -> Result<Self, BagError> {
         let file = if path.is_dir() { Self::mcap_in(path)? } else { path.to_path_buf() };
-        let bytes = std::fs::read(&file).map_err(|e| io_err(&file, e))?;
-        if bytes.len() < 8 || &bytes[..8] != b"\x89MCAP0\r\n" {
+        let mut f = File::open(&file).map_err(|e| io_err(&file, e))?;
+        let file_bytes = f.metadata().map_err(|e| io_err(&file, e))?.len();
+        let mut magic = [0u8; 8];
+        if file_bytes < 8 || f.read_exact(&mut magic).is_err() || &magic != MCAP_MAGIC {
             return Err(BagError::Format { path: file, reason: "not an MCAP file (no MCAP magic)".into() });
         }
-        Ok(Self { path: file, bytes })
+        Ok(Self { path: file, file_bytes })
+    }
+
+    fn file(&self) -> std::io::Result<File> {
+        File::open(&self.path)
     }
 
     fn mcap_in(dir: &Path) -> Result<PathBuf, BagError> {
@@ -702,31 +716,73 @@ impl BagReader {
 
     /// True when the file ends with the MCAP magic (it was closed properly).
     pub fn complete(&self) -> bool {
-        self.bytes.len() >= 16 && &self.bytes[self.bytes.len() - 8..] == b"\x89MCAP0\r\n"
+        let mut tail = [0u8; 8];
+        self.file_bytes >= 16
+            && self
+                .file()
+                .and_then(|mut f| {
+                    f.seek(SeekFrom::End(-8))?;
+                    f.read_exact(&mut tail)
+                })
+                .is_ok()
+            && &tail == MCAP_MAGIC
     }
 
-    fn options() -> mcap::read::Options {
-        mcap::read::Options::IgnoreEndMagic
+    /// How the messages and the run record are read: up to the data end, not requiring the end
+    /// magic (a cut bag is read as far as it goes).
+    fn options() -> LinearReaderOptions {
+        LinearReaderOptions::default().with_skip_end_magic(true)
     }
 
     /// The run record (the metadata record before the first chunk, where our writer puts it;
     /// so a cut bag keeps it too).
     pub fn run(&self) -> Option<RunInfo> {
-        let reader = mcap::read::LinearReader::new_with_options(&self.bytes, Self::options().into()).ok()?;
-        for record in reader {
-            match record {
-                Ok(mcap::records::Record::Metadata(m)) if m.name == RUN_METADATA => return Some(m.metadata),
-                Ok(mcap::records::Record::Chunk { .. }) | Err(_) => return None,
-                Ok(_) => {}
+        let mut file = BufReader::new(self.file().ok()?);
+        let mut reader =
+            mcap::sans_io::LinearReader::new_with_options(Self::options().with_emit_chunks(true));
+        while let Some(event) = reader.next_event() {
+            match event.ok()? {
+                mcap::sans_io::LinearReadEvent::ReadRequest(n) => {
+                    let read = file.read(reader.insert(n)).ok()?;
+                    reader.notify_read(read);
+                }
+                mcap::sans_io::LinearReadEvent::Record { data, opcode } => {
+                    match mcap::parse_record(opcode, data) {
+                        Ok(mcap::records::Record::Metadata(m)) if m.name == RUN_METADATA => {
+                            return Some(m.metadata)
+                        }
+                        Ok(mcap::records::Record::Chunk { .. }) | Err(_) => return None,
+                        Ok(_) => {}
+                    }
+                }
             }
         }
         None
     }
 
+    /// The summary section (`None` for a bag without one: cut short, or not MCAP enough).
+    fn summary(&self) -> Option<mcap::Summary> {
+        let mut file = self.file().ok()?;
+        let mut reader = mcap::sans_io::SummaryReader::new();
+        while let Some(event) = reader.next_event() {
+            match event.ok()? {
+                mcap::sans_io::SummaryReadEvent::ReadRequest(n) => {
+                    let read = file.read(reader.insert(n)).ok()?;
+                    reader.notify_read(read);
+                }
+                mcap::sans_io::SummaryReadEvent::SeekRequest(to) => {
+                    let at = file.seek(to).ok()?;
+                    reader.notify_seeked(at);
+                }
+            }
+        }
+        reader.finish()
+    }
+
     /// The topics the summary declares, in channel order, also those without messages (empty
     /// for a bag without summary: a cut bag's topics are found by reading, see `info`).
     pub fn declared_topics(&self) -> Vec<TopicSpec> {
-        let Ok(Some(summary)) = mcap::Summary::read(&self.bytes) else { return Vec::new() };
+        let Some(summary) = self.summary() else { return Vec::new() };
         let mut channels: Vec<_> = summary.channels.values().collect();
         channels.sort_by_key(|c| c.id);
         channels
@@ -742,9 +798,11 @@ impl BagReader {
     /// Every readable message in file order; reading stops at the first damaged or missing
     /// record, whose reason is the last item (`Err`).
     pub fn messages(&self) -> Box<dyn Iterator<Item = Result<RecordedMessage, String>> + '_> {
-        let mut stream = match mcap::MessageStream::new_with_options(&self.bytes, Self::options().into()) {
-            Ok(s) => Some(s),
-            Err(e) => return Box::new(std::iter::once(Err(cut_reason(&e)))),
+        let mut stream = match self.file() {
+            Ok(f) => Some(mcap::io::MessageReader::new_with_options(BufReader::new(f), Self::options())),
+            Err(e) => {
+                return Box::new(std::iter::once(Err(format!("cannot read {}: {e}", self.path.display()))))
+            }
         };
         Box::new(std::iter::from_fn(move || {
             let s = stream.as_mut()?;
@@ -799,7 +857,7 @@ impl BagReader {
         }
         BagInfo {
             path: self.path.clone(),
-            file_bytes: self.bytes.len() as u64,
+            file_bytes: self.file_bytes,
             topics,
             time_range: range,
             run: self.run(),
@@ -842,6 +900,8 @@ pub fn reindex(dir: &Path, options: &BagOptions) -> Result<Option<(BagSummary, O
     let original = reader.path.clone();
     let cut = original.with_extension("mcap.cut");
     std::fs::rename(&original, &cut).map_err(|e| io_err(&original, e))?;
+    // the reader streams from its file, which now has the other name
+    let reader = BagReader::open(&cut)?;
     let rebuilt = dir.join(".reindex");
     let mut writer = BagWriter::create(&rebuilt, topics.clone(), &run, options)?;
     let mut why = None;
