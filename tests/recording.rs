@@ -429,3 +429,40 @@ fn a_nodes_bag_writer_runs_in_the_background_and_an_offline_one_does_not() {
     assert_eq!(background(), 0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Damaged and misnamed bags a careless user hands the bag commands: a file of the MCAP magic and
+/// random bytes (a length field of about 1e19 bytes, which once panicked the streaming reader on a
+/// capacity overflow), and `bag reindex` given the `.mcap` file instead of its directory (which
+/// once renamed the file and left a directory in its place). Each is an error or a report, never
+/// a panic, and the file is left as it was.
+#[test]
+fn bag_commands_refuse_damaged_and_misnamed_bags_without_panicking() {
+    let dir = bag_dir("damaged");
+    std::fs::create_dir_all(&dir).unwrap();
+    let file = dir.join("damaged_0.mcap");
+    let mut bytes = b"\x89MCAP0\r\n".to_vec();
+    let mut x = 0x2545_F491_4F6C_DD1Du64;
+    bytes.extend((0..5000).map(|_| {
+        x ^= x << 13;
+        x ^= x >> 7;
+        x ^= x << 17;
+        x as u8
+    }));
+    std::fs::write(&file, &bytes).unwrap();
+    let (d, f) = (dir.to_str().unwrap(), file.to_str().unwrap());
+    for args in [vec!["bag", "info", d], vec!["bag", "info", f], vec!["replay", d], vec!["bag", "reindex", f]]
+    {
+        let out = cli(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !stderr.contains("panicked") && out.status.code().is_some_and(|c| c <= 1),
+            "{args:?}: {stderr}"
+        );
+    }
+    let info = cli(&["bag", "info", d]);
+    assert!(String::from_utf8_lossy(&info.stdout).contains("damaged record"), "{info:?}");
+    let reindex = cli(&["bag", "reindex", f]);
+    assert!(String::from_utf8_lossy(&reindex.stderr).contains("not a bag directory"), "{reindex:?}");
+    assert_eq!(std::fs::read(&file).unwrap(), bytes, "the file is left as it was");
+    assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1, "nothing written beside it");
+}

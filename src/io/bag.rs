@@ -620,6 +620,11 @@ pub fn metadata_yaml(
 /// What an MCAP file starts and (when closed) ends with.
 const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 
+/// The longest record or chunk a bag reader accepts whatever the file's size, bytes: a chunk's
+/// uncompressed content may be longer than the whole compressed file (ours are about 1 MiB,
+/// `BagOptions::chunk_size`). A longer length field is taken for damage and refused.
+const RECORD_LENGTH_FLOOR: usize = 256 << 20;
+
 /// One recorded message.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RecordedMessage {
@@ -729,17 +734,20 @@ impl BagReader {
     }
 
     /// How the messages and the run record are read: up to the data end, not requiring the end
-    /// magic (a cut bag is read as far as it goes).
-    fn options() -> LinearReaderOptions {
-        LinearReaderOptions::default().with_skip_end_magic(true)
+    /// magic (a cut bag is read as far as it goes), refusing a record or chunk longer than
+    /// `max(file size, RECORD_LENGTH_FLOOR)` instead of allocating for it (a damaged length
+    /// field; without the limit, 8 bytes of magic and 5000 random ones panicked on a capacity
+    /// overflow).
+    fn options(&self) -> LinearReaderOptions {
+        let limit = usize::try_from(self.file_bytes).unwrap_or(usize::MAX).max(RECORD_LENGTH_FLOOR);
+        LinearReaderOptions::default().with_skip_end_magic(true).with_record_length_limit(limit)
     }
 
     /// The run record (the metadata record before the first chunk, where our writer puts it;
     /// so a cut bag keeps it too).
     pub fn run(&self) -> Option<RunInfo> {
         let mut file = BufReader::new(self.file().ok()?);
-        let mut reader =
-            mcap::sans_io::LinearReader::new_with_options(Self::options().with_emit_chunks(true));
+        let mut reader = mcap::sans_io::LinearReader::new_with_options(self.options().with_emit_chunks(true));
         while let Some(event) = reader.next_event() {
             match event.ok()? {
                 mcap::sans_io::LinearReadEvent::ReadRequest(n) => {
@@ -763,7 +771,13 @@ impl BagReader {
     /// The summary section (`None` for a bag without one: cut short, or not MCAP enough).
     fn summary(&self) -> Option<mcap::Summary> {
         let mut file = self.file().ok()?;
-        let mut reader = mcap::sans_io::SummaryReader::new();
+        // summary records are stored as they are: none is longer than the file
+        let limit = usize::try_from(self.file_bytes).unwrap_or(usize::MAX);
+        let mut reader = mcap::sans_io::SummaryReader::new_with_options(
+            mcap::sans_io::SummaryReaderOptions::default()
+                .with_file_size(self.file_bytes)
+                .with_record_length_limit(limit),
+        );
         while let Some(event) = reader.next_event() {
             match event.ok()? {
                 mcap::sans_io::SummaryReadEvent::ReadRequest(n) => {
@@ -799,7 +813,7 @@ impl BagReader {
     /// record, whose reason is the last item (`Err`).
     pub fn messages(&self) -> Box<dyn Iterator<Item = Result<RecordedMessage, String>> + '_> {
         let mut stream = match self.file() {
-            Ok(f) => Some(mcap::io::MessageReader::new_with_options(BufReader::new(f), Self::options())),
+            Ok(f) => Some(mcap::io::MessageReader::new_with_options(BufReader::new(f), self.options())),
             Err(e) => {
                 return Box::new(std::iter::once(Err(format!("cannot read {}: {e}", self.path.display()))))
             }
@@ -889,8 +903,16 @@ pub fn parse_qos(text: &str) -> TopicQos {
 /// Rewrites a bag whose writer was killed (no summary, no end magic) as a complete one: every
 /// message that can be read, the run record, summary, footer and `metadata.yaml`. The original
 /// file is kept beside it as `<file>.cut`. Returns what the new bag holds and why the original
-/// stopped, or `None` for a bag that is already complete (left as it is).
+/// stopped, or `None` for a bag that is already complete (left as it is). `dir` is the bag's
+/// directory (a bare `.mcap` file is refused, untouched).
 pub fn reindex(dir: &Path, options: &BagOptions) -> Result<Option<(BagSummary, Option<String>)>, BagError> {
+    if !dir.is_dir() {
+        // its rebuilt file and metadata go into the bag's directory, which a bare file lacks
+        return Err(BagError::Format {
+            path: dir.to_path_buf(),
+            reason: "not a bag directory: reindex takes the directory that holds the .mcap file".into(),
+        });
+    }
     let reader = BagReader::open(dir)?;
     if reader.complete() {
         return Ok(None);
