@@ -16,7 +16,8 @@
 //! - on a structure that rings while it deploys (prism3) it refuses at most 5 % of its attempts
 //!   (the held envelope, `dynamics::ENVELOPE_HOLD`);
 //! - the decay rate of a jerk under the cables' damping (`dynamics::jerk_decay_rate`) is a damped
-//!   oscillator's `c / 2m` along its cable (its slower root when overdamped) and 0 across it, and the relief it gives the estimate
+//!   oscillator's `c / 2m` along its cable (its slower root when overdamped) and 0 across it, the
+//!   Rayleigh quotient of the analytic damping matrix on bars (planar or not), and the relief it gives the estimate
 //!   (`dynamics::damped_mode_relief`) is 1 without damping and grows with the damped share.
 
 mod common;
@@ -412,7 +413,7 @@ fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() 
     let mut ws = tensegrity::Workspace::new(&model);
     tensegrity::forces::evaluate_forces(&model, &state, &mut ws);
     assert!(!ws.cables[0].slack);
-    let rate = |j: [f64; 6]| jerk_decay_rate(&model, &ws, &nalgebra::DVector::from_row_slice(&j));
+    let mut rate = |j: [f64; 6]| jerk_decay_rate(&model, &mut ws, &nalgebra::DVector::from_row_slice(&j));
     let m1_down = rate([0.0, 0.0, -3.0, 0.0, 0.0, 0.0]);
     assert!((m1_down - 8.0 / (2.0 * 2.0)).abs() < 1e-12, "m1 alone: {m1_down}");
     let m2_up = rate([0.0, 0.0, 0.0, 0.0, 0.0, 5.0]);
@@ -426,7 +427,7 @@ fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() 
     overdamped.cables[0].damping = 400.0;
     let slow = jerk_decay_rate(
         &overdamped,
-        &ws,
+        &mut ws,
         &nalgebra::DVector::from_row_slice(&[0.0, 0.0, -3.0, 0.0, 0.0, 0.0]),
     );
     let (sigma, w2) = (100.0, 2200.0 / ws.cables[0].rest_length / 2.0);
@@ -442,4 +443,40 @@ fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() 
     let shares: Vec<f64> =
         [0.2, 0.4, 0.6, 0.8].iter().map(|f| damped_mode_relief(f * largest, largest)).collect();
     assert!(shares.windows(2).all(|w| w[0] < w[1]) && shares[0] > 1.0 && shares[3] < ratio, "{shares:?}");
+}
+
+/// On structures of bars, planar (tbar: a bar turns about the z axis, its third coordinate) and
+/// not (prism3), the decay rate of an underdamped jerk is the Rayleigh quotient
+/// `j^T C j / (2 j^T M j)` of the analytic damping matrix the Newton iterations use (`evaluate`
+/// with damping tangents) and the bodies' mass. An earlier version turned each point's
+/// Jacobian, already in the body's coordinates, by the body's basis once more: on a planar scene
+/// it dropped the rotation.
+#[test]
+fn the_decay_rate_of_a_jerk_is_the_rayleigh_quotient_of_the_damping_matrix() {
+    use tensegrity::forces::{evaluate, kinetic_energy, Tangents};
+    use tensegrity::solve::dynamics::jerk_decay_rate;
+    for scene in ["tbar.toml", "prism3.toml"] {
+        let model = bundled(scene);
+        let state = State::initial(&model);
+        let mut ws = tensegrity::Workspace::new(&model);
+        evaluate(&model, &state, &mut ws, Tangents::StiffnessAndDamping);
+        let damping = ws.damping.clone();
+        let n = model.dof_count;
+        // every coordinate alone (the rotations among them), and a mix of all
+        let mut jerks: Vec<nalgebra::DVector<f64>> =
+            (0..n).map(|k| nalgebra::DVector::from_fn(n, |i, _| if i == k { 1.0 } else { 0.0 })).collect();
+        jerks.push(nalgebra::DVector::from_fn(n, |i, _| ((i as f64) * 1.7 + 0.3).sin()));
+        for j in &jerks {
+            let quotient = (j.transpose() * &damping * j)[0] / (4.0 * kinetic_energy(&model, j));
+            let rate = jerk_decay_rate(&model, &mut ws, j);
+            assert!(
+                (rate - quotient).abs() <= 1e-9 * quotient.max(1e-3),
+                "{scene}: {rate} against {quotient} for {j}"
+            );
+        }
+        assert!(
+            jerks.iter().any(|j| jerk_decay_rate(&model, &mut ws, j) > 1.0),
+            "{scene}: some jerk is damped"
+        );
+    }
 }

@@ -128,6 +128,24 @@ pub fn add_length_gradient(
     }
 }
 
+/// `dL/dq v`, the route's length rate for the coordinate rates `v` (length `model.dof_count`),
+/// using the geometry last computed by `route_geometry` for this route (the dot product that
+/// `add_length_gradient` adds up as a vector).
+pub fn length_gradient_dot(
+    model: &Model,
+    route: &[PointId],
+    kin: &[PointKinematics],
+    scratch: &CableScratch,
+    v: &DVector<f64>,
+) -> f64 {
+    let mut rate = 0.0;
+    for (i, pid) in route.iter().enumerate() {
+        let b = &model.bodies[kin[pid.0].body.0];
+        rate += (0..b.dof_count).map(|r| scratch.grad[i][r] * v[b.dof_offset + r]).sum::<f64>();
+    }
+    rate
+}
+
 /// Pushes `(row, dL/dq_row)` for every coordinate the route's points move, using the geometry
 /// last computed by `route_geometry` (rows repeat when a route passes a body twice; sum them).
 pub fn length_gradient_entries(

@@ -41,7 +41,7 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
 
 use crate::constraints::{add_multiplier_hessian_to, add_reaction_force, evaluate_rates, joint_points};
-use crate::forces::cable::{add_block, add_vector, SEGMENT_LENGTH_FLOOR};
+use crate::forces::cable::{add_block, add_vector, length_gradient_dot, route_geometry};
 use crate::forces::{
     add_tangents, evaluate, evaluate_forces, kinetic_energy, TangentSink, Tangents, Workspace,
 };
@@ -330,33 +330,25 @@ pub const DAMPED_SHARE_SPREAD: f64 = 0.9;
 /// rigid body's drift, a pendulum) gives 0, as does `j = 0`.
 ///
 /// Preconditions: `ws` holds the evaluation of the state `j` belongs to (its points' positions and
-/// Jacobians, its cables' rest lengths and slack flags); `j.len() == model.dof_count`.
-pub fn jerk_decay_rate(model: &Model, ws: &Workspace, j: &DVector<f64>) -> f64 {
+/// Jacobians, its cables' rest lengths and slack flags; its route scratch is overwritten);
+/// `j.len() == model.dof_count`.
+pub fn jerk_decay_rate(model: &Model, ws: &mut Workspace, j: &DVector<f64>) -> f64 {
     let inertia = 2.0 * kinetic_energy(model, j);
     if inertia <= 0.0 {
         return 0.0;
     }
-    let point_rate = |p: &crate::kinematics::PointKinematics| {
-        p.jacobian * model.bodies[p.body.0].local_increment(j.as_slice(), 1.0)
-    };
     let (mut damping, mut stiffness) = (0.0, 0.0);
     for (c, cable) in model.cables.iter().enumerate() {
         let response = &ws.cables[c];
         if cable.damping == 0.0 || response.slack {
             continue;
         }
-        // dL/dq j: each segment's unit direction times its ends' relative rate
-        let mut stretch = 0.0;
-        for pair in model.route(CableId(c)).windows(2) {
-            let (a, b) = (&ws.points[pair[0].0], &ws.points[pair[1].0]);
-            let d = b.position - a.position;
-            let l = d.norm();
-            if l > SEGMENT_LENGTH_FLOOR {
-                stretch += d.dot(&(point_rate(b) - point_rate(a))) / l;
-            }
-        }
+        let k = cable.axial_stiffness / response.rest_length;
+        let route = model.route(CableId(c));
+        route_geometry(route, &ws.points, &mut ws.scratch);
+        let stretch = length_gradient_dot(model, route, &ws.points, &ws.scratch, j);
         damping += cable.damping * stretch * stretch;
-        stiffness += cable.axial_stiffness / response.rest_length * stretch * stretch;
+        stiffness += k * stretch * stretch;
     }
     let sigma = damping / (2.0 * inertia);
     let w2 = stiffness / inertia;
@@ -800,7 +792,7 @@ impl Dynamics {
                 self.jerk.copy_from(&self.vdot);
                 self.jerk -= &self.previous_acceleration;
                 self.jerk /= h + h_prev;
-                let rate = jerk_decay_rate(model, &self.ws, &self.jerk);
+                let rate = jerk_decay_rate(model, &mut self.ws, &self.jerk);
                 if rate.is_finite() {
                     self.largest_decay_rate = self.largest_decay_rate.max(rate);
                     relief = damped_mode_relief(rate, self.largest_decay_rate);
