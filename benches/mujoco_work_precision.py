@@ -124,6 +124,10 @@ def prism3_mjcf(tensegrity):
     rows = list(csv.DictReader(out.stdout.splitlines()))
     bodies = {b["name"]: b for b in scene["bodies"]}
     pinned = {j["a"] for j in scene["joints"] if j["kind"] == "pin"}
+
+    def f(v):
+        return " ".join("%.12g" % x for x in v)
+
     xml = ['<mujoco model="prism3">', '  <compiler angle="radian" autolimits="true"/>',
            '  <option timestep="0.001" integrator="Euler" gravity="%s">' % " ".join(
                "%.10g" % g for g in scene.get("gravity", [0.0, 0.0, 0.0])),
@@ -140,7 +144,6 @@ def prism3_mjcf(tensegrity):
         q = np.array([1.0 + z[2], *w])
         q = q / np.linalg.norm(q)
         it = b["mass"] * length ** 2 / 12.0
-        f = lambda v: " ".join("%.12g" % x for x in v)
         xml += ['    <body name="%s" pos="%s">' % (name, f(mid)),
                 '      <joint name="%s_pin" type="ball" pos="%s"/>' % (name, f(-u / 2)),
                 '      <inertial pos="0 0 0" quat="%s" mass="%.12g" diaginertia="%.12g %.12g 1e-4"/>'
@@ -173,15 +176,13 @@ def prism3_mjcf(tensegrity):
 def prism3_model_check(case, tensegrity):
     """Largest bar-end distance between MuJoCo's RK4 and our Dormand-Prince, both at 0.1 ms, every
     10 ms over prism3's 1.5 s: the two models are the same structure if this is round-off."""
-    import mujoco as mj
-
     samples, _ = mujoco_run(case, "RK4", 1e-4)
     out = subprocess.run([tensegrity, "deploy", "config/scenes/prism3.toml", "--dynamic", "--integrator",
                           "dormand-prince", "--dt", "1e-4", "--duration", "1.5", "--out", "-"],
                          check=True, cwd=ROOT, capture_output=True, text=True)
     rows = list(csv.DictReader(out.stdout.splitlines()))
     m = case.model()
-    sites = [mj.mj_id2name(m, mj.mjtObj.mjOBJ_SITE, i) for i in range(m.nsite)]
+    sites = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_SITE, i) for i in range(m.nsite)]
     worst = 0.0
     for k, sample in enumerate(samples):
         row = rows[(k + 1) * 100]

@@ -659,7 +659,7 @@ impl RecordedMessage {
 /// A bag on disk, read as a stream: its run record, topics and messages. Nothing holds the file:
 /// each call opens it and reads what it needs (the run record from the file's start, the topics
 /// from its summary at the end, the messages chunk by chunk), so memory stays at about a chunk's
-/// size whatever the bag's (`tests/recording.rs`).
+/// size whatever the bag's (`tests/allocation.rs`).
 pub struct BagReader {
     /// The MCAP file.
     pub path: PathBuf,

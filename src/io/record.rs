@@ -437,8 +437,9 @@ impl StepBatch {
 }
 
 /// Appends what the state messages read from `view` to `out` (`len` numbers, `packed_len` of
-/// its model), in the order `unpack_state` reads it back: time; per body position (3) and rotation quaternion (i, j, k, w); rest
-/// lengths; per cable length, rest length, tension and slack (1 or 0); segment lengths; rates.
+/// its model), in the order `unpack_state` reads it back: time; per body position (3) and
+/// rotation quaternion (i, j, k, w); rest lengths; per cable length, rest length, tension and
+/// slack (1 or 0); segment lengths; rates.
 /// Sizes are the model's. Point positions, which the markers alone read, are appended by
 /// `pack_points` when a state is published on `~/markers`. What no message reads (velocities,
 /// multipliers, length rates, energies) is not copied: a message that comes to read more must
