@@ -1,9 +1,10 @@
 //! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
 //! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
 //! (default 2; 0 for the interleaved table alone), `--interleaved-seconds N` (default:
-//! `--seconds`; 0 skips that table), `--calls-seconds N` (the recorder's calls; default: the
-//! interleaved seconds; 0 skips), `--as-fast-as-possible` to step without pacing; without
-//! `ros2` only the rows that serve nothing).
+//! `--seconds`; 0 skips that table), `--block-ms A,B,...` (the interleaved table's block
+//! lengths, default 100), `--calls-seconds N` (the recorder's calls; default: the interleaved
+//! seconds; 0 skips), `--as-fast-as-possible` to step without pacing; without `ros2` only the
+//! rows that serve nothing).
 //!
 //! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
 //! 1 ms boundary, as the node's loop does) with the state published every step
@@ -14,8 +15,10 @@
 //! as users run it, no subscriber), and DDS with the bag. The configurations alternate; the table gives medians over runs of each run's median, mean and
 //! 99th percentile turn time (one `tick`), the node thread's CPU time per step (its own work,
 //! including sleeping and waking between ticks) and the process CPU time per step (the writer
-//! thread's share too). The bag's size per second of sim time is from the file. A last table
-//! times the recorder's own calls on the node's thread. With `ros2` the bench first moves
+//! thread's share too). The bag's size per second of sim time is from the file. Runs a minute
+//! apart differ by more than recording costs, so a second table alternates recording on and
+//! off in blocks of 100 ms within one run (`run_interleaved`) and compares each recorded block
+//! with the blocks beside it. A last table times the recorder's own calls on the node's thread. With `ros2` the bench first moves
 //! itself into a private loopback-only network namespace.
 
 #[cfg(feature = "ros2")]
@@ -148,22 +151,38 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) ->
     }
 }
 
+/// One block of an interleaved run: the mean and the median turn time of its turns, us.
+#[derive(Clone, Copy)]
+struct Block {
+    mean_us: f64,
+    median_us: f64,
+}
+
 /// The interleaved measurement of one scene and serving: the node's core as in `run`, the bag
-/// open the whole time but handed the core's outputs only in alternate seconds of sim time
-/// (on, off, on, ...), for `pairs` seconds of each. Returns the median turn time of every
-/// second, on seconds and off seconds in order, us.
-fn run_interleaved(scene: &str, pairs: u64, bag: PathBuf, dds: bool) -> (Vec<f64>, Vec<f64>) {
+/// open the whole time but handed the core's outputs only in alternate blocks of `block` steps
+/// (1 ms of sim time each: on, off, on, ...), for `steps` recorded steps. The first `settle`
+/// turns of every block are not counted (the writer thread drains what the last recorded block
+/// handed it up to `bag::DRAIN_PERIOD` later). Returns the blocks with the bag and those
+/// without, in order, and the bag's size, bytes.
+fn run_interleaved(
+    scene: &str,
+    steps: u64,
+    block: u64,
+    bag: PathBuf,
+    dds: bool,
+) -> (Vec<Block>, Vec<Block>, u64) {
     let Setup { sim, params, mut transports } = setup(scene, dds, 91, Some(&bag));
-    // the bag is the last transport; the others are served every second
+    // the bag is the last transport; the others are served every block
     let served = transports.len() - 1;
+    let settle = (block / 10).min(10);
     let mut core = NodeCore::with_simulator(sim, params);
     core.start(&mut TransportSinks::all(&mut transports));
     let (mut on, mut off) = (Vec::new(), Vec::new());
-    let mut times = Vec::with_capacity(1000);
+    let mut times = Vec::with_capacity(block as usize);
     let epoch = Instant::now();
-    for k in 0..pairs * 2000 {
+    for k in 0..steps.div_ceil(block) * block * 2 {
         sleep_until_tick(epoch, k);
-        let recording = (k / 1000) % 2 == 0;
+        let recording = (k / block) % 2 == 0;
         let t0 = Instant::now();
         if recording {
             core.tick(Duration::from_millis(k), &mut TransportSinks::all(&mut transports));
@@ -172,19 +191,36 @@ fn run_interleaved(scene: &str, pairs: u64, bag: PathBuf, dds: bool) -> (Vec<f64
         } else {
             core.tick(Duration::from_millis(k), &mut Nowhere);
         }
-        times.push(t0.elapsed().as_secs_f64() * 1e6);
-        if times.len() == 1000 {
-            let second = median(std::mem::take(&mut times));
+        let us = t0.elapsed().as_secs_f64() * 1e6;
+        if k % block >= settle {
+            times.push(us);
+        }
+        if k % block == block - 1 {
+            let mean_us = times.iter().sum::<f64>() / times.len() as f64;
+            let b = Block { mean_us, median_us: median(std::mem::take(&mut times)) };
             if recording {
-                on.push(second)
+                on.push(b)
             } else {
-                off.push(second)
+                off.push(b)
             }
         }
     }
     drop(transports);
     assert_eq!(core.stats().publish_failures.iter().sum::<u64>(), 0, "nothing dropped");
-    (on, off)
+    let bytes = tensegrity::io::bag::BagReader::open(&bag).unwrap().info().file_bytes;
+    (on, off, bytes)
+}
+
+/// The ratio of each recorded block's `f` to the mean of the unrecorded blocks beside it
+/// (recorded block `i` lies between unrecorded blocks `i - 1` and `i`).
+fn ratios_to_neighbours(on: &[Block], off: &[Block], f: fn(&Block) -> f64) -> Vec<f64> {
+    (0..on.len())
+        .filter_map(|i| {
+            let beside: Vec<f64> =
+                [i.checked_sub(1), Some(i)].into_iter().flatten().filter_map(|j| off.get(j).map(f)).collect();
+            (!beside.is_empty()).then(|| f(&on[i]) * beside.len() as f64 / beside.iter().sum::<f64>())
+        })
+        .collect()
 }
 
 /// A transport around another that adds the time spent in its calls to `spent` (ns).
@@ -237,8 +273,9 @@ impl Transport for Timed {
 /// The time a node's turn spends in the recorder's calls (the node's thread's direct cost of
 /// recording, without what the writer thread does to it): `scene` paced at 1 kHz for `steps`
 /// steps serving only a bag, each call timed (about 20 ns of timer per call is included).
-/// Returns the median and the 99th percentile per turn, us.
-fn recorder_calls(scene: &str, steps: u64, bag: PathBuf) -> (f64, f64) {
+/// Returns the median, the mean (hand-overs to the writer included) and the 99th percentile
+/// per turn, us.
+fn recorder_calls(scene: &str, steps: u64, bag: PathBuf) -> (f64, f64, f64) {
     let Setup { sim, params, transports } = setup(scene, false, 92, Some(&bag));
     let spent = std::rc::Rc::new(std::cell::Cell::new(0));
     let mut transports: Vec<Box<dyn Transport>> = transports
@@ -256,7 +293,8 @@ fn recorder_calls(scene: &str, steps: u64, bag: PathBuf) -> (f64, f64) {
         per_turn.push((spent.get() - before) as f64 * 1e-3);
     }
     drop(transports);
-    (median(per_turn.clone()), percentile(per_turn, 99))
+    let mean = per_turn.iter().sum::<f64>() / per_turn.len() as f64;
+    (median(per_turn.clone()), mean, percentile(per_turn, 99))
 }
 
 /// The node's real-time loop: sleeps until tick `k`'s 1 ms boundary after `epoch`.
@@ -339,37 +377,41 @@ fn main() {
         }
     }
     let pairs: u64 = option(&args, "--interleaved-seconds").unwrap_or(seconds);
+    // block lengths, ms of sim time, comma-separated
+    let blocks: Vec<u64> =
+        args.iter().position(|a| a == "--block-ms").and_then(|k| args.get(k + 1)).map_or(vec![100], |v| {
+            v.split(',').filter_map(|b| b.trim().parse().ok()).filter(|&b| b >= 10).collect()
+        });
     if paced && pairs > 0 {
         println!(
-            "\nInterleaved: one node, the bag open throughout and recording in alternate seconds ({pairs} s recorded, {} s run); each second's median turn time, and the ratio of each recorded second to the mean of the seconds beside it, so that slow drifts of the machine cancel\n",
+            "\nInterleaved: one node, the bag open throughout and handed the node's outputs in alternate blocks of sim time ({pairs} s recorded, {} s run per row; the first tenth of each block, at most 10 turns, not counted); each block's mean and median turn time, and the ratio of each recorded block's to the mean of the two blocks beside it, so that slow drifts of the machine cancel\n",
             2 * pairs
         );
-        println!("| scene | serving | turn time median, seconds without / with bag | added (median of the per-second ratios) | seconds where recording added more than 10 % |");
-        println!("| --- | --- | --- | --- | --- |");
+        println!("| scene | serving | block | mean turn time, blocks without / with bag (medians) | added to the mean turn time: median of the block ratios [quartiles] | added to the median turn time: median of the block ratios [quartiles] | recorded blocks whose mean rose more than 10 % | bag per recorded second |");
+        println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
         for scene in ["prism3.toml", "tower.toml"] {
             for &dds in serving {
-                let (on, off) = run_interleaved(scene, pairs, dir.join(scene), dds);
-                // recorded second i lies between unrecorded seconds i - 1 and i
-                let ratios: Vec<f64> = (0..on.len())
-                    .filter_map(|i| {
-                        let beside: Vec<f64> = [i.checked_sub(1), Some(i)]
-                            .into_iter()
-                            .flatten()
-                            .filter_map(|j| off.get(j).copied())
-                            .collect();
-                        (!beside.is_empty()).then(|| on[i] * beside.len() as f64 / beside.iter().sum::<f64>())
-                    })
-                    .collect();
-                let above = ratios.iter().filter(|&&r| r > 1.1).count();
-                println!(
-                    "| {} | {} | {:.1} / {:.1} us | {:+.1} % | {above} of {} |",
-                    scene.trim_end_matches(".toml"),
-                    if dds { "DDS" } else { "nothing" },
-                    median(off.clone()),
-                    median(on.clone()),
-                    100.0 * (median(ratios.clone()) - 1.0),
-                    ratios.len(),
-                );
+                for &block in &blocks {
+                    let (on, off, bytes) = run_interleaved(scene, pairs * 1000, block, dir.join(scene), dds);
+                    let by_mean = ratios_to_neighbours(&on, &off, |b| b.mean_us);
+                    let by_median = ratios_to_neighbours(&on, &off, |b| b.median_us);
+                    let added = |r: &[f64]| {
+                        let pc = |p| 100.0 * (percentile(r.to_vec(), p) - 1.0);
+                        format!("{:+.1} % [{:+.1}, {:+.1}]", pc(50), pc(25), pc(75))
+                    };
+                    let above = by_mean.iter().filter(|&&r| r > 1.1).count();
+                    println!(
+                        "| {} | {} | {block} ms | {:.1} / {:.1} us | {} | {} | {above} of {} | {:.0} kB |",
+                        scene.trim_end_matches(".toml"),
+                        if dds { "DDS" } else { "nothing" },
+                        median(off.iter().map(|b| b.mean_us).collect()),
+                        median(on.iter().map(|b| b.mean_us).collect()),
+                        added(&by_mean),
+                        added(&by_median),
+                        by_mean.len(),
+                        bytes as f64 / pairs as f64 / 1000.0,
+                    );
+                }
             }
         }
     }
@@ -378,11 +420,11 @@ fn main() {
         println!(
             "\nThe recorder's own calls on the node's thread (every call timed), {calls} s paced at 1 kHz serving only the bag\n"
         );
-        println!("| scene | per turn: median / p99 |");
+        println!("| scene | per turn: median / mean / p99 |");
         println!("| --- | --- |");
         for scene in ["prism3.toml", "tower.toml"] {
-            let (p50, p99) = recorder_calls(scene, calls * 1000, dir.join(scene));
-            println!("| {} | {p50:.2} / {p99:.2} us |", scene.trim_end_matches(".toml"));
+            let (p50, mean, p99) = recorder_calls(scene, calls * 1000, dir.join(scene));
+            println!("| {} | {p50:.2} / {mean:.2} / {p99:.2} us |", scene.trim_end_matches(".toml"));
         }
     }
     let _ = std::fs::remove_dir_all(&dir);

@@ -330,7 +330,7 @@ fn a_killed_recording_keeps_what_it_flushed() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A writer that cannot keep up (a queue of one job, a step every 0.2 ms) drops whole
+/// A writer that cannot keep up (a queue of one job, a step every 20 us or so) drops whole
 /// states: the failures are counted, every state topic keeps the same steps, and the structure,
 /// the static transforms and the applied commands are all there; replay reports the first
 /// missing state as a difference.
@@ -346,12 +346,13 @@ fn a_full_writer_queue_drops_whole_states_never_commands_or_the_structure() {
             core.offer_command(&ring);
         }
         core.tick(Duration::from_millis(k), &mut recorder);
-        // slower than the core can step, much faster than the writer takes a job (`DRAIN_PERIOD`)
-        std::thread::sleep(Duration::from_micros(200));
+        // slower than the core can step; a batch (`record::BATCH_RECORDS` records, two a step)
+        // fills much faster than the writer takes a job (`DRAIN_PERIOD`)
+        std::thread::sleep(Duration::from_micros(20));
     }
     let failures: u64 = core.stats().publish_failures.iter().sum();
     recorder.finish().unwrap();
-    assert!(failures > 0, "a queue of one cannot hold a step every 0.2 ms");
+    assert!(failures > 0, "a queue of one batch cannot hold a step every 20 us");
 
     let counts = our_counts(&dir);
     let count = |short: &str| counts.get(&record::topic_name(short, &params)).map_or(0, |(_, n)| *n);

@@ -245,13 +245,15 @@ pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
 /// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
 /// record is one step's `/clock` or one state, whatever topics it is published on): one queue
 /// operation per batch instead of two per step. A node stepping at 1 kHz with its state every
-/// step hands over a batch every 5 ms, the writer's `bag::DRAIN_PERIOD`: the writer's work on a
-/// batch (about 17 us per prism3 step, 40 us per tower step: `record_overhead`'s CPU per step
-/// of all threads less the node thread's, with the bag) then fits in the node's idle time
-/// after a step, where 32 steps a batch (64 records) kept it busy through the node's next steps
-/// and slowed them. Until then its records wait on the node's thread: a process killed with
-/// SIGKILL loses them with the chunk the writer had open.
-pub const BATCH_RECORDS: usize = 10;
+/// step hands over a batch every 20 ms; the writer's work on it (about 17 us per prism3 step,
+/// 40 us per tower step: `record_overhead`'s CPU per step of all threads less the node
+/// thread's) is then 0.3-0.8 ms. Each hand-over costs the node's next turns (queue, recycled
+/// batch, lines the writer read): at 10 records (5 ms) recording added 14-23 % to prism3's mean
+/// turn in four interleaved runs (`record_overhead`, 100 ms blocks), at 40 records 10-18 %
+/// alternated with them (tower 9-12 % and 7-8 %); 100 records was no better than 40. Until then
+/// its records wait on the node's thread: a process killed with SIGKILL loses them (20 ms at
+/// 1 kHz) with the chunk the writer had open.
+pub const BATCH_RECORDS: usize = 40;
 
 /// The most numbers a `StepBatch` has room for (128 KiB; `BATCH_RECORDS` states when those
 /// take less, one state when it takes more): a batch of large states (a 64-stage tower packs
@@ -444,27 +446,22 @@ impl StepBatch {
 /// `pack_points` when a state is published on `~/markers`. What no message reads (velocities,
 /// multipliers, length rates, energies) is not copied: a message that comes to read more must
 /// be packed here too (the replay tests compare every recorded message with the live one).
+/// `out` has room for `len` more numbers (`StepBatch::full`): nothing is allocated.
 fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
     let (state, ws) = (view.state, view.workspace);
-    // sized once, then written in place: no capacity check per number
     let start = out.len();
-    out.resize(start + len, 0.0);
-    let (time, rest) = out[start..].split_at_mut(1);
-    time[0] = state.time;
-    let (poses, rest) = rest.split_at_mut(7 * state.poses.len());
-    for (to, pose) in poses.chunks_exact_mut(7).zip(&state.poses) {
-        to[..3].copy_from_slice(pose.position.as_slice());
-        to[3..].copy_from_slice(pose.rotation.coords.as_slice());
+    out.push(state.time);
+    for pose in &state.poses {
+        out.extend_from_slice(pose.position.as_slice());
+        out.extend_from_slice(pose.rotation.coords.as_slice());
     }
-    let (rest_lengths, rest) = rest.split_at_mut(state.rest_lengths.len());
-    rest_lengths.copy_from_slice(&state.rest_lengths);
-    let (cables, rest) = rest.split_at_mut(4 * ws.cables.len());
-    for (to, c) in cables.chunks_exact_mut(4).zip(&ws.cables) {
-        to.copy_from_slice(&[c.length, c.rest_length, c.tension, if c.slack { 1.0 } else { 0.0 }]);
+    out.extend_from_slice(&state.rest_lengths);
+    for c in &ws.cables {
+        out.extend_from_slice(&[c.length, c.rest_length, c.tension, if c.slack { 1.0 } else { 0.0 }]);
     }
-    let (segments, rates) = rest.split_at_mut(ws.segment_lengths.len());
-    segments.copy_from_slice(&ws.segment_lengths);
-    rates.copy_from_slice(view.rates);
+    out.extend_from_slice(&ws.segment_lengths);
+    out.extend_from_slice(view.rates);
+    debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
 
 /// How many numbers `pack_state` packs for a state of `model`.
@@ -748,9 +745,10 @@ impl NodeSink for BagRecorder {
             if topic == Topic::CableStates && !cables_finite(view.workspace) {
                 return Err(PublishError::Failed("refusing to publish non-finite cable states".into()));
             }
+            // a further topic of the state recorded last (known by its step count and time)
+            // joins its record, whose constants were checked when it was pushed
+            let held = self.batch.as_mut().is_some_and(|b| b.latest_state_of(view).is_some());
             let mut sent = Ok(());
-            let held =
-                self.batch.as_mut().is_some_and(|b| b.accepts(view) && b.latest_state_of(view).is_some());
             if !held {
                 let log_time = self.stamp_of(view);
                 let (batch, result) = self.batch_for(view, true);
