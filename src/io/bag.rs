@@ -617,9 +617,6 @@ pub fn metadata_yaml(
 
 // ----- reading ----------------------------------------------------------------------------------
 
-/// What an MCAP file starts and (when closed) ends with.
-const MCAP_MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
-
 /// The longest record or chunk a bag reader accepts whatever the file's size, bytes: a chunk's
 /// uncompressed content may be longer than the whole compressed file (ours are about 1 MiB,
 /// `BagOptions::chunk_size`). A longer length field is taken for damage and refused.
@@ -692,7 +689,8 @@ impl BagReader {
         let mut f = File::open(&file).map_err(|e| io_err(&file, e))?;
         let file_bytes = f.metadata().map_err(|e| io_err(&file, e))?.len();
         let mut magic = [0u8; 8];
-        if file_bytes < 8 || f.read_exact(&mut magic).is_err() || &magic != MCAP_MAGIC {
+        // what an MCAP file starts and (when closed) ends with
+        if file_bytes < 8 || f.read_exact(&mut magic).is_err() || magic[..] != *mcap::MAGIC {
             return Err(BagError::Format { path: file, reason: "not an MCAP file (no MCAP magic)".into() });
         }
         Ok(Self { path: file, file_bytes })
@@ -730,7 +728,7 @@ impl BagReader {
                     f.read_exact(&mut tail)
                 })
                 .is_ok()
-            && &tail == MCAP_MAGIC
+            && tail[..] == *mcap::MAGIC
     }
 
     /// How the messages and the run record are read: up to the data end, not requiring the end
