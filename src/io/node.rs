@@ -166,6 +166,9 @@ pub struct NodeView<'a> {
     pub frame_id: &'a str,
     /// Node name (for diagnostics' names and hardware ids).
     pub node_name: &'a str,
+    /// Names this view's `reference`, `frame_id` and `node_name`: views with the same id carry
+    /// equal ones, so a sink that keeps them (a recorder's batch) compares the id, not the values.
+    pub constants: ConstantsId,
     /// The statuses to publish on `/diagnostics` (when the topic is `Diagnostics`).
     pub diagnostics: &'a [DiagnosticStatus],
     /// Steps taken since the start or the last reset (the state is the one after this many).
@@ -178,6 +181,23 @@ pub struct NodeView<'a> {
     pub stats: NodeStats,
     /// The node's step (one `tick`), s.
     pub dt: f64,
+}
+
+/// Names one set of a view's constants (`NodeView::reference`, `frame_id`, `node_name`).
+///
+/// Whoever builds views takes a `fresh` id for each set and keeps it while the set is unchanged
+/// (a `NodeCore` takes one when built: its constants never change). Two sets with different ids
+/// may still be equal: a sink comparing ids only ever sees "different" too often, never too
+/// rarely.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ConstantsId(u64);
+
+impl ConstantsId {
+    /// An id no other call in this process returned.
+    pub fn fresh() -> Self {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        Self(NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
+    }
 }
 
 /// A transport's outgoing side, as the core sees it.
@@ -247,6 +267,8 @@ pub struct NodeCore {
     sim: Simulator,
     params: NodeParams,
     reference: Vec<Vec<f64>>,
+    /// Names `reference`, `params.frame_id` and `params.node_name` in views (never changed).
+    constants: ConstantsId,
     previous_rest: Vec<f64>,
     rates: Vec<f64>,
     paused: bool,
@@ -313,6 +335,7 @@ impl NodeCore {
             sim,
             params,
             reference,
+            constants: ConstantsId::fresh(),
             rates: vec![0.0; n_cables],
             fault: None,
             quit: false,
@@ -793,6 +816,7 @@ impl NodeCore {
             reference: &self.reference,
             frame_id: &self.params.frame_id,
             node_name: &self.params.node_name,
+            constants: self.constants,
             diagnostics: &self.statuses,
             step: self.steps_since_reset,
             simulation_state: self.simulation_state(),

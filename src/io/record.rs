@@ -34,7 +34,7 @@ use crate::io::bag::{
     BagError, BagOptions, BagReader, BagSummary, BagTopic, BagWriter, Compose, RunInfo, TopicQos, TopicSpec,
 };
 use crate::io::msg::{self, AppliedCommands, TopicMessage};
-use crate::io::node::{NodeCore, NodeSink, NodeStats, NodeView, PublishError, Topic};
+use crate::io::node::{ConstantsId, NodeCore, NodeSink, NodeStats, NodeView, PublishError, Topic};
 use crate::io::params::NodeParams;
 use crate::io::runner::Transport;
 use crate::model::{ActuatorId, Model};
@@ -296,6 +296,7 @@ fn rebuilt_view<'a>(
     reference: &'a [Vec<f64>],
     frame_id: &'a str,
     node_name: &'a str,
+    constants: ConstantsId,
     steps: u64,
 ) -> NodeView<'a> {
     NodeView {
@@ -306,6 +307,7 @@ fn rebuilt_view<'a>(
         reference,
         frame_id,
         node_name,
+        constants,
         diagnostics: &[],
         step: 0,
         simulation_state: 0,
@@ -330,10 +332,12 @@ struct StepBatch {
     /// its points (`pack_points`).
     packed_len: usize,
     points_len: usize,
-    /// Constant over a batch (a view that differs starts a new batch).
+    /// Constant over a batch (a view with other constants starts a new batch), named by
+    /// `constants` (`None` until the batch takes a view's).
     reference: Vec<Vec<f64>>,
     frame_id: String,
     node_name: String,
+    constants: Option<ConstantsId>,
     /// Bag topic of each `Topic`, in `Topic::ALL` order (the recorder's).
     handles: [Option<BagTopic>; 10],
     /// The writer thread's unpacked state, to build messages from.
@@ -364,6 +368,7 @@ impl StepBatch {
             reference: Vec::new(),
             frame_id: String::new(),
             node_name: String::new(),
+            constants: None,
             view: UnpackedState {
                 state: State::initial(&model),
                 workspace: Workspace::for_forces(&model),
@@ -381,24 +386,30 @@ impl StepBatch {
             || self.numbers.len() + self.packed_len + self.points_len > self.numbers.capacity()
     }
 
-    /// True when the batch's constants (pulley reference, frame, node name) are `view`'s, or it
-    /// is empty (and takes `view`'s).
-    fn accepts(&mut self, view: &NodeView<'_>) -> bool {
-        if self.records.is_empty() {
-            self.reference.resize_with(view.reference.len(), Vec::new);
-            for (to, from) in self.reference.iter_mut().zip(view.reference) {
-                to.clear();
-                to.extend_from_slice(from);
-            }
-            self.frame_id.clear();
-            self.frame_id.push_str(view.frame_id);
-            self.node_name.clear();
-            self.node_name.push_str(view.node_name);
-            return true;
+    /// True when the batch is empty or its constants (pulley reference, frame, node name) are
+    /// `view`'s, known by their id (`NodeView::constants`): one comparison, where comparing the
+    /// values on every state cost the node's turn a few cold cache lines per pulley.
+    fn accepts(&self, view: &NodeView<'_>) -> bool {
+        self.records.is_empty() || self.constants == Some(view.constants)
+    }
+
+    /// Copies `view`'s constants into the batch, which must be empty (its records would
+    /// otherwise change constants).
+    fn take_constants(&mut self, view: &NodeView<'_>) {
+        debug_assert!(self.records.is_empty(), "a batch's constants hold for all its records");
+        if self.constants == Some(view.constants) {
+            return;
         }
-        self.reference.as_slice() == view.reference
-            && self.frame_id == view.frame_id
-            && self.node_name == view.node_name
+        self.reference.resize_with(view.reference.len(), Vec::new);
+        for (to, from) in self.reference.iter_mut().zip(view.reference) {
+            to.clear();
+            to.extend_from_slice(from);
+        }
+        self.frame_id.clear();
+        self.frame_id.push_str(view.frame_id);
+        self.node_name.clear();
+        self.node_name.push_str(view.node_name);
+        self.constants = Some(view.constants);
     }
 
     /// The latest record when it is a state, and `view`'s state.
@@ -416,7 +427,8 @@ impl StepBatch {
         }
     }
 
-    /// Appends `view`'s state, to be logged at `log_time` (`accepts(view)` first).
+    /// Appends `view`'s state, to be logged at `log_time` (`accepts(view)` first, and
+    /// `take_constants(view)` when the batch is empty).
     fn push_state(&mut self, view: &NodeView<'_>, log_time: u64) {
         let start = self.numbers.len();
         pack_state(view, self.packed_len, &mut self.numbers);
@@ -527,6 +539,7 @@ impl Compose for StepBatch {
             reference,
             frame_id,
             node_name,
+            constants,
             handles,
             view: unpacked,
             buffer,
@@ -546,7 +559,8 @@ impl Compose for StepBatch {
                     (&r.topics[..usize::from(r.topic_count)], r.steps, r.log_time)
                 }
             };
-            let view = rebuilt_view(unpacked, reference, frame_id, node_name, steps);
+            let constants = constants.expect("a batch with records took their constants");
+            let view = rebuilt_view(unpacked, reference, frame_id, node_name, constants, steps);
             for &topic in topics {
                 let Some(handle) = handles[topic.index()] else { continue };
                 // finiteness was checked on the node's thread (`BagRecorder::publish`)
@@ -675,8 +689,7 @@ impl BagRecorder {
             batch
         });
         if batch.records.is_empty() {
-            // an empty batch takes the view's constants
-            batch.accepts(view);
+            batch.take_constants(view);
         }
         (batch, sent)
     }
@@ -841,6 +854,7 @@ pub struct PathPublisher {
     rows: u64,
     frame_id: String,
     node_name: String,
+    constants: ConstantsId,
 }
 
 impl PathPublisher {
@@ -853,6 +867,7 @@ impl PathPublisher {
             rows: 0,
             frame_id: params.frame_id.clone(),
             node_name: params.node_name.clone(),
+            constants: ConstantsId::fresh(),
         }
     }
 
@@ -865,6 +880,7 @@ impl PathPublisher {
             reference: &self.reference,
             frame_id: &self.frame_id,
             node_name: &self.node_name,
+            constants: self.constants,
             diagnostics: &[],
             step: self.rows,
             simulation_state: crate::io::node::sim_state::PLAYING,
@@ -1380,6 +1396,46 @@ mod tests {
         out
     }
 
+    /// One recorder fed the states of two cores with different frames, turn about: each
+    /// state's messages carry its own core's frame (a batch holds one set of constants, known by
+    /// its id, and a view with another id starts a new batch).
+    #[test]
+    fn states_with_other_constants_keep_their_own_frame() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scenes/prism3.toml");
+        let model = crate::scene::load(&path).unwrap();
+        let core = |frame: &str| {
+            let params = NodeParams {
+                real_time_factor: 0.0,
+                state_publish_rate: 0.0,
+                frame_id: frame.into(),
+                ..NodeParams::default()
+            };
+            let mut core = NodeCore::new(model.clone(), params).unwrap();
+            core.start(&mut Nowhere);
+            core
+        };
+        let (mut world, mut lab) = (core("world"), core("lab"));
+        assert_ne!(world.view().constants, lab.view().constants);
+        let dir = std::env::temp_dir().join(format!("tensegrity-record-constants-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut recorder = BagRecorder::for_node(&world, &dir).unwrap();
+        for k in 0..25 {
+            world.tick(Duration::from_millis(k), &mut recorder);
+            lab.tick(Duration::from_millis(k), &mut recorder);
+        }
+        recorder.finish().unwrap();
+        let frames: Vec<String> = crate::io::bag::BagReader::open(&dir)
+            .unwrap()
+            .messages()
+            .map(Result::unwrap)
+            .filter(|m| m.type_name == "geometry_msgs/msg/PoseArray")
+            .map(|m| m.decode::<msg::PoseArray>().unwrap().header.frame_id)
+            .collect();
+        let expected: Vec<&str> = (0..25).flat_map(|_| ["world", "lab"]).collect();
+        assert_eq!(frames, expected);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     /// A state packed on the node's thread and unpacked on the writer's gives every deferred
     /// topic's message bit for bit, slack flags and markers included, for a prism whose ring
     /// cable is being wound in (moving poses, nonzero rates, pulley slip).
@@ -1415,8 +1471,14 @@ mod tests {
         let point_numbers = &numbers[points..];
         assert_eq!(point_numbers.len(), 3 * model.points.len());
         unpack_state(&numbers[start..], Some(point_numbers), &mut unpacked);
-        let rebuilt =
-            rebuilt_view(&unpacked, live.reference, live.frame_id, live.node_name, live.stats.steps);
+        let rebuilt = rebuilt_view(
+            &unpacked,
+            live.reference,
+            live.frame_id,
+            live.node_name,
+            live.constants,
+            live.stats.steps,
+        );
         for topic in DEFERRED.into_iter().chain([Topic::Clock]) {
             assert_eq!(cdr(topic, &rebuilt), cdr(topic, &live), "{topic:?}");
         }
