@@ -3,8 +3,10 @@
 //!
 //! 1. Command-to-effect latency at 1 kHz real time: one node serves both transports (shared
 //!    memory first in its publish order) and publishes the state every step; a controller
-//!    alternates a shm command and a DDS command (a 10 um rest-length change, reached within one
-//!    step) and times until the first state carrying it, on the same transport. For shm it also
+//!    alternates a shm command waited for the default way (polling 200 us, then blocking on the
+//!    node's event), a shm command waited for by polling (`set_spin` 2 ms: a controller that owns
+//!    a core) and a DDS command (a 10 um rest-length change, reached within one step) and times
+//!    until the first state carrying it, on the same transport. For shm it also
 //!    splits the latency with the node's wall-clock stamps: the wait for the next step boundary
 //!    (`commands_applied_ns - sent`), and the rest (step and publish, then delivery). Then the
 //!    same for shm against a node serving shm alone.
@@ -110,15 +112,22 @@ fn command_to_effect(samples: usize, with_dds: bool) {
         peer::wait_for(WAIT, || cables.take().ok().flatten()).expect("DDS cable states arrive");
         (peer, cables, commands)
     });
-    let shm = ShmClient::connect(&prefix, WAIT).unwrap();
+    let mut shm = ShmClient::connect(&prefix, WAIT).unwrap();
     std::thread::sleep(Duration::from_millis(500));
-    let modes = if with_dds { 2 } else { 1 };
+    let modes = if with_dds { 3 } else { 2 };
 
-    // shm with the client's default wait (polls 200 us, then blocks on the node's event), and DDS
-    const MODES: [&str; 2] = ["shm (iceoryx2)", "DDS (RustDDS, loopback)"];
-    let mut total: [Vec<f64>; 2] = Default::default();
-    let (mut wait, mut node_side, mut delivery, mut rest) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-    let mut lost = [0usize; 2];
+    // shm with the client's default wait (polls 200 us, then blocks on the node's event), shm
+    // with a client that polls through the whole wait (a controller owning a core), and DDS
+    const MODES: [&str; 3] = [
+        "shm (iceoryx2), client blocks (default)",
+        "shm (iceoryx2), client polls (set_spin 2 ms)",
+        "DDS (RustDDS, loopback)",
+    ];
+    const SPIN: [Duration; 2] = [Duration::from_micros(200), Duration::from_millis(2)];
+    let mut total: [Vec<f64>; 3] = Default::default();
+    // per shm mode: the wait for the step boundary, node side, delivery, latency minus the wait
+    let mut splits: [[Vec<f64>; 4]; 2] = Default::default();
+    let mut lost = [0usize; 3];
     for k in 0..modes * (samples + 30) {
         let mode = k % modes;
         // consecutive samples alternate between two targets, so each command changes the rest length
@@ -130,7 +139,8 @@ fn command_to_effect(samples: usize, with_dds: bool) {
         let sent_ns = realtime_ns();
         let sent = Instant::now();
         let mut seen = None;
-        if mode == 0 {
+        if mode < 2 {
+            shm.set_spin(SPIN[mode]);
             let client = &shm;
             client.send_command(&[CommandEntry::index(0).rest_length(target)]).unwrap();
             while sent.elapsed() < Duration::from_millis(500) {
@@ -170,7 +180,7 @@ fn command_to_effect(samples: usize, with_dds: bool) {
         match seen {
             Some((us, split)) if k >= 30 * modes => {
                 total[mode].push(us);
-                if mode == 0 {
+                if let Some([wait, node_side, delivery, rest]) = splits.get_mut(mode) {
                     wait.push(split[0]);
                     node_side.push(split[1]);
                     delivery.push(us - split[0] - split[1]);
@@ -202,11 +212,8 @@ fn command_to_effect(samples: usize, with_dds: bool) {
             q(&t, 1.0),
             lost[mode]
         );
-        if mode == 0 {
-            let w = sorted(std::mem::take(&mut wait));
-            let n = sorted(std::mem::take(&mut node_side));
-            let d = sorted(std::mem::take(&mut delivery));
-            let rest = sorted(std::mem::take(&mut rest));
+        if let Some(split) = splits.get_mut(mode) {
+            let [w, n, d, rest] = std::mem::take(split).map(sorted);
             line += &format!(
                 " {:.1} / {:.1} | {:.1} / {:.1} | {:.1} | {:.1} / {:.1} |",
                 q(&w, 0.5),

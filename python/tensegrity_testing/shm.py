@@ -31,6 +31,7 @@ differ, so a mismatch fails loudly at connect).
 import argparse
 import ctypes
 import math
+import os
 import statistics
 import sys
 import time
@@ -264,12 +265,16 @@ class TensegrityClient:
         self.updates = self._service("from_node").event().open().listener_builder().create()
 
     def _wait(self, ready, timeout):
-        """Polls `ready()` for the spin time, then blocks on the node's events until `timeout`."""
+        """Polls `ready()` for the spin time, then blocks on the node's events until `timeout`.
+
+        Between polls it yields the core, so a node that shares it is not held up (as the Rust
+        client does)."""
         start = time.monotonic()
         while time.monotonic() - start < min(self.spin, timeout):
             got = ready()
             if got is not None:
                 return got
+            os.sched_yield()
         while True:
             got = ready()
             if got is not None:
