@@ -62,7 +62,8 @@ pub struct NodeParams {
     /// How long the shared-memory transport keeps polling for the next request after answering
     /// one before it blocks on its event, us (`shm_spin_us`, default 200, 0 = block at once):
     /// a lockstep controller's next request arrives within a few microseconds, far sooner than an
-    /// event wake-up (tens of microseconds); the poll never runs while the node is idle.
+    /// event wake-up (tens of microseconds); the poll yields the core between polls (a controller
+    /// on the same core runs at once) and never runs while the node is idle.
     pub shm_spin_us: u64,
     /// The shared-memory service prefix instead of `<ns>/<node>` (`shm_prefix`, default: none),
     /// so that several nodes (parallel tests) keep their ROS names and still have distinct
