@@ -1,10 +1,10 @@
-//! What recording a bag costs the node (run: `cargo bench --features ros2 --bench
+//! What recording a bag costs the node (run: `cargo bench --features ros2,shm --bench
 //! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
 //! (default 2; 0 for the interleaved table alone), `--interleaved-seconds N` (default:
 //! `--seconds`; 0 skips that table), `--block-ms A,B,...` (the interleaved table's block
 //! lengths, default 100), `--calls-seconds N` (the recorder's calls; default: the interleaved
-//! seconds; 0 skips), `--as-fast-as-possible` to step without pacing; without `ros2` only the
-//! rows that serve nothing).
+//! seconds; 0 skips), `--as-fast-as-possible` to step without pacing; the rows serving DDS need
+//! `ros2`, those serving shared memory `shm`).
 //!
 //! The node's core ticks a bundled scene at dt = 1 ms in real time at 1 kHz (each tick at its
 //! 1 ms boundary, as the node's loop does) with the state published every step
@@ -12,7 +12,8 @@
 //! nothing (the physics and the core alone), a `BagRecorder` alone (each step's numbers
 //! appended to a batch on the node's thread, handed over every `record::BATCH_RECORDS` records;
 //! messages built, serialized, compressed and written by the bag's writer thread), DDS (the node
-//! as users run it, no subscriber), and DDS with the bag. The configurations alternate; the table gives medians over runs of each run's median, mean and
+//! as users run it by default, no subscriber) and shared memory alone (the lightest node the
+//! binary runs, no controller), each without and with the bag. The configurations alternate; the table gives medians over runs of each run's median, mean and
 //! 99th percentile turn time (one `tick`), the node thread's CPU time per step (its own work,
 //! including sleeping and waking between ticks) and the process CPU time per step (the writer
 //! thread's share too). The bag's size per second of sim time is from the file. Runs a minute
@@ -73,29 +74,72 @@ struct RunFigures {
     messages: u64,
 }
 
+/// What the node serves besides the bag.
+#[derive(Clone, Copy, PartialEq)]
+enum Serving {
+    /// Nothing: the physics and the core alone.
+    Nothing,
+    /// DDS (the node as users run it by default), no subscriber.
+    Dds,
+    /// Shared memory alone (the lightest node the binary runs), no controller.
+    Shm,
+}
+
+impl Serving {
+    /// Those this build can serve.
+    fn built() -> Vec<Serving> {
+        let mut all = vec![Serving::Nothing];
+        if cfg!(feature = "ros2") {
+            all.push(Serving::Dds);
+        }
+        if cfg!(feature = "shm") {
+            all.push(Serving::Shm);
+        }
+        all
+    }
+
+    fn label(self) -> &'static str {
+        match self {
+            Serving::Nothing => "nothing",
+            Serving::Dds => "DDS",
+            Serving::Shm => "shm",
+        }
+    }
+}
+
 /// A node as the bench runs it: `scene`'s simulator at the default settings, the core's
-/// parameters (no pacing of its own, the state every step), and its transports: DDS on
-/// `domain_id` when `dds`, then a bag in `bag` when given.
+/// parameters (no pacing of its own, the state every step), and its transports: what `serving`
+/// names (DDS on `domain_id`, shared memory under a prefix of this process's), then a bag in
+/// `bag` when given.
 struct Setup {
     sim: Simulator,
     params: NodeParams,
     transports: Vec<Box<dyn Transport>>,
 }
 
-fn setup(scene: &str, dds: bool, domain_id: u16, bag: Option<&Path>) -> Setup {
+fn setup(scene: &str, serving: Serving, domain_id: u16, bag: Option<&Path>) -> Setup {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(scene);
     let model = tensegrity::scene::load(&path).unwrap();
     let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
     let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
     let mut transports: Vec<Box<dyn Transport>> = Vec::new();
-    if dds {
+    match serving {
+        Serving::Nothing => {}
         #[cfg(feature = "ros2")]
-        transports.push(Box::new(
+        Serving::Dds => transports.push(Box::new(
             tensegrity::io::ros2::DdsTransport::new(&NodeParams { domain_id, ..params.clone() }).unwrap(),
-        ));
-        #[cfg(not(feature = "ros2"))]
-        let _ = domain_id;
+        )),
+        #[cfg(feature = "shm")]
+        Serving::Shm => {
+            let prefix = format!("bench_record_{}_{domain_id}", std::process::id());
+            let params = NodeParams { shm_prefix_override: Some(prefix), ..params.clone() };
+            transports.push(Box::new(tensegrity::io::shm::ShmTransport::new(&model, &params).unwrap()));
+        }
+        #[allow(unreachable_patterns)]
+        _ => unreachable!("{} is not built", serving.label()),
     }
+    // (read only by the transports a build without `ros2` and `shm` lacks)
+    let _ = domain_id;
     if let Some(dir) = bag {
         let _ = std::fs::remove_dir_all(dir);
         let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
@@ -107,12 +151,13 @@ fn setup(scene: &str, dds: bool, domain_id: u16, bag: Option<&Path>) -> Setup {
     Setup { sim, params, transports }
 }
 
-fn run(scene: &str, steps: u64, bag: Option<PathBuf>, dds: bool, paced: bool) -> RunFigures {
-    let Setup { sim, params, mut transports } = setup(scene, dds, 90, bag.as_deref());
+fn run(scene: &str, steps: u64, bag: Option<PathBuf>, serving: Serving, paced: bool) -> RunFigures {
+    let Setup { sim, params, mut transports } = setup(scene, serving, 90, bag.as_deref());
     let mut core = NodeCore::with_simulator(sim, params);
     let mut nowhere = Nowhere;
     let mut all = TransportSinks::all(&mut transports);
-    let sink: &mut dyn NodeSink = if bag.is_some() || dds { &mut all } else { &mut nowhere };
+    let sink: &mut dyn NodeSink =
+        if bag.is_some() || serving != Serving::Nothing { &mut all } else { &mut nowhere };
     core.start(sink);
     let mut times = Vec::with_capacity(steps as usize);
     let cpu0 = cpu_seconds();
@@ -169,9 +214,9 @@ fn run_interleaved(
     steps: u64,
     block: u64,
     bag: PathBuf,
-    dds: bool,
+    serving: Serving,
 ) -> (Vec<Block>, Vec<Block>, u64) {
-    let Setup { sim, params, mut transports } = setup(scene, dds, 91, Some(&bag));
+    let Setup { sim, params, mut transports } = setup(scene, serving, 91, Some(&bag));
     // the bag is the last transport; the others are served every block
     let served = transports.len() - 1;
     let settle = (block / 10).min(10);
@@ -276,7 +321,7 @@ impl Transport for Timed {
 /// Returns the median, the mean (hand-overs to the writer included) and the 99th percentile
 /// per turn, us.
 fn recorder_calls(scene: &str, steps: u64, bag: PathBuf) -> (f64, f64, f64) {
-    let Setup { sim, params, transports } = setup(scene, false, 92, Some(&bag));
+    let Setup { sim, params, transports } = setup(scene, Serving::Nothing, 92, Some(&bag));
     let spent = std::rc::Rc::new(std::cell::Cell::new(0));
     let mut transports: Vec<Box<dyn Transport>> = transports
         .into_iter()
@@ -340,14 +385,14 @@ fn main() {
     );
     println!("| scene | serving | node thread CPU per step without / with bag | added | turn time without bag: median / mean / p99 | with bag: median / mean / p99 | CPU per step, all threads, without / with bag | bag per sim second | messages per sim second |");
     println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
-    let serving: &[bool] = if cfg!(feature = "ros2") { &[false, true] } else { &[false] };
+    let serving = Serving::built();
     for scene in ["prism3.toml", "tower.toml"].into_iter().filter(|_| runs > 0) {
-        for &dds in serving {
+        for &serving in &serving {
             let mut plain = Vec::new();
             let mut recorded = Vec::new();
             for _ in 0..runs {
-                plain.push(run(scene, steps, None, dds, paced));
-                recorded.push(run(scene, steps, Some(dir.join(scene)), dds, paced));
+                plain.push(run(scene, steps, None, serving, paced));
+                recorded.push(run(scene, steps, Some(dir.join(scene)), serving, paced));
             }
             let m = |runs: &[RunFigures], f: fn(&RunFigures) -> f64| median(runs.iter().map(f).collect());
             let (a_thread, a_med, a_mean, a_p99, a_cpu) = (
@@ -369,7 +414,7 @@ fn main() {
             println!(
                 "| {} | {} | {a_thread:.1} / {b_thread:.1} us | {:+.1} % ({:+.1} us) | {a_med:.1} / {a_mean:.1} / {a_p99:.1} us | {b_med:.1} / {b_mean:.1} / {b_p99:.1} us | {a_cpu:.1} / {b_cpu:.1} us | {:.0} kB | {messages:.0} |",
                 scene.trim_end_matches(".toml"),
-                if dds { "DDS" } else { "nothing" },
+                serving.label(),
                 100.0 * (b_thread / a_thread - 1.0),
                 b_thread - a_thread,
                 bytes / 1000.0,
@@ -390,9 +435,10 @@ fn main() {
         println!("| scene | serving | block | mean turn time, blocks without / with bag (medians) | added to the mean turn time: median of the block ratios [quartiles] | added to the median turn time: median of the block ratios [quartiles] | recorded blocks whose mean rose more than 10 % | bag per recorded second |");
         println!("| --- | --- | --- | --- | --- | --- | --- | --- |");
         for scene in ["prism3.toml", "tower.toml"] {
-            for &dds in serving {
+            for &serving in &serving {
                 for &block in &blocks {
-                    let (on, off, bytes) = run_interleaved(scene, pairs * 1000, block, dir.join(scene), dds);
+                    let (on, off, bytes) =
+                        run_interleaved(scene, pairs * 1000, block, dir.join(scene), serving);
                     let by_mean = ratios_to_neighbours(&on, &off, |b| b.mean_us);
                     let by_median = ratios_to_neighbours(&on, &off, |b| b.median_us);
                     let added = |r: &[f64]| {
@@ -403,7 +449,7 @@ fn main() {
                     println!(
                         "| {} | {} | {block} ms | {:.1} / {:.1} us | {} | {} | {above} of {} | {:.0} kB |",
                         scene.trim_end_matches(".toml"),
-                        if dds { "DDS" } else { "nothing" },
+                        serving.label(),
                         median(off.iter().map(|b| b.mean_us).collect()),
                         median(on.iter().map(|b| b.mean_us).collect()),
                         added(&by_mean),
