@@ -30,10 +30,12 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use tensegrity::io::msg::SimResult;
-use tensegrity::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
-use tensegrity::io::params::NodeParams;
+use tensegrity::io::node::params::NodeParams;
+use tensegrity::io::node::runner::{Transport, TransportSinks};
+use tensegrity::io::node::NodeCore;
 use tensegrity::io::record::{self, BagRecorder, LogTime};
-use tensegrity::io::runner::{Transport, TransportSinks};
+use tensegrity::io::sink::{NodeSink, NodeView, PublishError};
+use tensegrity::io::topics::Topic;
 use tensegrity::sim::{SimSettings, Simulator};
 
 struct Nowhere;
@@ -177,7 +179,7 @@ fn run(scene: &str, steps: u64, bag: Option<PathBuf>, serving: Serving, paced: b
     let cpu_us = (cpu_seconds() - cpu0) * 1e6 / steps as f64;
     let (mut bag_bytes, mut messages) = (0, 0);
     if let Some(dir) = &bag {
-        let info = tensegrity::io::bag::BagReader::open(dir).unwrap().info();
+        let info = tensegrity::io::record::bag::BagReader::open(dir).unwrap().info();
         bag_bytes = info.file_bytes;
         messages = info.topics.iter().map(|(_, n)| n).sum();
     }
@@ -252,7 +254,7 @@ fn run_interleaved(
     }
     drop(transports);
     assert_eq!(core.stats().publish_failures.iter().sum::<u64>(), 0, "nothing dropped");
-    let bytes = tensegrity::io::bag::BagReader::open(&bag).unwrap().info().file_bytes;
+    let bytes = tensegrity::io::record::bag::BagReader::open(&bag).unwrap().info().file_bytes;
     (on, off, bytes)
 }
 

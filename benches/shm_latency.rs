@@ -34,8 +34,8 @@ use std::time::{Duration, Instant};
 
 use ros2_client::ServiceMapping;
 use tensegrity::io::msg;
+use tensegrity::io::node::params::{NodeParams, TransportKind};
 use tensegrity::io::node::NodeCore;
-use tensegrity::io::params::{NodeParams, TransportKind};
 use tensegrity::io::shm::{realtime_ns, CommandEntry, ShmClient};
 use tensegrity::sim::Simulator;
 

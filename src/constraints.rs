@@ -7,8 +7,7 @@
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
-use crate::forces::cable::add_vector;
-use crate::forces::{DenseTangents, TangentSink};
+use crate::assembly::{add_vector, DenseTangents, TangentSink};
 use crate::kinematics::{force_jacobian_derivative, PointKinematics};
 use crate::model::{JointModel, JointTarget, Model, PointId, Pose};
 

@@ -22,9 +22,11 @@
 //! The physics never touches a transport: ROS 2 and shared memory live under `io` behind the
 //! `ros2` and `shm` features.
 
+pub mod assembly;
 pub mod constraints;
 pub mod control;
 pub mod error;
+pub mod evaluate;
 pub mod forces;
 pub mod io;
 pub mod kinematics;
@@ -37,11 +39,9 @@ pub mod sim;
 pub mod solve;
 pub mod state;
 pub mod study;
+pub mod testing;
 
 pub use error::{SceneError, SolveError};
-pub use forces::Workspace;
-/// The test kit for users' controllers (`io::testing`): start the simulator in a test, step it in
-/// lockstep, read its state, stop it on drop.
-pub use io::testing;
+pub use evaluate::Workspace;
 pub use model::Model;
 pub use state::State;

@@ -10,6 +10,10 @@ use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use crate::model::{CableId, Model};
+use crate::solve::modes::Mode;
+use crate::state::{retract, State};
+
 /// One named series.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Series {
@@ -286,6 +290,87 @@ fn render_panels<DB: DrawingBackend>(
     root.present().map_err(err)?;
     Ok(())
 }
+
+/// Drawing panels of the first `count` vibrating (non-zero) modes of `modes` at `state`: the
+/// equilibrium in grey and the structure displaced along the mode in colour, at the amplitude
+/// that moves its farthest point by `MODE_DRAWING_AMPLITUDE` of the structure's size. Bars are
+/// drawn between their ends, rigid bodies from their centre to each point, cables along their
+/// routes; a planar scene is drawn in its xy plane, a spatial one in isometric projection
+/// (`x' = (x - y) cos 30deg`, `y' = z + (x + y) sin 30deg`).
+pub fn mode_panels(model: &Model, state: &State, modes: &[Mode], count: usize) -> Vec<StructurePanel> {
+    use crate::model::BodyKind;
+    let project = |p: nalgebra::Vector3<f64>| {
+        if model.planar {
+            (p.x, p.y)
+        } else {
+            let (c, s) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+            ((p.x - p.y) * c, p.z + (p.x + p.y) * s)
+        }
+    };
+    let positions = |poses: &[crate::model::Pose]| -> Vec<nalgebra::Vector3<f64>> {
+        model.points.iter().map(|p| poses[p.body.0].transform_point(&p.local)).collect()
+    };
+    let segments = |poses: &[crate::model::Pose]| -> Vec<Segment> {
+        let at = positions(poses);
+        let mut out = Vec::new();
+        for (b, body) in model.bodies.iter().enumerate() {
+            let own: Vec<usize> = (0..model.points.len()).filter(|&p| model.points[p].body.0 == b).collect();
+            match body.kind {
+                BodyKind::Bar => {
+                    let end =
+                        |suffix: &str| own.iter().copied().find(|&p| model.points[p].name.ends_with(suffix));
+                    if let (Some(a), Some(e)) = (end(".a"), end(".b")) {
+                        out.push(Segment { from: project(at[a]), to: project(at[e]), strut: true });
+                    }
+                }
+                BodyKind::Rigid => {
+                    let centre = project(poses[b].position);
+                    for &p in &own {
+                        out.push(Segment { from: centre, to: project(at[p]), strut: true });
+                    }
+                }
+                BodyKind::Node | BodyKind::Fixed => {}
+            }
+        }
+        for c in 0..model.cables.len() {
+            for w in model.route(CableId(c)).windows(2) {
+                out.push(Segment { from: project(at[w[0].0]), to: project(at[w[1].0]), strut: false });
+            }
+        }
+        out
+    };
+    let reference = segments(&state.poses);
+    let rest = positions(&state.poses);
+    let size = crate::solve::statics::body_size(model)
+        .max(rest.iter().flat_map(|a| rest.iter().map(move |b| (a - b).norm())).fold(0.0, f64::max));
+    modes
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| !m.zero)
+        .take(count)
+        .map(|(i, m)| {
+            // unit amplitude moves points by `reach`: scale to the drawing amplitude
+            let mut unit = state.poses.clone();
+            retract(model, &mut unit, &m.shape, 1e-6);
+            let reach =
+                positions(&unit).iter().zip(&rest).map(|(a, b)| (a - b).norm()).fold(0.0, f64::max) / 1e-6;
+            let mut moved = state.poses.clone();
+            retract(model, &mut moved, &m.shape, MODE_DRAWING_AMPLITUDE * size / reach.max(1e-300));
+            StructurePanel {
+                title: if m.omega_squared < 0.0 {
+                    format!("mode {}: unstable (omega^2 = {:.3e} 1/s^2)", i + 1, m.omega_squared)
+                } else {
+                    format!("mode {}: {:.4} Hz", i + 1, m.frequency_hz)
+                },
+                reference: reference.clone(),
+                displaced: segments(&moved),
+            }
+        })
+        .collect()
+}
+
+/// The largest point displacement of a drawn mode shape, as a fraction of the structure's size.
+pub const MODE_DRAWING_AMPLITUDE: f64 = 0.1;
 
 #[cfg(test)]
 mod tests {

@@ -4,7 +4,7 @@
 
 use serde::Serialize;
 
-use crate::forces::Workspace;
+use crate::evaluate::Workspace;
 use crate::model::Model;
 use crate::state::State;
 
@@ -157,13 +157,13 @@ pub fn path_csv_header(model: &Model) -> String {
 }
 
 /// One CSV row matching `path_csv_header`: the output step the row belongs to, the schedule
-/// time, what the row is (`load`, `arc` or `snap`, `crate::solve::statics::PathKind`), the
+/// time, what the row is (`load`, `arc` or `snap`, `crate::solve::deploy::PathKind`), the
 /// solve's iterations, residual and stability, then the state.
 pub fn path_csv_row(
     model: &Model,
     state: &State,
     ws: &Workspace,
-    step: &crate::solve::statics::PathStep,
+    step: &crate::solve::deploy::PathStep,
 ) -> String {
     use std::fmt::Write;
     let mut row = format!(

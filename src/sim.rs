@@ -9,7 +9,7 @@
 use std::time::{Duration, Instant};
 
 use crate::control::{ActuatorCommand, CommandError, Control};
-use crate::forces::{evaluate_forces, Workspace};
+use crate::evaluate::{evaluate_forces, Workspace};
 use crate::model::{ActuatorId, Model};
 use crate::solve::dynamics::{
     cable_powers, explicit_stability_limit, AttemptFailure, Dynamics, Integrator, NewtonSettings,
@@ -267,7 +267,7 @@ impl Simulator {
     pub fn state(&self) -> &State {
         &self.state
     }
-    /// The workspace evaluated at the current state by `forces::evaluate_forces`: point
+    /// The workspace evaluated at the current state by `evaluate::evaluate_forces`: point
     /// kinematics, generalized force, cable responses, segment lengths, joint values, energies
     /// (no tangent matrices or joint Jacobian: stepping never forms them densely).
     pub fn workspace(&self) -> &Workspace {

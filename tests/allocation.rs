@@ -16,11 +16,13 @@ use std::path::PathBuf;
 
 use std::time::Duration;
 
-use tensegrity::io::bag::BagOptions;
 use tensegrity::io::msg::SimResult;
-use tensegrity::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
-use tensegrity::io::params::NodeParams;
+use tensegrity::io::node::params::NodeParams;
+use tensegrity::io::node::NodeCore;
+use tensegrity::io::record::bag::BagOptions;
 use tensegrity::io::record::{self, BagRecorder, LogTime};
+use tensegrity::io::sink::{NodeSink, NodeView, PublishError};
+use tensegrity::io::topics::Topic;
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::Integrator;
 use tensegrity::solve::linear::LinearBackend;
@@ -186,7 +188,8 @@ fn recording_a_step_allocates_nothing_on_the_node_thread() {
 /// MB).
 #[test]
 fn reading_a_bag_holds_about_a_chunk_not_the_file() {
-    use tensegrity::io::bag::{BagReader, BagTopic, BagWriter, TopicQos, TopicSpec};
+    use tensegrity::io::record::bag::{BagReader, BagTopic, BagWriter, TopicSpec};
+    use tensegrity::io::topics::TopicQos;
     let dir = std::env::temp_dir().join(format!("tensegrity-alloc-bag-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let topics = vec![TopicSpec {

@@ -11,8 +11,9 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{DMatrix, DVector, Matrix6};
 use proptest::prelude::*;
+use tensegrity::assembly::DenseTangents;
 use tensegrity::constraints::add_multiplier_hessian;
-use tensegrity::forces::{evaluate, evaluate_forces, DenseTangents, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
 use tensegrity::model::Model;
 use tensegrity::scene::{BodyKindSpec, BodySpec, CableSpec, JointKindSpec, JointSpec, PointSpec, SceneSpec};
 use tensegrity::solve::dynamics::{
@@ -28,7 +29,7 @@ fn coefficients(h: f64) -> (f64, f64) {
     ((1.0 - c.alpha_m) / (h * h * c.beta * (1.0 - c.alpha_f)), c.gamma / (h * c.beta))
 }
 
-/// The reference: dense `K`, `C`, `Phi_q` from `forces::evaluate`, combined entry by entry.
+/// The reference: dense `K`, `C`, `Phi_q` from `evaluate::evaluate`, combined entry by entry.
 fn reference_matrix(model: &Model, state: &State, beta_p: f64, gamma_p: f64) -> DMatrix<f64> {
     let (n, nc) = (model.dof_count, model.constraint_count);
     let mut ws = Workspace::new(model);

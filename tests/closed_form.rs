@@ -2,7 +2,7 @@
 //! - Elastic Atwood machine with equal masses m at rest: tension `m g`, stretch `m g L0 / EA`.
 //! - Regular n-prism (n = 3, 4, 5) on pinned supports, started away from its equilibrium: Newton
 //!   returns to the prism geometry with force densities `q_bar = -q_side`,
-//!   `q_ring = q_side / (2 sin(pi/n))` (DESIGN.md 5), to 1e-9 relative, and clustering the top
+//!   `q_ring = q_side / (2 sin(pi/n))` (docs/architecture.md), to 1e-9 relative, and clustering the top
 //!   ring into one sliding cable leaves that equilibrium unchanged.
 
 mod common;
@@ -10,7 +10,7 @@ mod common;
 use common::*;
 use nalgebra::DVector;
 use std::f64::consts::PI;
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::scene::generate::{atwood, prism, prism_twist, AtwoodParams, PrismParams};
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::state::{retract, State};

@@ -4,18 +4,14 @@
 //! stops at the actuator's limit; and shortening a cable by command raises its tension to what
 //! statics predicts (on average, once the commanded motion is over).
 
-use std::path::PathBuf;
+mod common;
+use common::bundled;
 
 use tensegrity::control::{ActuatorCommand, ActuatorMode, CommandError};
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::statics::StaticSolver;
-use tensegrity::{Model, State};
-
-fn bundled(name: &str) -> Model {
-    tensegrity::scene::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name))
-        .unwrap()
-}
+use tensegrity::State;
 
 fn target(l: f64) -> ActuatorCommand {
     ActuatorCommand { rest_length: Some(l), rate: None }

@@ -6,15 +6,9 @@
 mod common;
 
 use common::*;
-use std::path::PathBuf;
-use tensegrity::forces::Workspace;
-use tensegrity::solve::statics::deploy_quasi_static;
+use tensegrity::evaluate::Workspace;
+use tensegrity::solve::deploy::deploy_quasi_static;
 use tensegrity::State;
-
-fn bundled(name: &str) -> tensegrity::Model {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap_or_else(|e| panic!("{e}"))
-}
 
 /// Runs the schedule, checking the residual bound at every step; returns every step's tensions.
 fn run(model: &tensegrity::Model) -> Vec<Vec<f64>> {

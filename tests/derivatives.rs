@@ -10,7 +10,7 @@ use common::*;
 use nalgebra::{DMatrix, DVector};
 use proptest::prelude::*;
 use tensegrity::constraints::add_multiplier_hessian;
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::scene::{BodyKindSpec, BodySpec, CableSpec, JointKindSpec, JointSpec, PointSpec, SceneSpec};
 use tensegrity::state::State;
 

@@ -11,18 +11,12 @@ mod common;
 
 use common::*;
 use nalgebra::{DVector, Vector3};
-use std::path::PathBuf;
-use tensegrity::forces::Workspace;
+use tensegrity::evaluate::Workspace;
 use tensegrity::scene::generate::{prism, PrismParams};
 use tensegrity::sim::{SimSettings, Simulator, StepError};
+use tensegrity::solve::deploy::deploy_quasi_static;
 use tensegrity::solve::dynamics::{stability_limit, Integrator};
-use tensegrity::solve::statics::deploy_quasi_static;
 use tensegrity::{Model, State};
-
-fn bundled(name: &str) -> Model {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap()
-}
 
 /// prism3 without damping or schedule, released with its ring `shortening` short: it oscillates.
 fn oscillating_prism(shortening: f64) -> Model {

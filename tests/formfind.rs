@@ -9,7 +9,7 @@ use std::path::Path;
 mod common;
 use common::{knot_between_cables, model_from_toml};
 
-use tensegrity::forces::{evaluate_forces, Workspace};
+use tensegrity::evaluate::{evaluate_forces, Workspace};
 use tensegrity::scene::generate::{prism, tower, PrismParams, TowerParams};
 use tensegrity::scene::{build_model, load, SceneSpec};
 use tensegrity::solve::formfind::{find_rest_lengths_with, FormFindingMethod, RestLengthSpec};

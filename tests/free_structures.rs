@@ -8,9 +8,10 @@
 mod common;
 
 use nalgebra::DVector;
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::scene::generate::{prism, PrismParams};
-use tensegrity::solve::statics::{deploy_quasi_static, EquilibriumReport, StaticSolver};
+use tensegrity::solve::deploy::deploy_quasi_static;
+use tensegrity::solve::statics::{EquilibriumReport, StaticSolver};
 use tensegrity::state::retract;
 use tensegrity::{Model, State};
 

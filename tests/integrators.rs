@@ -21,16 +21,12 @@
 //!   (`dynamics::damped_mode_relief`) is 1 without damping and grows with the damped share.
 
 mod common;
+use common::bundled;
 
 use nalgebra::Vector3;
 use tensegrity::sim::{SimSettings, Simulator, StepError};
 use tensegrity::solve::dynamics::{explicit_stability_limit, Integrator};
 use tensegrity::{Model, State};
-
-fn bundled(name: &str) -> Model {
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap()
-}
 
 /// The free prism ringing: no actuation, a smooth velocity field that keeps every cable taut.
 fn ringing_prism() -> (Model, State) {
@@ -411,7 +407,7 @@ fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() 
     assert_eq!(model.dof_count, 6, "two point masses");
     let state = State::initial(&model);
     let mut ws = tensegrity::Workspace::new(&model);
-    tensegrity::forces::evaluate_forces(&model, &state, &mut ws);
+    tensegrity::evaluate::evaluate_forces(&model, &state, &mut ws);
     assert!(!ws.cables[0].slack);
     let mut rate = |j: [f64; 6]| jerk_decay_rate(&model, &mut ws, &nalgebra::DVector::from_row_slice(&j));
     let m1_down = rate([0.0, 0.0, -3.0, 0.0, 0.0, 0.0]);
@@ -453,7 +449,7 @@ fn the_decay_rate_of_a_jerk_is_c_over_2m_along_a_damped_cable_and_0_across_it() 
 /// it dropped the rotation.
 #[test]
 fn the_decay_rate_of_a_jerk_is_the_rayleigh_quotient_of_the_damping_matrix() {
-    use tensegrity::forces::{evaluate, kinetic_energy, Tangents};
+    use tensegrity::evaluate::{evaluate, kinetic_energy, Tangents};
     use tensegrity::solve::dynamics::jerk_decay_rate;
     for scene in ["tbar.toml", "prism3.toml"] {
         let model = bundled(scene);

@@ -10,7 +10,7 @@
 
 use std::time::Duration;
 
-use tensegrity::io::params::TransportKind;
+use tensegrity::io::node::params::TransportKind;
 use tensegrity::testing::{self, Command, DomainLease, KitError, SimBuilder, Snapshot};
 
 /// Ring tension the README's controller drives to, N (the scene starts at 100 N).

@@ -6,7 +6,7 @@
 //! a point mass between two taut collinear cables (whose equilibrium solve used to panic: its
 //! spin about the cable line moves nothing) has its axial and string frequencies.
 
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::scene::generate::{atwood, AtwoodParams};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::{mass_matrix, Integrator};
@@ -129,7 +129,7 @@ fn a_mass_between_two_taut_cables_has_its_axial_and_string_frequencies() {
 /// writes it as PNG and SVG with the frequencies in the panel titles.
 #[test]
 fn mode_shapes_are_drawn_at_a_tenth_of_the_structures_size() {
-    use tensegrity::solve::modes::{mode_panels, MODE_DRAWING_AMPLITUDE};
+    use tensegrity::plot::{mode_panels, MODE_DRAWING_AMPLITUDE};
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let model = tensegrity::scene::load(&root.join("config/scenes/prism3.toml")).unwrap();
     let state = equilibrium(&model);

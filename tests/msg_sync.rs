@@ -4,6 +4,9 @@
 //! serde-reflection. The standard types used (std_msgs/Header, builtin_interfaces/Time) are
 //! checked against their published definitions.
 
+mod common;
+use common::bundled;
+
 use std::path::PathBuf;
 
 use serde_reflection::{ContainerFormat, Format, Tracer, TracerConfig};
@@ -85,15 +88,11 @@ fn rust_structs_match_the_msg_files_field_by_field() {
     );
 }
 
-fn bundled(name: &str) -> tensegrity::Model {
-    tensegrity::scene::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name))
-        .unwrap()
-}
-
 #[test]
 fn wire_conversions_carry_the_state_and_refuse_bad_commands_whole() {
-    use tensegrity::forces::{evaluate, Tangents, Workspace};
-    use tensegrity::io::msg::{MessageError, Time};
+    use tensegrity::evaluate::{evaluate, Tangents, Workspace};
+    use tensegrity::io::commands::MessageError;
+    use tensegrity::io::msg::Time;
     let model = bundled("tower.toml");
     let state = tensegrity::State::initial(&model);
     let mut ws = Workspace::new(&model);
@@ -216,7 +215,7 @@ fn check_definition(
 
 #[test]
 fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
-    use tensegrity::io::{msg, node::Topic, record, schemas};
+    use tensegrity::io::{msg, schemas, topics::Topic};
     let mut tracer = Tracer::new(TracerConfig::default());
     tracer.trace_simple_type::<msg::Clock>().unwrap();
     tracer.trace_simple_type::<msg::TfMessage>().unwrap();
@@ -243,7 +242,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
     ];
     // every topic a bag records is covered
     for topic in Topic::ALL {
-        if let Some((ty, _)) = record::topic_type(topic) {
+        if let Some((ty, _)) = tensegrity::io::topics::topic_type(topic) {
             assert!(rust_of.iter().any(|(t, _)| *t == ty), "{ty} of {topic:?} is not checked here");
         }
     }

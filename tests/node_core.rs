@@ -7,15 +7,18 @@
 //! pauses with an ERROR status and reset recovers; late steps are counted as overruns, never caught
 //! up in bursts; and nothing non-finite ever reaches a sink.
 
+mod common;
+use common::bundled;
+
 use std::time::Duration;
 
 use tensegrity::control::ActuatorCommand;
-use tensegrity::io::msg::{self, DiagnosticStatus};
-use tensegrity::io::node::{
-    result_code, NodeCore, NodeSink, NodeView, PublishError, Topic, MAX_COMMANDS_PER_STEP,
-    MAX_REJECTION_REPORTS_PER_SECOND,
-};
-use tensegrity::io::params::NodeParams;
+use tensegrity::io::commands::MAX_COMMANDS_PER_STEP;
+use tensegrity::io::msg::{self, result_code, DiagnosticStatus};
+use tensegrity::io::node::params::NodeParams;
+use tensegrity::io::node::{NodeCore, MAX_REJECTION_REPORTS_PER_SECOND};
+use tensegrity::io::sink::{NodeSink, NodeView, PublishError};
+use tensegrity::io::topics::Topic;
 use tensegrity::model::ActuatorId;
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::NewtonSettings;
@@ -59,11 +62,6 @@ impl MemorySink {
     fn value(status: &DiagnosticStatus, key: &str) -> Option<String> {
         status.values.iter().find(|kv| kv.key == key).map(|kv| kv.value.clone())
     }
-}
-
-fn bundled(name: &str) -> tensegrity::Model {
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap()
 }
 
 fn core(params: NodeParams) -> NodeCore {

@@ -12,21 +12,15 @@
 
 #![cfg(feature = "ros2")]
 
+mod common;
+use common::{bundled, netns, peer, roles, running_node};
+
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use ros2_client::ServiceMapping;
 use tensegrity::io::msg;
-use tensegrity::io::params::NodeParams;
-
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/peer.rs"]
-mod peer;
-#[path = "common/roles.rs"]
-mod roles;
-#[path = "common/running_node.rs"]
-mod running_node;
+use tensegrity::io::node::params::NodeParams;
 
 use peer::{call, closing_counts, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
 use running_node::RunningNode;
@@ -40,11 +34,6 @@ fn isolated_or_rerun(test: &str) -> bool {
     }
     let _lock = ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner());
     netns::isolated_or_rerun(&["--exact", test, "--nocapture", "--test-threads=1"])
-}
-
-fn bundled(name: &str) -> tensegrity::Model {
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap()
 }
 
 const SEC: Duration = Duration::from_secs(1);
@@ -288,7 +277,7 @@ fn the_node_binary_answers_help_and_version_and_refuses_unknown_options() {
     let help = run(&["--help"]);
     assert!(help.status.success());
     let text = String::from_utf8(help.stdout).unwrap();
-    for (name, _, _) in tensegrity::io::params::PARAMETERS {
+    for (name, _, _) in tensegrity::io::node::params::PARAMETERS {
         assert!(text.contains(name), "--help lists {name}");
     }
     assert!(text.contains("ROS_DOMAIN_ID") && text.contains("SIGTERM"));

@@ -3,7 +3,7 @@
 //! `-p` overriding the file), `-r __ns:=` and `-r __node:=`, `ROS_DOMAIN_ID`, `ROS_LOCALHOST_ONLY`
 //! and `ROS_AUTOMATIC_DISCOVERY_RANGE` — and refuses what it cannot honour with a reason.
 
-use tensegrity::io::params::{NodeParams, TransportKind};
+use tensegrity::io::node::params::{NodeParams, TransportKind};
 
 fn args(s: &str) -> Vec<String> {
     s.split_whitespace().map(String::from).collect()
@@ -103,7 +103,7 @@ fn bad_parameters_are_refused_with_a_reason() {
 #[test]
 fn every_parameter_in_the_help_table_is_understood_with_its_default() {
     let built = TransportKind::BUILT.iter().map(|t| t.name()).collect::<Vec<_>>().join(",");
-    for (name, default, meaning) in tensegrity::io::params::PARAMETERS {
+    for (name, default, meaning) in tensegrity::io::node::params::PARAMETERS {
         assert!(!meaning.is_empty());
         let value = match *default {
             "(bundled prism3)" => "scene.toml",

@@ -8,22 +8,16 @@
 
 #![cfg(feature = "ros2")]
 
+mod common;
+use common::{bags, netns, peer, running_node};
+
 use std::time::Duration;
 
-use tensegrity::io::bag::BagReader;
 use tensegrity::io::msg;
-use tensegrity::io::params::NodeParams;
+use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::record;
+use tensegrity::io::record::bag::BagReader;
 use tensegrity::io::ros2::qos;
-
-#[path = "common/bags.rs"]
-mod bags;
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/peer.rs"]
-mod peer;
-#[path = "common/running_node.rs"]
-mod running_node;
 
 use bags::{applied_commands, floats, our_counts, rosbags_counts, rosbags_read};
 use peer::{call, wait_for, NodeProcess, Peer, NS};

@@ -5,8 +5,11 @@
 //! (`TENSEGRITY_SOAK_CHURN_SECS`). At the end
 //! the node is alive; its counts add up (`received = accepted + rejected`, no more received than
 //! sent, no more accepted than valid ones sent, no more rejected than malformed ones sent); its
-//! resident memory grew by less than 10 MB after the first 10 s (median of the last 10 s of the
-//! flood against the median of 10-20 s: transient buffers come and go, a leak raises the floor); no subscriber saw a non-finite number;
+//! resident memory floor grew by less than 16 MB over the last third of the flood (the median of
+//! its last 10 s against the median of the 10 s that end two thirds into it: the node's bounded
+//! buffers and the killed subscribers' discovery data fill up in the first part of the run, at a
+//! pace the machine's load sets; transient buffers come and go; a leak raises the floor) and its
+//! peak stayed under 256 MB; no subscriber saw a non-finite number;
 //! and a valid command sent after the flood takes effect within 2 steps. The real-time factor
 //! during the flood is printed, not asserted (machines are noisy).
 //!
@@ -14,17 +17,13 @@
 
 #![cfg(feature = "ros2")]
 
+mod common;
+use common::{netns, peer, roles};
+
 use std::time::{Duration, Instant};
 
 use ros2_client::ServiceMapping;
 use tensegrity::io::msg;
-
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/peer.rs"]
-mod peer;
-#[path = "common/roles.rs"]
-mod roles;
 
 use peer::{call, closing_counts, rss_kb, scratch_file, signal, spawn_role, wait_for, NodeProcess, Peer, NS};
 
@@ -169,17 +168,24 @@ fn soak(test: &str, domain: u16, default_secs: u64) {
     rtf.sort_by(f64::total_cmp);
     let median_rtf = rtf.get(rtf.len() / 2).copied().unwrap_or(f64::NAN);
     // growth of the resident-memory floor: the median of 10 s windows, so that transient buffers
-    // (a burst of 100 kB names) do not count as growth, while a leak raises every later window
+    // (a burst of 100 kB names) do not count as growth, while a leak raises every later window.
+    // The first window ends two thirds into the flood, not at 20 s: the node's bounded buffers
+    // (the frozen reader's, the killed subscribers' discovery data) fill up over the first part
+    // of the run at a pace set by the machine's load (one fresh-clone CI run still rose by 35 MB
+    // after 20 s, to the same peak as runs that had risen before 10 s), and a window taken before
+    // they are full measures that pace, not a leak.
     let median = |w: &[u64]| {
         let mut w = w.to_vec();
         w.sort_unstable();
         w[w.len() / 2]
     };
-    let (early, late) = (median(&rss[10..20]), median(&rss[rss.len() - 10..]));
+    let settled = (rss.len() * 2 / 3).max(20);
+    let (early, late) = (median(&rss[settled - 10..settled]), median(&rss[rss.len() - 10..]));
     let growth = late as i64 - early as i64;
     let peak = rss.iter().max().copied().unwrap_or(0);
     println!(
-        "soak {secs} s: sent {sent_valid} valid + {sent_malformed} malformed; node received {received}, accepted {accepted}, rejected {rejected}; RSS median {early} kB over 10-20 s, {late} kB over the last 10 s ({growth:+} kB), peak {peak} kB; real-time factor median {median_rtf:.3} over {} reports",
+        "soak {secs} s: sent {sent_valid} valid + {sent_malformed} malformed; node received {received}, accepted {accepted}, rejected {rejected}; RSS median {early} kB over {}-{settled} s, {late} kB over the last 10 s ({growth:+} kB), peak {peak} kB; real-time factor median {median_rtf:.3} over {} reports",
+        settled - 10,
         rtf.len()
     );
     println!("{}", stderr.lines().last().unwrap_or(""));
@@ -196,7 +202,9 @@ fn soak(test: &str, domain: u16, default_secs: u64) {
     // so within the first minute the floor may rise by that much (measured: +1 to +3 MB in most
     // runs, +10.8 MB in one fresh-clone CI run); a leak keeps rising, which the ten-minute soak
     // (`-- --ignored`) checks against the same bound
-    assert!(growth < 16 * 1024, "the RSS floor grew by {growth} kB after the first 10 s");
+    assert!(growth < 16 * 1024, "the RSS floor grew by {growth} kB over the last third of the flood");
+    // bounded, whatever the pace: peaks of 96-107 MB were measured in fresh-clone CI runs
+    assert!(peak < 256 * 1024, "the node's resident memory peaked at {peak} kB");
     assert_eq!(nonfinite, 0, "non-finite values in actuator states");
     assert!(!bad.exists(), "a checking subscriber saw a non-finite value");
 }

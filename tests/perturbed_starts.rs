@@ -6,7 +6,7 @@
 
 use nalgebra::DVector;
 use proptest::prelude::*;
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::state::retract;
 use tensegrity::{Model, State};

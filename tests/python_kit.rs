@@ -6,11 +6,11 @@
 
 #![cfg(all(feature = "ros2", feature = "shm"))]
 
+mod common;
+use common::python;
+
 use std::path::PathBuf;
 use std::process::Command;
-
-#[path = "common/python.rs"]
-mod python;
 
 /// `python -m pytest ARGS` with the checkout's kit first on the path and this build's node.
 fn pytest(python: &str, args: &[&str], env: &[(&str, String)]) -> std::process::Output {

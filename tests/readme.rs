@@ -1,15 +1,18 @@
-//! Invariant: the README shows only scenes that work. Every TOML block in README.md is, verbatim,
-//! a file in `config/examples/`, and that file loads, passes `check` with no warning, and has an
-//! equilibrium that `statics` finds from the pose as written, without negative stiffness.
+//! Invariant: the README and the pages of `docs/` show only scenes that work. Every TOML block in
+//! them is, verbatim, a file in `config/examples/`, and that file loads, passes `check` with no
+//! warning, and has an equilibrium that `statics` finds from the pose as written, without
+//! negative stiffness.
 
-use tensegrity::forces::Workspace;
+mod common;
+
+use tensegrity::evaluate::Workspace;
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::{report, State};
 
 #[test]
 fn every_toml_block_of_the_readme_is_a_bundled_example_that_loads_and_solves() {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let readme = common::user_docs();
     let examples: Vec<(std::path::PathBuf, String)> = std::fs::read_dir(root.join("config/examples"))
         .unwrap()
         .map(|e| e.unwrap().path())
@@ -20,12 +23,11 @@ fn every_toml_block_of_the_readme_is_a_bundled_example_that_loads_and_solves() {
         .skip(1)
         .map(|rest| &rest[..rest.find("```").expect("closed block")])
         .collect();
-    assert!(!blocks.is_empty(), "the README shows a scene");
+    assert!(!blocks.is_empty(), "the docs show a scene");
     for block in blocks {
-        let (path, _) = examples
-            .iter()
-            .find(|(_, text)| text == block)
-            .unwrap_or_else(|| panic!("this README block is not a file in config/examples/:\n{block}"));
+        let (path, _) = examples.iter().find(|(_, text)| text == block).unwrap_or_else(|| {
+            panic!("this block of the README or docs/ is not a file in config/examples/:\n{block}")
+        });
         let model = tensegrity::scene::load(path).unwrap_or_else(|e| panic!("{e}"));
         assert!(report::unheld_bodies_note(&model).is_none());
         let mut state = State::initial(&model);
@@ -41,12 +43,11 @@ fn every_toml_block_of_the_readme_is_a_bundled_example_that_loads_and_solves() {
 fn the_readme_field_reference_is_generated_and_lists_exactly_the_parsed_fields() {
     use std::collections::BTreeSet;
     use tensegrity::scene::reference::{markdown, scene_fields, TABLES};
-    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let readme = common::user_docs();
     let expected = format!("<!-- fields:begin -->\n{}<!-- fields:end -->", markdown());
     assert!(
         readme.contains(&expected),
-        "the README's field table differs from `tensegrity fields`: paste its output between the markers"
+        "the field table of docs/scene-format.md differs from `tensegrity fields`: paste its output between the markers"
     );
     // the parser's own list: an unknown key in each table is refused with the accepted ones
     for (table, key) in TABLES {
@@ -68,13 +69,13 @@ fn the_readme_field_reference_is_generated_and_lists_exactly_the_parsed_fields()
     }
 }
 
-/// Invariant: the README's test-kit examples are the kits' tests. Every ```rust and ```python
+/// Invariant: the test-kit examples of the README and docs/ are the kits' tests. Every ```rust and ```python
 /// block whose first line names a file (`// tests/kit.rs`, `# python/tests/...`) is, piece by
 /// piece (pieces split at `// ...` and `# ...` lines), verbatim text of that file.
 #[test]
 fn the_readmes_kit_examples_are_verbatim_parts_of_tested_files() {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let readme = common::user_docs();
     let mut checked = 0;
     for (fence, comment) in [("```rust\n", "// "), ("```python\n", "# ")] {
         for rest in readme.split(fence).skip(1) {
@@ -90,10 +91,13 @@ fn the_readmes_kit_examples_are_verbatim_parts_of_tested_files() {
             let elision = format!("{comment}...");
             for piece in body.split(|l| *l == elision) {
                 let piece = piece.join("\n");
-                assert!(text.contains(&piece), "this README piece is not in {file}:\n{piece}");
+                assert!(
+                    text.contains(&piece),
+                    "this piece of the README or docs/ is not in {file}:\n{piece}"
+                );
             }
             checked += 1;
         }
     }
-    assert!(checked >= 4, "the README shows the Rust and Python kit examples ({checked} blocks found)");
+    assert!(checked >= 4, "the docs show the Rust and Python kit examples ({checked} blocks found)");
 }

@@ -12,16 +12,15 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use tensegrity::io::bag::{self, BagOptions, BagReader};
 use tensegrity::io::msg;
+use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::node::NodeCore;
-use tensegrity::io::params::NodeParams;
 use tensegrity::io::record;
+use tensegrity::io::record::bag::{self, BagOptions, BagReader};
 use tensegrity::sim::{SimSettings, Simulator};
 
-#[path = "common/bags.rs"]
-mod bags;
 mod common;
+use common::bags;
 
 use bags::{applied_commands, floats, our_counts, rosbags_counts, rosbags_read};
 
@@ -355,7 +354,8 @@ fn a_full_writer_queue_drops_whole_states_never_commands_or_the_structure() {
     assert!(failures > 0, "a queue of one batch cannot hold a step every 20 us");
 
     let counts = our_counts(&dir);
-    let count = |short: &str| counts.get(&record::topic_name(short, &params)).map_or(0, |(_, n)| *n);
+    let count =
+        |short: &str| counts.get(&tensegrity::io::topics::topic_name(short, &params)).map_or(0, |(_, n)| *n);
     assert_eq!(count("~/structure"), 1);
     assert_eq!(count("/tf_static"), 1);
     assert_eq!(count("~/applied_commands"), 2, "{counts:?}");

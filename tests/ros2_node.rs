@@ -13,19 +13,15 @@
 
 #![cfg(feature = "ros2")]
 
+mod common;
+use common::{bundled, netns, peer, running_node};
+
 use std::time::{Duration, Instant};
 
 use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
 use tensegrity::io::msg;
-use tensegrity::io::params::NodeParams;
+use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::ros2::{context, qos};
-
-#[path = "common/netns.rs"]
-mod netns;
-#[path = "common/peer.rs"]
-mod peer;
-#[path = "common/running_node.rs"]
-mod running_node;
 
 use peer::wait_for;
 
@@ -33,11 +29,6 @@ use running_node::RunningNode;
 
 fn isolated_or_rerun(test: &str) -> bool {
     netns::isolated_or_rerun(&["--exact", test, "--nocapture", "--test-threads=1"])
-}
-
-fn bundled(name: &str) -> tensegrity::Model {
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap()
 }
 
 #[test]

@@ -8,7 +8,7 @@
 //! joints' null space where it is not (so a step goes down the energy, away from the inverted
 //! equilibrium).
 
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::solve::statics::{EquilibriumReport, StaticSolver};
 use tensegrity::{Model, State};
 

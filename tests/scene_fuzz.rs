@@ -9,7 +9,7 @@
 
 use std::time::{Duration, Instant};
 
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::{report, State};
 use toml::Value;

@@ -16,12 +16,17 @@
 
 #![cfg(feature = "shm")]
 
+mod common;
+use common::{bundled, python, running_node};
+#[cfg(feature = "ros2")]
+use common::{netns, peer};
+
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use tensegrity::control::ActuatorCommand;
+use tensegrity::io::node::params::{NodeParams, TransportKind};
 use tensegrity::io::node::NodeCore;
-use tensegrity::io::params::{NodeParams, TransportKind};
 use tensegrity::io::shm::{
     check_capacity, CommandEntry, ShmClient, ShmError, StateSample, MAX_ACTUATORS, MAX_BODIES,
     MAX_CONTROLLERS,
@@ -29,25 +34,9 @@ use tensegrity::io::shm::{
 use tensegrity::model::ActuatorId;
 use tensegrity::sim::Simulator;
 
-#[cfg(feature = "ros2")]
-#[path = "common/netns.rs"]
-mod netns;
-#[cfg(feature = "ros2")]
-#[path = "common/peer.rs"]
-mod peer;
-#[path = "common/python.rs"]
-mod python;
-#[path = "common/running_node.rs"]
-mod running_node;
-
 use running_node::RunningNode;
 
 const WAIT: Duration = Duration::from_secs(10);
-
-fn bundled(name: &str) -> tensegrity::Model {
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes").join(name);
-    tensegrity::scene::load(&path).unwrap()
-}
 
 /// Parameters of a shm-only node under a namespace of this test's own.
 fn shm_params(test: &str) -> NodeParams {

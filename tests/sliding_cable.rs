@@ -9,7 +9,7 @@ mod common;
 use common::*;
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use proptest::prelude::*;
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::state::State;
 
 /// Nodal FE sliding cable through nodes `x` (no damping): returns (internal force on the nodes,

@@ -18,8 +18,8 @@
 
 mod common;
 
-use tensegrity::forces::Workspace;
-use tensegrity::solve::statics::{deploy_quasi_static, PathKind, QuasiStaticPath};
+use tensegrity::evaluate::Workspace;
+use tensegrity::solve::deploy::{deploy_quasi_static, PathKind, QuasiStaticPath};
 use tensegrity::{Model, State};
 
 const SPRING_EA: f64 = 1000.0;

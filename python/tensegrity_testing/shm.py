@@ -23,7 +23,7 @@ step): it reads the structure, sends a NaN command (must be rejected), steps by 
 the first actuator to TARGET and checks the state; prints `OK ...` and exits 0, else exits 1.
 `--bench N` times N one-step lockstep round trips and prints their median, p99 and rate.
 
-The ctypes structures mirror the `#[repr(C)]` payloads of `src/io/shm.rs` field by field, with
+The ctypes structures mirror the `#[repr(C)]` payloads of `src/io/shm/payload.rs` field by field, with
 the same capacities and type names (iceoryx2 refuses to connect when name, size or alignment
 differ, so a mismatch fails loudly at connect).
 """
@@ -64,7 +64,7 @@ Name = u8 * NAME_BYTES
 
 
 class StateSample(ctypes.Structure):
-    """`TensegrityState`: the state after a step (see `StateSample` in src/io/shm.rs)."""
+    """`TensegrityState`: the state after a step (see `StateSample` in src/io/shm/payload.rs)."""
 
     _fields_ = [
         ("time", f64),

@@ -11,10 +11,8 @@ use std::process::ExitCode;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use tensegrity::io::params::{NodeParams, TransportKind, PARAMETERS};
+use tensegrity::io::node::params::{NodeParams, TransportKind, PARAMETERS};
 use tensegrity::io::LaunchError;
-
-const DEFAULT_SCENE: &str = include_str!("../../config/scenes/prism3.toml");
 
 /// Why the node stopped, as its exit status says it (`--help` lists them).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,14 +68,14 @@ fn help() -> String {
           ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST   the same\n\n\
           Topics /clock, /tf, /tf_static, /diagnostics and ~/body_poses, ~/cable_states, ~/actuator_states,\n\
           ~/structure, ~/markers out; ~/actuator_commands, ~/joint_commands in; simulation_interfaces\n\
-          services in ~/ (see the README). -p record:=DIR also writes them and the applied commands\n\
+          services in ~/ (see docs/node.md). -p record:=DIR also writes them and the applied commands\n\
           (~/applied_commands) to a rosbag2 bag (MCAP); `tensegrity replay DIR` runs it again.\n\n\
           Exit status (the reason is printed on stderr): 0 stopped by SIGINT, SIGTERM or\n\
           SetSimulationState(QUITTING); 2 bad arguments or parameters; 3 the scene cannot be read or is\n\
           invalid; 4 a transport (DDS, shared memory, the bag recorder) cannot start; 5 a physics failure:\n\
           the simulation cannot start, or it was stopped while a physics failure held it (no reset).\n\n\
           Shared memory (iceoryx2, services <ns>/<node>/...: state, structure, actuator_commands,\n\
-          lockstep; events to_node, from_node): see the README and python/tensegrity_testing/shm.py.\n";
+          lockstep; events to_node, from_node): see docs/shared-memory.md and python/tensegrity_testing/shm.py.\n";
     h += &format!(
         "\nTransports built into this binary: {}\n",
         TransportKind::BUILT.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ")
@@ -165,8 +163,11 @@ fn run() -> Result<(), Failure> {
     let bad_scene = fail(Exit::BadScene);
     let model = match &params.scene {
         Some(path) => tensegrity::scene::load(path).map_err(|e| bad_scene(e.to_string()))?,
-        None => tensegrity::scene::from_toml(DEFAULT_SCENE, "<bundled prism3>")
-            .map_err(|e| bad_scene(e.to_string()))?,
+        None => tensegrity::scene::from_toml(
+            tensegrity::scene::bundled_text("prism3").unwrap_or_default(),
+            "<bundled prism3>",
+        )
+        .map_err(|e| bad_scene(e.to_string()))?,
     };
     let mut serving = Vec::new();
     for t in &params.transports {

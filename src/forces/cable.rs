@@ -1,4 +1,4 @@
-//! The classical and sliding cable element (DESIGN.md 1.2): takes a route's point kinematics and a
+//! The classical and sliding cable element (docs/architecture.md, "The classical and the sliding cable"): takes a route's point kinematics and a
 //! rest length, gives the tension, the generalized force `Q = -T g`, the tangent stiffness
 //! `K = -dQ/dq` and the damping matrix `C = -dQ/dv`.
 //!
@@ -19,17 +19,17 @@
 //! A segment shorter than `SEGMENT_LENGTH_FLOOR` has no direction: it contributes its length but
 //! no force direction and no geometric stiffness, so coincident points never produce NaN.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
+use nalgebra::{DVector, Matrix3, Vector3, Vector6};
 
-use super::TangentSink;
+use crate::assembly::{add_vector, TangentSink};
 
 use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointKinematics};
-use crate::model::{BodyId, CableId, Model, PointId, Pose};
+use crate::model::{CableId, Model, PointId, Pose};
 
 /// Segments shorter than this (m) are treated as a point: no direction, no geometric stiffness.
 pub const SEGMENT_LENGTH_FLOOR: f64 = 1e-9;
 
-/// Tension law of DESIGN.md 1.2. `ea` (N), `rest_length` (m, > 0), `damping` (N s/m),
+/// Tension law of docs/architecture.md ("The classical and the sliding cable"). `ea` (N), `rest_length` (m, > 0), `damping` (N s/m),
 /// `length` (m), `length_rate` (m/s). Returns the tension (N, >= 0).
 pub fn tension(ea: f64, damping: f64, rest_length: f64, length: f64, length_rate: f64) -> f64 {
     if length <= rest_length {
@@ -158,31 +158,6 @@ pub fn length_gradient_entries(
     for (i, pid) in route.iter().enumerate() {
         let b = &model.bodies[kin[pid.0].body.0];
         out.extend((0..b.dof_count).map(|r| (b.dof_offset + r, scratch.grad[i][r])));
-    }
-}
-
-/// Adds the first `dof_count` entries of `v * scale` into the body's rows of `out`.
-pub fn add_vector(model: &Model, body: BodyId, v: &Vector6<f64>, scale: f64, out: &mut DVector<f64>) {
-    let b = &model.bodies[body.0];
-    for r in 0..b.dof_count {
-        out[b.dof_offset + r] += scale * v[r];
-    }
-}
-
-/// Adds `scale * blk` (the bodies' `k_a x k_b` corner of a 6 x 6) at the bodies' rows/columns.
-pub fn add_block(
-    model: &Model,
-    a: BodyId,
-    b: BodyId,
-    blk: &Matrix6<f64>,
-    scale: f64,
-    out: &mut DMatrix<f64>,
-) {
-    let (ba, bb) = (&model.bodies[a.0], &model.bodies[b.0]);
-    for r in 0..ba.dof_count {
-        for c in 0..bb.dof_count {
-            out[(ba.dof_offset + r, bb.dof_offset + c)] += scale * blk[(r, c)];
-        }
     }
 }
 

@@ -1,25 +1,31 @@
-//! The edge between the physics and the outside world: wire types (flat serde copies of the
-//! `msg/` package, usable without any middleware), the transport-free node core and loop, and,
-//! behind the `ros2` and `shm` cargo features, the transports. Nothing outside this module and
-//! the binaries imports a transport crate.
+//! The edge between the physics and the outside world: takes a `Model` and `NodeParams`, gives
+//! a running node (`launch`). Its rooms:
+//! - `msg` (wire structs: flat serde copies of the `msg/` package, usable without middleware)
+//!   and `schemas` (their ROS definitions, for bags and the Python kit);
+//! - `topics` (the one topic table: names, types, QoS, inputs), `commands` (command checks and
+//!   limits), `sink` (what a transport's outgoing side sees: `NodeSink`, `NodeView`, stats);
+//! - `node` (the transport-free core, its parameters and the loop that runs it with transports);
+//! - the transports, behind cargo features: `ros2` (DDS) and `shm` (shared memory);
+//! - `record` (bags: the recorder, offline runs, replay, the MCAP reader and writer).
+//!
+//! Nothing outside this module, `testing` and the binaries imports a transport crate.
 
-pub mod bag;
+pub mod commands;
 pub mod msg;
 pub mod node;
-pub mod params;
 pub mod record;
-pub mod runner;
 pub mod schemas;
-pub mod testing;
+pub mod sink;
+pub mod topics;
 
 #[cfg(feature = "ros2")]
 pub mod ros2;
 #[cfg(feature = "shm")]
 pub mod shm;
 
+use crate::io::node::params::{NodeParams, TransportKind};
+use crate::io::node::runner::{SimNode, Transport};
 use crate::io::node::{CoreError, NodeCore};
-use crate::io::params::{NodeParams, TransportKind};
-use crate::io::runner::{SimNode, Transport};
 use crate::model::Model;
 
 /// Why the node could not start.

@@ -1,16 +1,41 @@
 //! Wire types: takes the simulator's `Model`, `State` and evaluated `Workspace`, gives flat serde
 //! structs whose fields follow the `.msg` files in `msg/msg/` (and the standard ROS 2 types they
-//! use) in order, so that CDR serialization matches; and turns an incoming `ActuatorCommand`
-//! message into validated per-actuator commands. `tests/msg_sync.rs` keeps these structs and the
-//! `.msg` files identical field by field.
+//! use) in order, so that CDR serialization matches, and the `simulation_interfaces` codes.
+//! Wire structs only: what checks an incoming command is `io::commands`, which message each
+//! topic carries is `io::sink::TopicMessage`. `tests/msg_sync.rs` keeps these structs and the
+//! `.msg` files identical field by field. Imports no other `io` module.
 
 use serde::{Deserialize, Serialize};
 
 use crate::control;
-use crate::forces::Workspace;
+use crate::evaluate::Workspace;
 use crate::model::{ActuatorId, Model};
 use crate::report;
 use crate::state::State;
+
+/// `simulation_interfaces/msg/SimulationState` codes.
+pub mod sim_state {
+    /// Stopped (reset and paused).
+    pub const STOPPED: u8 = 0;
+    /// Playing.
+    pub const PLAYING: u8 = 1;
+    /// Paused.
+    pub const PAUSED: u8 = 2;
+    /// Quitting.
+    pub const QUITTING: u8 = 3;
+}
+
+/// `simulation_interfaces/msg/Result` codes.
+pub mod result_code {
+    /// Success.
+    pub const OK: u8 = 1;
+    /// The request is not valid in the current state.
+    pub const INCORRECT_STATE: u8 = 3;
+    /// The operation failed.
+    pub const OPERATION_FAILED: u8 = 4;
+    /// Already in the requested state.
+    pub const ALREADY_IN_TARGET_STATE: u8 = 101;
+}
 
 /// `builtin_interfaces/msg/Time`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -121,166 +146,6 @@ pub struct ActuatorCommand {
     pub rest_length: Vec<f64>,
     /// Rates, m/s: empty or parallel to `name`.
     pub rate: Vec<f64>,
-}
-
-/// Longest actuator name (and command `frame_id`) a command may carry, bytes.
-pub const MAX_NAME_BYTES: usize = 256;
-/// Most entries (names, rest lengths or rates) one command message may carry.
-pub const MAX_COMMAND_ENTRIES: usize = 1024;
-/// Largest command message, bytes of strings plus 8 per number (checked before anything else).
-pub const MAX_COMMAND_BYTES: usize = 64 * 1024;
-/// Longest excerpt of received text that an error or a diagnostic repeats, characters.
-pub const EXCERPT_CHARS: usize = 48;
-
-/// At most `max` characters of `text`, with the full size said when it was cut.
-pub fn excerpt(text: &str, max: usize) -> String {
-    match text.char_indices().nth(max) {
-        None => text.to_string(),
-        Some((cut, _)) => format!("{}... ({} bytes)", &text[..cut], text.len()),
-    }
-}
-
-/// Why an `ActuatorCommand` message was refused as a whole.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum MessageError {
-    /// An array has the wrong length.
-    #[error("{field} has {got} entries for {names} names (must be empty or parallel to name)")]
-    WrongLength {
-        /// Field name.
-        field: &'static str,
-        /// Entries received.
-        got: usize,
-        /// Number of names.
-        names: usize,
-    },
-    /// A size limit is exceeded (checked before any other work).
-    #[error("{what} is {size}, over the limit of {limit}")]
-    TooLarge {
-        /// What was measured.
-        what: &'static str,
-        /// Its size.
-        size: usize,
-        /// The limit.
-        limit: usize,
-    },
-    /// The message names no actuator.
-    #[error("the command names no actuator")]
-    NoNames,
-    /// The same actuator appears twice in one message (which entry should win is ambiguous).
-    #[error("actuator '{0}' is named more than once")]
-    Duplicate(String),
-    /// An actuator given by index that the model does not have.
-    #[error("actuator index {index} is out of range (the scene has {count} actuators)")]
-    UnknownIndex {
-        /// The index received.
-        index: u64,
-        /// Actuators in the model.
-        count: usize,
-    },
-    /// A field that cannot be read (a name that is not UTF-8 or has no terminating NUL in its
-    /// fixed-size field, unknown flag bits).
-    #[error("{0}")]
-    Malformed(String),
-    /// One of the commands is invalid.
-    #[error(transparent)]
-    Command(#[from] control::CommandError),
-}
-
-/// Checks one command message given as parallel arrays, sizes first (name count, name lengths,
-/// total bytes: no other work is done on an oversized message), then array lengths, names,
-/// duplicates and every value against its actuator's limits. Fills `out` (cleared first) with the
-/// per-actuator commands in message order; on error `out` holds nothing usable. Allocation-free
-/// for valid messages once `out` has capacity for the model's actuators.
-pub fn check_command(
-    model: &Model,
-    frame_id: &str,
-    names: &[String],
-    rest_length: &[f64],
-    rate: &[f64],
-    out: &mut Vec<(ActuatorId, control::ActuatorCommand)>,
-) -> Result<(), MessageError> {
-    out.clear();
-    for (what, size) in
-        [("name count", names.len()), ("rest_length count", rest_length.len()), ("rate count", rate.len())]
-    {
-        if size > MAX_COMMAND_ENTRIES {
-            return Err(MessageError::TooLarge { what, size, limit: MAX_COMMAND_ENTRIES });
-        }
-    }
-    let bytes =
-        frame_id.len() + names.iter().map(String::len).sum::<usize>() + 8 * (rest_length.len() + rate.len());
-    if bytes > MAX_COMMAND_BYTES {
-        return Err(MessageError::TooLarge {
-            what: "message size in bytes",
-            size: bytes,
-            limit: MAX_COMMAND_BYTES,
-        });
-    }
-    if frame_id.len() > MAX_NAME_BYTES {
-        return Err(MessageError::TooLarge {
-            what: "frame_id length in bytes",
-            size: frame_id.len(),
-            limit: MAX_NAME_BYTES,
-        });
-    }
-    if let Some(n) = names.iter().find(|n| n.len() > MAX_NAME_BYTES) {
-        return Err(MessageError::TooLarge {
-            what: "an actuator name's length in bytes",
-            size: n.len(),
-            limit: MAX_NAME_BYTES,
-        });
-    }
-    for (field, v) in [("rest_length", rest_length), ("rate", rate)] {
-        if !v.is_empty() && v.len() != names.len() {
-            return Err(MessageError::WrongLength { field, got: v.len(), names: names.len() });
-        }
-    }
-    if names.is_empty() {
-        return Err(MessageError::NoNames);
-    }
-    for (i, name) in names.iter().enumerate() {
-        let id = actuator_by_name(model, name)?;
-        let cmd =
-            control::ActuatorCommand { rest_length: rest_length.get(i).copied(), rate: rate.get(i).copied() };
-        check_entry(model, id, cmd, out)?;
-    }
-    Ok(())
-}
-
-/// The actuator called `name`, or the error every transport gives for an unknown name.
-pub fn actuator_by_name(model: &Model, name: &str) -> Result<ActuatorId, MessageError> {
-    model
-        .actuator_id(name)
-        .ok_or_else(|| control::CommandError::UnknownActuator(excerpt(name, EXCERPT_CHARS)).into())
-}
-
-/// Checks one entry of a command message whose actuator is already resolved, the same way for
-/// every transport: a second entry for an actuator already in `out` is refused (which should win
-/// is ambiguous), then the values against the actuator's limits (`Control::validate`); a good
-/// entry is appended to `out`.
-pub fn check_entry(
-    model: &Model,
-    id: ActuatorId,
-    cmd: control::ActuatorCommand,
-    out: &mut Vec<(ActuatorId, control::ActuatorCommand)>,
-) -> Result<(), MessageError> {
-    if out.iter().any(|(seen, _)| *seen == id) {
-        return Err(MessageError::Duplicate(model.actuator_names[id.0].clone()));
-    }
-    control::Control::validate(model, id, cmd)?;
-    out.push((id, cmd));
-    Ok(())
-}
-
-impl ActuatorCommand {
-    /// The per-actuator commands of this message, validated against `model` as a whole (a
-    /// message with one bad entry is refused entirely, so that no partial update happens); see
-    /// `check_command` for the order of the checks.
-    pub fn commands(&self, model: &Model) -> Result<Vec<(String, control::ActuatorCommand)>, MessageError> {
-        let mut out = Vec::new();
-        check_command(model, &self.header.frame_id, &self.name, &self.rest_length, &self.rate, &mut out)?;
-        Ok(out.into_iter().map(|(id, c)| (model.actuator_names[id.0].clone(), c)).collect())
-    }
 }
 
 /// `tensegrity_msgs/msg/Structure`.
@@ -551,87 +416,6 @@ impl AppliedCommands {
             rest_length: commands.iter().map(|(_, c)| c.rest_length.unwrap_or(f64::NAN)).collect(),
             rate: commands.iter().map(|(_, c)| c.rate.unwrap_or(f64::NAN)).collect(),
         }
-    }
-
-    /// The commands again, resolved against `model` (NaN: not given); why not, when a name is
-    /// unknown or the arrays are not parallel.
-    pub fn commands(
-        &self,
-        model: &Model,
-    ) -> Result<Vec<(ActuatorId, control::ActuatorCommand)>, MessageError> {
-        for (field, got) in [("rest_length", self.rest_length.len()), ("rate", self.rate.len())] {
-            if got != self.name.len() {
-                return Err(MessageError::WrongLength { field, got, names: self.name.len() });
-            }
-        }
-        let given = |x: f64| (!x.is_nan()).then_some(x);
-        self.name
-            .iter()
-            .zip(self.rest_length.iter().zip(&self.rate))
-            .map(|(n, (l, r))| {
-                let id = actuator_by_name(model, n)?;
-                Ok((id, control::ActuatorCommand { rest_length: given(*l), rate: given(*r) }))
-            })
-            .collect()
-    }
-}
-
-/// One published message of the node, built from the core's view: what every transport that
-/// speaks ROS message types (DDS, the bag recorder) sends for a `Topic`. Serializes as the
-/// message it holds.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(untagged)]
-pub enum TopicMessage {
-    /// `/clock`.
-    Clock(Clock),
-    /// `/tf` or `/tf_static`.
-    Tf(TfMessage),
-    /// `~/body_poses`.
-    Poses(PoseArray),
-    /// `~/cable_states`.
-    Cables(CableStates),
-    /// `~/actuator_states`.
-    Actuators(JointState),
-    /// `~/structure`.
-    Structure(Structure),
-    /// `/diagnostics`.
-    Diagnostics(DiagnosticArray),
-    /// `~/markers`.
-    Markers(MarkerArray),
-}
-
-impl TopicMessage {
-    /// The message of `topic` from `view`; `None` for topics that have no ROS message
-    /// (`Topic::State`, the shared-memory sample); an error for non-finite cable states.
-    pub fn build(
-        topic: crate::io::node::Topic,
-        view: &crate::io::node::NodeView<'_>,
-    ) -> Result<Option<Self>, crate::io::node::PublishError> {
-        use crate::io::node::Topic;
-        let (model, state, ws, frame) = (view.model, view.state, view.workspace, view.frame_id);
-        Ok(Some(match topic {
-            Topic::Clock => Self::Clock(Clock { clock: Time::from_seconds(state.time) }),
-            Topic::Tf => Self::Tf(TfMessage::from_state(model, state, frame, false)),
-            Topic::TfStatic => Self::Tf(TfMessage::from_state(model, state, frame, true)),
-            Topic::BodyPoses => Self::Poses(PoseArray::from_state(state, frame)),
-            Topic::CableStates => {
-                let cables = CableStates::from_state(model, state, ws, view.reference, frame);
-                if !cables.is_finite() {
-                    return Err(crate::io::node::PublishError::Failed(
-                        "refusing to publish non-finite cable states".into(),
-                    ));
-                }
-                Self::Cables(cables)
-            }
-            Topic::ActuatorStates => Self::Actuators(JointState::actuators(model, state, ws, view.rates)),
-            Topic::Structure => Self::Structure(Structure::from_model(model, frame)),
-            Topic::Diagnostics => {
-                let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.to_string() };
-                Self::Diagnostics(DiagnosticArray { header, status: view.diagnostics.to_vec() })
-            }
-            Topic::Markers => Self::Markers(MarkerArray::from_state(model, state, ws, frame)),
-            Topic::State => return Ok(None),
-        }))
     }
 }
 

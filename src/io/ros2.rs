@@ -26,12 +26,14 @@ use ros2_client::{
     QosProfile, Server, ServiceMapping, ServiceTypeName, Subscription,
 };
 
-use crate::io::bag::TopicQos;
 use crate::io::msg;
-use crate::io::node::{NodeCore, NodeSink, NodeView, PublishError, Topic};
-use crate::io::params::NodeParams;
-use crate::io::record;
-use crate::io::runner::{Transport, With};
+use crate::io::node::params::NodeParams;
+use crate::io::node::runner::{Transport, With};
+use crate::io::node::NodeCore;
+use crate::io::sink::{NodeSink, NodeView, PublishError};
+use crate::io::topics;
+use crate::io::topics::Topic;
+use crate::io::topics::TopicQos;
 
 /// Why the DDS transport could not start.
 #[derive(Debug, thiserror::Error)]
@@ -104,7 +106,7 @@ fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError
 
 impl NodeSink for DdsTransport {
     fn publish(&mut self, topic: Topic, v: &NodeView<'_>) -> Result<(), PublishError> {
-        use msg::TopicMessage as M;
+        use crate::io::sink::TopicMessage as M;
         let p = &self.publishers;
         match (topic, M::build(topic, v)?) {
             (_, Some(M::Clock(m))) => sent(p.clock.publish(m)),
@@ -188,8 +190,8 @@ impl DdsTransport {
             .new_node(NodeName::new(&params.namespace, &params.node_name).map_err(ros)?, NodeOptions::new())
             .map_err(ros)?;
         let private = params.private_namespace();
-        // every topic as the bags and the Python kit declare it (`record::topic_type`,
-        // `record::INPUT_TOPICS`): one table of names, types and QoS
+        // every topic as the bags and the Python kit declare it (`topics::topic_type`,
+        // `topics::INPUT_TOPICS`): one table of names, types and QoS
         let declare = |short: &str, type_name: &str, offered: TopicQos| {
             let (ns, name) = match short.strip_prefix("~/") {
                 Some(rest) => (private.as_str(), rest),
@@ -207,11 +209,11 @@ impl DdsTransport {
         };
         let mut outputs = Vec::new();
         for t in Topic::ALL {
-            if let Some((type_name, offered)) = record::topic_type(t) {
+            if let Some((type_name, offered)) = topics::topic_type(t) {
                 outputs.push((t, declare(t.name(), type_name, offered)?, offered));
             }
         }
-        let [(cmd_name, cmd_type, cmd_qos), (joint_name, joint_type, joint_qos)] = record::INPUT_TOPICS;
+        let [(cmd_name, cmd_type, cmd_qos), (joint_name, joint_type, joint_qos)] = topics::INPUT_TOPICS;
         let t_cmd = declare(cmd_name, cmd_type, cmd_qos)?;
         let t_joint_cmd = declare(joint_name, joint_type, joint_qos)?;
         macro_rules! publisher {
@@ -372,4 +374,35 @@ impl Transport for DdsTransport {
     fn answering(&self) -> bool {
         !self.tickets.is_empty()
     }
+}
+
+/// Waits until a participant of its own on `domain` has received the transient-local `~/structure`
+/// of the node with `params`: a controller started now finds the node. `Ok(false)` when `timeout`
+/// passed first; an error says which DDS step failed ("DDS readiness check (...): why").
+pub fn structure_received(domain: u16, params: &NodeParams, timeout: Duration) -> Result<bool, String> {
+    use ros2_client::{MessageTypeName, Name, NodeName, NodeOptions};
+    let fail = |what: &str, e: String| format!("DDS readiness check ({what}): {e}");
+    let ctx = context(domain, params.localhost_only).map_err(|e| fail("participant", e.to_string()))?;
+    let mut probe = ctx
+        .new_node(
+            NodeName::new("/", "tensegrity_kit_probe").map_err(|e| fail("name", format!("{e:?}")))?,
+            NodeOptions::new(),
+        )
+        .map_err(|e| fail("node", format!("{e:?}")))?;
+    let name = Name::new(&params.private_namespace(), "structure")
+        .map_err(|e| fail("topic name", format!("{e:?}")))?;
+    let topic = probe
+        .create_topic(&name, MessageTypeName::new("tensegrity_msgs", "Structure"), &qos(1, true))
+        .map_err(|e| fail("topic", format!("{e:?}")))?;
+    let reader = probe
+        .create_subscription::<msg::Structure>(&topic, None)
+        .map_err(|e| fail("subscription", format!("{e:?}")))?;
+    let start = std::time::Instant::now();
+    while start.elapsed() < timeout {
+        if let Ok(Some(_)) = reader.take() {
+            return Ok(true);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    Ok(false)
 }

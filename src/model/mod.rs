@@ -41,7 +41,7 @@ pub struct CableId(pub usize);
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct ActuatorId(pub usize);
 
-/// How a body is modelled (DESIGN.md 1.1): the cheapest model that captures what the scene needs.
+/// How a body is modelled (docs/architecture.md, "Bodies"): the cheapest model that captures what the scene needs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BodyKind {
     /// Point mass, translations only.
@@ -181,7 +181,7 @@ pub struct JointModel {
     pub row_offset: usize,
 }
 
-/// An actuator owns one cable and sets its rest length within limits (DESIGN.md 1.3).
+/// An actuator owns one cable and sets its rest length within limits (docs/architecture.md, "Actuation").
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ActuatorModel {
     /// The cable whose rest length this actuator sets.

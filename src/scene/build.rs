@@ -99,8 +99,58 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     if spec.bodies.is_empty() {
         return Err(cx.top("bodies", "a scene needs at least one body"));
     }
+    let Bodies { bodies, points, point_names, dof } = build_bodies(spec, &cx)?;
+    let rows = if spec.planar { 2 } else { 3 };
+    let joints = build_joints(spec, &cx, &bodies, &points, &point_names, rows)?;
+    let Cables { cables, cable_names, route_points, rest_specs, damping_ratios } =
+        build_cables(spec, &cx, &point_names)?;
+    let (actuators, actuator_names) = build_actuators(spec, &cx, &cable_names)?;
+    let solver = build_solver(spec, &cx)?;
+    let mut model = Model {
+        name: if spec.name.is_empty() { file.to_string() } else { spec.name.clone() },
+        bodies,
+        points,
+        cables,
+        cable_names,
+        route_points,
+        joints,
+        actuators,
+        actuator_names,
+        schedule: Schedule::default(),
+        gravity: Vector3::from(spec.gravity),
+        planar: spec.planar,
+        dof_count: dof,
+        constraint_count: spec.joints.len() * rows,
+        initial_rest_lengths: vec![1.0; spec.cables.len()],
+        solver,
+        physics_dt: match spec.physics_dt {
+            Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
+            None => None,
+        },
+        source: match text {
+            Some(t) => t.into(),
+            None => super::to_toml(spec).into(),
+        },
+    };
+    check_mass_on_free_coordinates(&model, &cx)?;
+    check_redundant_joints(&model, &cx)?;
 
-    // ---- bodies and points
+    set_rest_lengths(&mut model, &rest_specs, &damping_ratios, &cx)?;
+    model.schedule = build_schedule(spec, &model, &cx)?;
+    Ok(model)
+}
+
+/// The bodies and their points, in scene order (`build_bodies`).
+struct Bodies {
+    bodies: Vec<BodyModel>,
+    points: Vec<PointModel>,
+    point_names: BTreeMap<String, PointId>,
+    /// Coordinates of all bodies.
+    dof: usize,
+}
+
+/// Checks and builds `bodies` (names, poses, masses, inertias, points, coordinate bases).
+fn build_bodies(spec: &SceneSpec, cx: &Ctx) -> Result<Bodies, SceneError> {
     let mut bodies = Vec::new();
     let mut points: Vec<PointModel> = Vec::new();
     let mut point_names: BTreeMap<String, PointId> = BTreeMap::new();
@@ -305,6 +355,19 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         });
         dof += cols.len();
     }
+    Ok(Bodies { bodies, points, point_names, dof })
+}
+
+/// Checks and builds `joints` (points that coincide at the start, no repeated constraint);
+/// `rows` is 2 in planar scenes, else 3.
+fn build_joints(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    bodies: &[BodyModel],
+    points: &[PointModel],
+    point_names: &BTreeMap<String, PointId>,
+    rows: usize,
+) -> Result<Vec<JointModel>, SceneError> {
     let point_pos = |p: PointId| {
         let pm = &points[p.0];
         bodies[pm.body.0].initial_pose.transform_point(&pm.local)
@@ -313,8 +376,6 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let length_scale =
         points.iter().enumerate().map(|(i, _)| point_pos(PointId(i)).norm()).fold(1.0, f64::max);
 
-    // ---- joints
-    let rows = if spec.planar { 2 } else { 3 };
     let mut joints = Vec::new();
     let mut joint_keys: BTreeMap<(usize, usize), usize> = BTreeMap::new();
     for (i, j) in spec.joints.iter().enumerate() {
@@ -383,7 +444,27 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         joints.push(JointModel { point: a, target, row_offset: i * rows });
     }
 
-    // ---- cables
+    Ok(joints)
+}
+
+/// The cables, their routes, and what sets their rest lengths and damping (`build_cables`).
+struct Cables {
+    cables: Vec<CableModel>,
+    cable_names: Vec<String>,
+    route_points: Vec<PointId>,
+    rest_specs: Vec<RestLengthSpec>,
+    damping_ratios: Vec<Option<f64>>,
+}
+
+/// Checks and builds `cables` (names, routes through known points, EA, rest length or prestress
+/// or force density, damping or damping ratio).
+fn build_cables(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    point_names: &BTreeMap<String, PointId>,
+) -> Result<Cables, SceneError> {
+    let lookup = |name: &str| point_names.get(name).copied();
+
     let mut cables = Vec::new();
     let mut cable_names: Vec<String> = Vec::new();
     let mut route_points = Vec::new();
@@ -474,7 +555,16 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         cable_names.push(c.name.clone());
     }
 
-    // ---- actuators
+    Ok(Cables { cables, cable_names, route_points, rest_specs, damping_ratios })
+}
+
+/// Checks and builds `actuators` (one per cable, length and rate limits): the actuators and
+/// their names.
+fn build_actuators(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    cable_names: &[String],
+) -> Result<(Vec<ActuatorModel>, Vec<String>), SceneError> {
     let mut actuators = Vec::new();
     let mut actuator_names: Vec<String> = Vec::new();
     for (i, a) in spec.actuators.iter().enumerate() {
@@ -507,6 +597,11 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         actuator_names.push(a.name.clone());
     }
 
+    Ok((actuators, actuator_names))
+}
+
+/// The `[solver]` settings, checked.
+fn build_solver(spec: &SceneSpec, cx: &Ctx) -> Result<SolverSettings, SceneError> {
     let mut solver = SolverSettings::default();
     if let Some(s) = &spec.solver {
         if let Some(t) = s.tolerance {
@@ -526,38 +621,20 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         }
     }
 
-    let mut model = Model {
-        name: if spec.name.is_empty() { file.to_string() } else { spec.name.clone() },
-        bodies,
-        points,
-        cables,
-        cable_names,
-        route_points,
-        joints,
-        actuators,
-        actuator_names,
-        schedule: Schedule::default(),
-        gravity: Vector3::from(spec.gravity),
-        planar: spec.planar,
-        dof_count: dof,
-        constraint_count: spec.joints.len() * rows,
-        initial_rest_lengths: vec![1.0; spec.cables.len()],
-        solver,
-        physics_dt: match spec.physics_dt {
-            Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
-            None => None,
-        },
-        source: match text {
-            Some(t) => t.into(),
-            None => super::to_toml(spec).into(),
-        },
-    };
-    check_mass_on_free_coordinates(&model, &cx)?;
-    check_redundant_joints(&model, &cx)?;
+    Ok(solver)
+}
 
-    // ---- rest lengths (form finding where asked)
+/// Sets the initial rest lengths (form finding where a cable gives a prestress or a force
+/// density), the damping of cables given a damping ratio, and checks each actuator's cable
+/// starts within its limits.
+fn set_rest_lengths(
+    model: &mut Model,
+    rest_specs: &[RestLengthSpec],
+    damping_ratios: &[Option<f64>],
+    cx: &Ctx,
+) -> Result<(), SceneError> {
     model.initial_rest_lengths =
-        find_rest_lengths(&model, &rest_specs).map_err(|(cable, reason)| match cable {
+        find_rest_lengths(model, rest_specs).map_err(|(cable, reason)| match cable {
             Some(c) => cx.err("cables", c, "prestress", reason),
             None => cx.top("cables", reason),
         })?;
@@ -593,7 +670,12 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         }
     }
 
-    // ---- deployment schedule
+    Ok(())
+}
+
+/// The `[deployment]` schedule, checked against the actuators' limits (one load step when the
+/// scene has none).
+fn build_schedule(spec: &SceneSpec, model: &Model, cx: &Ctx) -> Result<Schedule, SceneError> {
     if let Some(d) = &spec.deployment {
         if d.steps == 0 || d.steps > limits::MAX_LOAD_STEPS {
             return Err(cx.top(
@@ -651,11 +733,10 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
             }
             prev = Some(*r);
         }
-        model.schedule = Schedule { ramps: ramps.into_iter().map(|(_, r)| r).collect(), steps: d.steps };
+        Ok(Schedule { ramps: ramps.into_iter().map(|(_, r)| r).collect(), steps: d.steps })
     } else {
-        model.schedule.steps = 1;
+        Ok(Schedule { steps: 1, ..Schedule::default() })
     }
-    Ok(model)
 }
 
 /// Every free coordinate must carry mass: the body mass matrix must be positive definite.

@@ -2,7 +2,7 @@
 //! writes as TOML): the regular n-strut prism, an N-stage tower of stacked prisms with clustered
 //! side cables, a planar clustered T-bar, and the elastic Atwood machine.
 //!
-//! Prism geometry (DESIGN.md 5): bottom node i at angle `2 pi i / n` and height 0, top node i at
+//! Prism geometry (docs/architecture.md, "What the tests stand on"): bottom node i at angle `2 pi i / n` and height 0, top node i at
 //! `2 pi i / n + alpha` and height `h`, twist `alpha = pi/2 + pi/n`; bars bottom i to top i, side
 //! strings bottom i to top i-1, rings. Its self-stress has force densities `q_bar = -q_side` and
 //! `q_ring = q_side / (2 sin(pi/n))`. Bars stand on pins (their bottom ends are pinned to the

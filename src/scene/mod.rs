@@ -320,6 +320,41 @@ pub struct SolverSpec {
     pub max_iterations: Option<usize>,
 }
 
+/// The scenes bundled with the crate (the files of `config/scenes/`, compiled into the library):
+/// name (the file name without `.toml`) and TOML text.
+pub const BUNDLED: &[(&str, &str)] = &[
+    ("atwood", include_str!("../../config/scenes/atwood.toml")),
+    ("prism3", include_str!("../../config/scenes/prism3.toml")),
+    ("tbar", include_str!("../../config/scenes/tbar.toml")),
+    ("tower", include_str!("../../config/scenes/tower.toml")),
+];
+
+/// The TOML text of the bundled scene `name` (`prism3` or `prism3.toml`), if there is one.
+pub fn bundled_text(name: &str) -> Option<&'static str> {
+    let name = name.strip_suffix(".toml").unwrap_or(name);
+    BUNDLED.iter().find(|(n, _)| *n == name).map(|(_, text)| *text)
+}
+
+/// The bundled scene `name` (`prism3` or `prism3.toml`; see `BUNDLED`), read and validated as
+/// `config/scenes/NAME.toml` (the label its errors and run records name); an unknown name is an
+/// error that lists the bundled ones.
+pub fn bundled(name: &str) -> Result<Model, SceneError> {
+    let stem = name.strip_suffix(".toml").unwrap_or(name);
+    let label = format!("config/scenes/{stem}.toml");
+    match bundled_text(stem) {
+        Some(text) => from_toml(text, &label),
+        None => Err(SceneError {
+            file: label,
+            line: None,
+            field: String::new(),
+            reason: format!(
+                "no bundled scene '{stem}' (bundled: {})",
+                BUNDLED.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
+            ),
+        }),
+    }
+}
+
 /// Reads and validates a scene file.
 pub fn load(path: &Path) -> Result<Model, SceneError> {
     let file = path.display().to_string();

@@ -1,7 +1,7 @@
 //! The scene-file field reference: takes nothing, gives every field of every table with its
 //! format, unit, default and allowed range (ranges from `limits`, so they cannot drift from what
-//! validation enforces), and the Markdown table that the README carries and `tensegrity fields`
-//! prints. `tests/readme.rs` checks that the README holds exactly this table and that its field
+//! validation enforces), and the Markdown table that docs/scene-format.md carries and `tensegrity fields`
+//! prints. `tests/readme.rs` checks that docs/scene-format.md holds exactly this table and that its field
 //! names are exactly the ones the scene parser accepts.
 
 use super::limits;
@@ -201,7 +201,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     ]
 }
 
-/// The reference as a Markdown table (the README's, verbatim).
+/// The reference as a Markdown table (docs/scene-format.md's, verbatim).
 pub fn markdown() -> String {
     let mut out = String::from("| table | field | format | unit | default | range and meaning |\n");
     out.push_str("| --- | --- | --- | --- | --- | --- |\n");

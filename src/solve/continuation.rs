@@ -37,7 +37,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::forces::{evaluate, Tangents, Workspace};
+use crate::evaluate::{evaluate, Tangents, Workspace};
 use crate::model::Model;
 use crate::solve::statics::{load_rate, residual_of, rigid_body_motions, EquilibriumReport, StaticSolver};
 use crate::state::{retract, State};

@@ -33,8 +33,8 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use crate::evaluate::{evaluate_forces, Workspace};
 use crate::forces::cable::{length_gradient_entries, route_geometry, tension, CableScratch};
-use crate::forces::{evaluate_forces, Workspace};
 use crate::model::{CableId, Model};
 use crate::solve::linear::{SparseLdlt, ThinSvd};
 use crate::state::State;

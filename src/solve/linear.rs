@@ -31,7 +31,7 @@
 //!
 //! # Choice of factorization
 //! `LinearBackend::Auto` uses the dense LU below `SPARSE_MIN_SIZE` unknowns and the sparse
-//! backend above; `tensegrity bench scaling` (README) measured the crossover between about 100
+//! backend above; `tensegrity bench scaling` (docs/benchmarks.md) measured the crossover between about 100
 //! and 200 unknowns on the 2-core development machine.
 //!
 //! The sparse backend factors the **symmetric part** `(A + A^T) / 2` of the Newton matrix by a
@@ -69,8 +69,8 @@ use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
 use nalgebra::{DMatrix, DVector, Matrix6, Vector6};
 
+use crate::assembly::TangentSink;
 use crate::constraints::joint_points;
-use crate::forces::TangentSink;
 use crate::kinematics::{PointJacobian, PointKinematics};
 use crate::model::{BodyId, CableId, Model, PointId};
 

@@ -3,6 +3,7 @@
 //! their linear algebra.
 
 pub mod continuation;
+pub mod deploy;
 pub mod dynamics;
 pub mod formfind;
 pub mod linear;

@@ -7,11 +7,10 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
-use tensegrity::io::bag::BagReader;
 use tensegrity::io::msg::AppliedCommands;
+use tensegrity::io::record::bag::BagReader;
 
-#[path = "python.rs"]
-mod python;
+use super::python;
 
 /// The bag as the Python `rosbags` reader sees it (`tests/interop/read_bag.py`), or `None` (and
 /// a SKIPPED note) when no Python with `rosbags` is around and none was named.

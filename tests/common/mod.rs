@@ -1,12 +1,46 @@
-//! Shared helpers for the integration tests: scene construction from specs and TOML (and a knot
-//! between two cables), finite differences along the group retraction, scratch directories.
+//! Shared helpers for the integration tests: bundled scenes, scene construction from specs and
+//! TOML (and a knot between two cables), finite differences along the group retraction, scratch
+//! directories; and, in submodules, what the node and recording tests share (bags, the network
+//! namespace, DDS peers and their roles, a running node, the Python interpreter).
 #![allow(dead_code)]
 
+pub mod bags;
+pub mod netns;
+#[cfg(feature = "ros2")]
+pub mod peer;
+pub mod python;
+#[cfg(feature = "ros2")]
+pub mod roles;
+pub mod running_node;
+
 use nalgebra::{DMatrix, DVector};
-use tensegrity::forces::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::model::Model;
 use tensegrity::scene::{build_model, SceneSpec};
 use tensegrity::state::{retract, State};
+
+/// The bundled scene `name` (`prism3` or `prism3.toml`: `tensegrity::scene::bundled`), panicking
+/// with the scene error.
+pub fn bundled(name: &str) -> Model {
+    tensegrity::scene::bundled(name).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The user's documentation as one text: README.md, then every page of docs/ (in name order).
+pub fn user_docs() -> String {
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let mut pages: Vec<_> = std::fs::read_dir(root.join("docs"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "md"))
+        .collect();
+    pages.sort();
+    let mut text = std::fs::read_to_string(root.join("README.md")).unwrap();
+    for page in pages {
+        text += "\n";
+        text += &std::fs::read_to_string(page).unwrap();
+    }
+    text
+}
 
 /// Builds a model from a spec, panicking with the scene error.
 pub fn model_of(spec: &SceneSpec) -> Model {

@@ -1,8 +1,8 @@
 //! A `SimNode` running its real-time loop on a background thread, for DDS tests and benches: the
 //! test kit's simulator (`tensegrity::testing`) started from parameters given field by field.
 
-use tensegrity::io::node::NodeStats;
-use tensegrity::io::params::{NodeParams, TransportKind};
+use tensegrity::io::node::params::{NodeParams, TransportKind};
+use tensegrity::io::sink::NodeStats;
 use tensegrity::testing::{SimBuilder, SimUnderTest};
 
 /// The kit's handle; stops on `stop` or drop.

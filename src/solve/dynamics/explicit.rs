@@ -36,7 +36,7 @@
 use nalgebra::{DVector, Quaternion, UnitQuaternion, Vector3, Vector4};
 
 use super::{add_gyroscopic, assemble_mass_and_joints, Dynamics};
-use crate::forces::evaluate_forces;
+use crate::evaluate::evaluate_forces;
 use crate::model::{Model, Pose};
 use crate::solve::linear::LinearBackend;
 use crate::state::State;

@@ -330,7 +330,7 @@ impl NodeParams {
                 } else if v.len() > 200 || !v.chars().all(ok) || v.starts_with('/') || v.ends_with('/') {
                     return Err(err(format!(
                         "parameter shm_prefix: '{}' must be 1 to 200 letters, digits, '_', '-' and inner '/'",
-                        crate::io::msg::excerpt(&v, 60)
+                        crate::io::commands::excerpt(&v, 60)
                     )));
                 } else {
                     self.shm_prefix_override = Some(v);

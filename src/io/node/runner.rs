@@ -19,7 +19,9 @@ use std::time::{Duration, Instant};
 
 use crate::control::ActuatorCommand;
 use crate::io::msg::SimResult;
-use crate::io::node::{NodeCore, NodeSink, NodeStats, NodeView, PublishError, Topic};
+use crate::io::node::NodeCore;
+use crate::io::sink::{NodeSink, NodeStats, NodeView, PublishError};
+use crate::io::topics::Topic;
 use crate::model::ActuatorId;
 use crate::sim::Simulator;
 

@@ -12,7 +12,7 @@
 //!   and a second request while one is under way is refused. Unpause, reset, quit and shutdown
 //!   answer a pending request with a failure that says why.
 //! - **Commands**: every message is checked (sizes first, then names, duplicates, values; see
-//!   `msg::check_command`) and counted (`received = accepted + rejected`); accepted entries are
+//!   `commands::check_command`) and counted (`received = accepted + rejected`); accepted entries are
 //!   kept per actuator, the newest wins, and applied together at the next step boundary.
 //!   Rejections are reported in `/diagnostics` at most `MAX_REJECTION_REPORTS_PER_SECOND` times a
 //!   second, with the count since the last report and a short excerpt of the latest reason.
@@ -25,21 +25,23 @@
 //! The core never reads a clock or sleeps: `tick(now)` takes the time since any fixed epoch and
 //! returns when it wants to be called again, so tests drive it with a fake clock.
 
+pub mod params;
+pub mod runner;
+
 use std::time::Duration;
 
 use crate::control::ActuatorCommand;
-use crate::forces::Workspace;
-use crate::io::msg::{self, DiagnosticStatus, KeyValue, SimResult};
-use crate::io::params::NodeParams;
+use crate::evaluate::Workspace;
+use crate::io::commands::{self, MessageError, MAX_COMMANDS_PER_STEP};
+use crate::io::msg::{self, result_code, sim_state, DiagnosticStatus, KeyValue, SimResult};
+use crate::io::node::params::NodeParams;
+use crate::io::sink::{ConstantsId, NodeSink, NodeStats, NodeView};
+use crate::io::topics::Topic;
 use crate::model::{ActuatorId, Model};
 use crate::report;
 use crate::sim::{SimSettings, Simulator, StepError, StepStats};
 use crate::solve::dynamics::Integrator;
-use crate::state::State;
 
-/// Most command messages the transports hand to the core per step (`tick`); the rest wait in the
-/// transport's own queue (keep-last QoS there), so a flood costs each step a bounded amount.
-pub const MAX_COMMANDS_PER_STEP: usize = 64;
 /// Most rejection reports in `/diagnostics` per second of wall time.
 pub const MAX_REJECTION_REPORTS_PER_SECOND: u32 = 10;
 /// Interval of the periodic `/diagnostics` status and of transport-failure reports.
@@ -48,211 +50,6 @@ pub const DIAGNOSTICS_PERIOD: Duration = Duration::from_secs(1);
 /// it publishes the periodic status. Inputs that arrive meanwhile are taken by the transports,
 /// and a runner turns the core at once when they give it work (`NodeCore::idle_turn_due`).
 pub const IDLE_PERIOD: Duration = DIAGNOSTICS_PERIOD;
-
-/// `simulation_interfaces/msg/SimulationState` codes.
-pub mod sim_state {
-    /// Stopped (reset and paused).
-    pub const STOPPED: u8 = 0;
-    /// Playing.
-    pub const PLAYING: u8 = 1;
-    /// Paused.
-    pub const PAUSED: u8 = 2;
-    /// Quitting.
-    pub const QUITTING: u8 = 3;
-}
-
-/// `simulation_interfaces/msg/Result` codes.
-pub mod result_code {
-    /// Success.
-    pub const OK: u8 = 1;
-    /// The request is not valid in the current state.
-    pub const INCORRECT_STATE: u8 = 3;
-    /// The operation failed.
-    pub const OPERATION_FAILED: u8 = 4;
-    /// Already in the requested state.
-    pub const ALREADY_IN_TARGET_STATE: u8 = 101;
-}
-
-/// Every topic the node publishes, for per-topic failure counts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Topic {
-    /// `/clock`.
-    Clock,
-    /// `/tf`.
-    Tf,
-    /// `/tf_static`.
-    TfStatic,
-    /// `~/body_poses`.
-    BodyPoses,
-    /// `~/cable_states`.
-    CableStates,
-    /// `~/actuator_states`.
-    ActuatorStates,
-    /// `~/structure`.
-    Structure,
-    /// `/diagnostics`.
-    Diagnostics,
-    /// `~/markers`.
-    Markers,
-    /// The whole state in one sample (body poses, cables, actuators, time and step index), for
-    /// transports that carry it so (shared memory); published with the other state topics.
-    State,
-}
-
-impl Topic {
-    /// Every topic, in the order of `NodeStats::publish_failures`.
-    pub const ALL: [Topic; 10] = [
-        Topic::Clock,
-        Topic::Tf,
-        Topic::TfStatic,
-        Topic::BodyPoses,
-        Topic::CableStates,
-        Topic::ActuatorStates,
-        Topic::Structure,
-        Topic::Diagnostics,
-        Topic::Markers,
-        Topic::State,
-    ];
-    /// The topic's name (`~/` is the node's private namespace).
-    pub fn name(self) -> &'static str {
-        match self {
-            Topic::Clock => "/clock",
-            Topic::Tf => "/tf",
-            Topic::TfStatic => "/tf_static",
-            Topic::BodyPoses => "~/body_poses",
-            Topic::CableStates => "~/cable_states",
-            Topic::ActuatorStates => "~/actuator_states",
-            Topic::Structure => "~/structure",
-            Topic::Diagnostics => "/diagnostics",
-            Topic::Markers => "~/markers",
-            Topic::State => "~/state",
-        }
-    }
-    /// The topic's position in `Topic::ALL` (and in `NodeStats::publish_failures`).
-    pub fn index(self) -> usize {
-        Topic::ALL.iter().position(|t| *t == self).unwrap_or(0)
-    }
-    /// The topics of one state, in publish order: the whole-state sample first (a shared-memory
-    /// sample takes microseconds, so it does not wait for the DDS messages' serialization).
-    pub const STATE: [Topic; 5] =
-        [Topic::State, Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates];
-}
-
-/// Why a sink could not publish. Never fatal: counted per topic and reported.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum PublishError {
-    /// The writer's queue is full (a reliable reader is not keeping up).
-    #[error("writer full (a reliable reader is not keeping up)")]
-    WouldBlock,
-    /// Any other failure, with the transport's words.
-    #[error("{0}")]
-    Failed(String),
-}
-
-/// What a sink may read when it publishes: the model, the evaluated state, and the node's derived
-/// outputs. Every number in it is finite when the core hands it over.
-pub struct NodeView<'a> {
-    /// The model.
-    pub model: &'a Model,
-    /// The current state.
-    pub state: &'a State,
-    /// The workspace evaluated at `state` (tensions, lengths, points).
-    pub workspace: &'a Workspace,
-    /// Each cable's rest-length rate over the last step, m/s.
-    pub rates: &'a [f64],
-    /// Pulley coordinates at the start, for pulley slips.
-    pub reference: &'a [Vec<f64>],
-    /// Fixed frame of poses and transforms.
-    pub frame_id: &'a str,
-    /// Node name (for diagnostics' names and hardware ids).
-    pub node_name: &'a str,
-    /// Names this view's `reference`, `frame_id` and `node_name`: views with the same id carry
-    /// equal ones, so a sink that keeps them (a recorder's batch) compares the id, not the values.
-    pub constants: ConstantsId,
-    /// The statuses to publish on `/diagnostics` (when the topic is `Diagnostics`).
-    pub diagnostics: &'a [DiagnosticStatus],
-    /// Steps taken since the start or the last reset (the state is the one after this many).
-    pub step: u64,
-    /// `sim_state` code: PLAYING or PAUSED (also while faulted).
-    pub simulation_state: u8,
-    /// True while a physics failure holds the simulation paused (until reset).
-    pub faulted: bool,
-    /// The node's counters.
-    pub stats: NodeStats,
-    /// The node's step (one `tick`), s.
-    pub dt: f64,
-}
-
-/// Names one set of a view's constants (`NodeView::reference`, `frame_id`, `node_name`).
-///
-/// Whoever builds views takes a `fresh` id for each set and keeps it while the set is unchanged
-/// (a `NodeCore` takes one when built: its constants never change). Two sets with different ids
-/// may still be equal: a sink comparing ids only ever sees "different" too often, never too
-/// rarely.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct ConstantsId(u64);
-
-impl ConstantsId {
-    /// An id no other call in this process returned.
-    pub fn fresh() -> Self {
-        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-        Self(NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed))
-    }
-}
-
-/// A transport's outgoing side, as the core sees it.
-pub trait NodeSink {
-    /// Publishes `topic` from `view`.
-    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError>;
-    /// Answers the deferred StepSimulation request `ticket` (see `NodeCore::request_steps`);
-    /// `view` is the state it ends at (a lockstep transport sends it back with the answer). A sink
-    /// ignores tickets it did not issue.
-    fn step_request_done(&mut self, ticket: u64, result: SimResult, view: &NodeView<'_>);
-    /// The commands applied at the boundary before step `step` (sim time `time`), in the order
-    /// they were applied. For recorders; default: nothing.
-    fn commands_applied(&mut self, _time: f64, _step: u64, _commands: &[(ActuatorId, ActuatorCommand)]) {}
-    /// The simulation was just reset to its initial state (sim time `time`) after `step` steps
-    /// since the start; the reset state is published next. For recorders; default: nothing.
-    fn simulation_reset(&mut self, _time: f64, _step: u64) {}
-}
-
-/// Counters reported in `/diagnostics`.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct NodeStats {
-    /// Physics steps taken.
-    pub steps: u64,
-    /// Steps that ended later than real-time pacing allowed.
-    pub overruns: u64,
-    /// Command messages received (`= commands_accepted + commands_rejected`).
-    pub commands_received: u64,
-    /// Command messages accepted (entries of a later accepted message for the same actuator
-    /// before the next step replace them).
-    pub commands_accepted: u64,
-    /// Command messages rejected (too large, non-finite, out of range, unknown or repeated name,
-    /// wrong length, empty).
-    pub commands_rejected: u64,
-    /// Newton iterations of the last step.
-    pub last_newton_iterations: usize,
-    /// Rejected step attempts so far.
-    pub rejected_attempts: usize,
-    /// Times the command timeout fired.
-    pub command_timeouts: u64,
-    /// Failed publishes per topic, in `Topic::ALL` order.
-    pub publish_failures: [u64; 10],
-    /// Incoming samples a transport could not read (malformed, wrong layout).
-    pub malformed_incoming: u64,
-    /// StepSimulation requests refused or interrupted.
-    pub step_requests_failed: u64,
-    /// Physics failures (each paused the simulation).
-    pub physics_failures: u64,
-}
-
-impl NodeStats {
-    /// Failed publishes on `topic`.
-    pub fn publish_failures_on(&self, topic: Topic) -> u64 {
-        self.publish_failures[topic.index()]
-    }
-}
 
 /// A StepSimulation request under way.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -475,7 +272,7 @@ impl NodeCore {
 
     // ----- inputs -------------------------------------------------------------------------------
 
-    /// Takes one `ActuatorCommand` message (see `msg::check_command`): counts it, and either keeps
+    /// Takes one `ActuatorCommand` message (see `commands::check_command`): counts it, and either keeps
     /// its entries for the next step boundary or rejects it whole.
     pub fn offer_command(&mut self, m: &msg::ActuatorCommand) {
         self.offer_arrays(&m.header.frame_id, &m.name, &m.rest_length, &m.rate);
@@ -489,18 +286,18 @@ impl NodeCore {
 
     fn offer_arrays(&mut self, frame: &str, names: &[String], rest: &[f64], rate: &[f64]) {
         // counted and reported inside; the DDS paths have no one to tell
-        let _ = self.offer_parsed(|model, out| msg::check_command(model, frame, names, rest, rate, out));
+        let _ = self.offer_parsed(|model, out| commands::check_command(model, frame, names, rest, rate, out));
     }
 
     /// Takes one command message from a transport that reads its own wire format: `parse` fills
     /// `out` (empty on entry) with the message's checked entries (resolving actuators and then
-    /// `msg::check_entry` for each, so every transport judges a command the same way) or says why
+    /// `commands::check_entry` for each, so every transport judges a command the same way) or says why
     /// the whole message is refused. Counted and reported like `offer_command`; accepted entries
     /// apply at the next step boundary. Returns the refusal, for transports that answer it.
     pub fn offer_parsed(
         &mut self,
-        parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), msg::MessageError>,
-    ) -> Result<(), msg::MessageError> {
+        parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), MessageError>,
+    ) -> Result<(), MessageError> {
         self.stats.commands_received += 1;
         self.commands_this_step += 1;
         self.checked.clear();
@@ -515,7 +312,7 @@ impl NodeCore {
             Err(e) => {
                 self.stats.commands_rejected += 1;
                 self.rejections_unreported += 1;
-                self.latest_rejection = msg::excerpt(&e.to_string(), 2 * msg::EXCERPT_CHARS);
+                self.latest_rejection = commands::excerpt(&e.to_string(), 2 * commands::EXCERPT_CHARS);
             }
         }
         self.checked.clear();

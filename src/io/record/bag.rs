@@ -33,6 +33,7 @@ use byteorder::LittleEndian;
 use serde::Serialize;
 
 use crate::io::schemas;
+use crate::io::topics::TopicQos;
 
 /// The CDR encapsulation header of a little-endian message (`CDR_LE`, options 0).
 pub const CDR_LE_HEADER: [u8; 4] = [0, 1, 0, 0];
@@ -75,32 +76,6 @@ pub enum BagError {
 
 fn io_err(path: &Path, e: impl std::fmt::Display) -> BagError {
     BagError::Io { path: path.to_path_buf(), reason: e.to_string() }
-}
-
-/// QoS a topic is offered with (what `ros2 bag play` offers again): reliable, keep last `depth`,
-/// volatile or transient local.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct TopicQos {
-    /// History depth.
-    pub depth: u32,
-    /// Transient local (late joiners get the last samples) instead of volatile.
-    pub transient_local: bool,
-}
-
-impl TopicQos {
-    /// The `offered_qos_profiles` text of rosbag2 (a YAML list of one profile; infinite
-    /// durations as rmw writes them). The same text goes into the channel and `metadata.yaml`:
-    /// the Python `rosbags` reader yields nothing for a topic whose two texts differ.
-    pub fn profiles_yaml(&self) -> String {
-        let infinite = "\n    sec: 9223372036\n    nsec: 854775807";
-        format!(
-            "- history: 1\n  depth: {}\n  reliability: 1\n  durability: {}\n  deadline:{infinite}\n  \
-             lifespan:{infinite}\n  liveliness: 1\n  liveliness_lease_duration:{infinite}\n  \
-             avoid_ros_namespace_conventions: false",
-            self.depth,
-            if self.transient_local { 1 } else { 2 }
-        )
-    }
 }
 
 /// One topic of a bag.

@@ -1,0 +1,214 @@
+//! `tensegrity bench steps|machine|scaling|work-precision`: step times, whether this machine
+//! keeps a real-time node on time, step time against size, and error against wall time.
+
+use std::path::{Path, PathBuf};
+
+use tensegrity::sim::SimSettings;
+use tensegrity::solve::dynamics::Integrator;
+use tensegrity::study;
+
+use crate::output::*;
+
+use clap::Subcommand;
+
+#[derive(Subcommand)]
+pub enum BenchKind {
+    /// Wall time per step of one scene: median, mean and largest over the timed steps, Newton
+    /// iterations and factorizations per step (what a controller waits for).
+    Steps {
+        /// Scene file (TOML), or a generated tower `tower:FAMILY:STAGES` with FAMILY one of
+        /// classical, per-stage, helical.
+        target: String,
+        /// Integrator.
+        #[arg(long, default_value = "generalized-alpha")]
+        integrator: IntegratorName,
+        /// Physics step, s.
+        #[arg(long, default_value_t = 1e-3)]
+        dt: f64,
+        /// Steps timed (after 10 untimed ones).
+        #[arg(long, default_value_t = 5000)]
+        steps: usize,
+    },
+    /// Whether this machine can keep a real-time node on time: how late a loop sleeping to
+    /// each period's deadline wakes (the node's loop without its step) and how long a thread
+    /// that never sleeps is kept off its core. Run it where the node runs (e.g. under the same
+    /// `taskset` and `chrt`).
+    Machine {
+        /// Period, s (the node's physics_dt over its real-time factor).
+        #[arg(long, default_value_t = 1e-3)]
+        period: f64,
+        /// Seconds for each of the two measurements.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+    },
+    /// Step time against structure size (towers of stacked prisms), dense vs sparse LU.
+    Scaling {
+        /// Tower stages to run.
+        #[arg(long, value_delimiter = ',', default_value = "1,2,3,4,6,8,12,16")]
+        stages: Vec<usize>,
+        /// Steps timed per run.
+        #[arg(long, default_value_t = 200)]
+        steps: usize,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// One deployment over integrators and step sizes: error against a converged reference vs
+    /// wall time (table and plot).
+    WorkPrecision {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Step of the reference run (dormand-prince, fixed), s.
+        #[arg(long, default_value_t = 1e-5)]
+        reference_dt: f64,
+        /// Timed repeats per run (the median is reported).
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+        /// Simulated time, s (default: the schedule's end + 0.5 s).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Sample interval of the error, s (also the output interval of error-controlled runs).
+        #[arg(long, default_value_t = 0.01)]
+        sample: f64,
+        /// Threads for the error runs (default: one per core); the timed runs go one at a time.
+        #[arg(long, default_value_t = 0)]
+        jobs: usize,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// Runs one benchmark.
+pub fn run(kind: BenchKind) -> Result<(), String> {
+    match kind {
+        BenchKind::Steps { target, integrator, dt, steps } => steps_bench(&target, integrator, dt, steps),
+        BenchKind::Machine { period, seconds } => machine(period, seconds),
+        BenchKind::Scaling { stages, steps, out } => scaling(&stages, steps, &out),
+        BenchKind::WorkPrecision { scene, reference_dt, repeats, duration, sample, jobs, out } => {
+            work_precision(&scene, reference_dt, repeats, duration, sample, jobs, &out)
+        }
+    }
+}
+
+/// `bench steps`.
+fn steps_bench(target: &str, integrator: IntegratorName, dt: f64, steps: usize) -> Result<(), String> {
+    let model = match target.strip_prefix("tower:") {
+        Some(rest) => {
+            let (family, stages) = rest.split_once(':').ok_or("expected tower:FAMILY:STAGES")?;
+            let family = match family {
+                "classical" => study::TowerFamily::Classical,
+                "per-stage" => study::TowerFamily::PerStage,
+                "helical" => study::TowerFamily::Helical,
+                f => return Err(format!("unknown tower family {f:?} (classical, per-stage, helical)")),
+            };
+            let stages: usize =
+                stages.parse().ok().filter(|s| (1..=256).contains(s)).ok_or("stages must be in [1, 256]")?;
+            family.model(stages)?
+        }
+        None => load(Path::new(&target))?,
+    };
+    if !(dt.is_finite() && dt > 0.0) || steps == 0 {
+        return Err("--dt must be positive and --steps >= 1".into());
+    }
+    let integrator = integrator.integrator(0.8);
+    let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;
+    say!(
+        "{}: {} dt {dt} s, {} unknowns ({}): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
+        model.name,
+        integrator.name(),
+        t.unknowns,
+        match (t.backend, t.factor_entries) {
+            (tensegrity::solve::linear::LinearBackend::Dense, _) => "dense LU".to_string(),
+            (_, Some(l)) => format!("sparse, {} nonzeros, LDL^T factor {l} entries", t.nonzeros),
+            (_, None) => format!("sparse LU, {} nonzeros", t.nonzeros),
+        },
+        1e6 * t.median,
+        1e6 * t.mean,
+        1e6 * t.max,
+        t.newton_per_step,
+        t.factorizations_per_step
+    );
+    Ok(())
+}
+
+/// `bench machine`.
+fn machine(period: f64, seconds: f64) -> Result<(), String> {
+    // a NaN fails both range checks
+    if !(1e-6..=1.0).contains(&period) {
+        return Err(format!("--period must be in [1e-6, 1] s, got {period}"));
+    }
+    if !(seconds > 0.0 && seconds <= 3600.0) {
+        return Err(format!("--seconds must be in (0, 3600], got {seconds}"));
+    }
+    if seconds < period {
+        return Err(format!("--seconds ({seconds}) must cover at least one --period ({period} s)"));
+    }
+    let (period, duration) =
+        (std::time::Duration::from_secs_f64(period), std::time::Duration::from_secs_f64(seconds));
+    let us = |s: f64| 1e6 * s;
+    let timer = tensegrity::machine::timer_lateness(period, duration);
+    say!(
+        "sleeping to deadlines {:.0} us apart for {seconds} s: {} wake-ups, late by p50 {:.1} us, p99 {:.1} us, max {:.1} us; {} later than a period (a node would count each as an overrun)",
+        us(period.as_secs_f64()),
+        timer.wakeups,
+        us(timer.lateness.p50),
+        us(timer.lateness.p99),
+        us(timer.lateness.max),
+        timer.later_than_period
+    );
+    let stalls = tensegrity::machine::run_stalls(period, duration);
+    say!(
+        "never sleeping for {seconds} s: kept off the core {} times for more than {:.0} us, {} times for more than a period; longest {:.1} us",
+        stalls.over_threshold,
+        us(tensegrity::machine::RunStalls::THRESHOLD.as_secs_f64()),
+        stalls.over_period,
+        us(stalls.longest)
+    );
+    Ok(())
+}
+
+/// `bench scaling`.
+fn scaling(stages: &[usize], steps: usize, out: &Path) -> Result<(), String> {
+    if stages.contains(&0) || steps == 0 {
+        return Err("stages and steps must be >= 1".into());
+    }
+    study::scaling(stages, steps, out)?;
+    emit(&std::fs::read_to_string(out.join("scaling.md")).map_err(|e| e.to_string())?);
+    say!("written to {}", out.display());
+    Ok(())
+}
+
+/// `bench work-precision`.
+fn work_precision(
+    scene: &Path,
+    reference_dt: f64,
+    repeats: usize,
+    duration: Option<f64>,
+    sample: f64,
+    jobs: usize,
+    out: &Path,
+) -> Result<(), String> {
+    let model = load(scene)?;
+    let duration = duration.unwrap_or(model.schedule.end_time() + 0.5);
+    let steps = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4];
+    let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };
+    let fixed = |i: Integrator, dts: &[f64]| {
+        dts.iter().map(move |&dt| study::RunConfig::fixed(i, dt)).collect::<Vec<_>>()
+    };
+    let mut configs = fixed(ga, &steps);
+    configs.extend(fixed(Integrator::GeneralizedAlpha { rho_inf: 0.0 }, &steps));
+    configs.extend(fixed(Integrator::SymplecticEuler, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]));
+    configs.extend(fixed(Integrator::Rk4, &[1e-2, 5e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
+    configs.extend(fixed(Integrator::DormandPrince, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
+    configs.extend(
+        [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
+            .map(|t| study::RunConfig::controlled(Integrator::DormandPrince, t)),
+    );
+    configs.extend([1e-3, 1e-4, 1e-5, 1e-6].map(|t| study::RunConfig::controlled(ga, t)));
+    let settings = study::WorkPrecisionSettings { reference_dt, duration, sample, repeats, jobs };
+    let rows = study::work_precision(&model, &configs, settings, out)?;
+    emit(&std::fs::read_to_string(out.join("work_precision.md")).map_err(|e| e.to_string())?);
+    say!("{} runs written to {}", rows.len(), out.display());
+    Ok(())
+}

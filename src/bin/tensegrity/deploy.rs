@@ -1,0 +1,208 @@
+//! `tensegrity deploy SCENE`: follows the scene's deployment schedule as a path of equilibria
+//! (`--quasi-static`) or a time history (`--dynamic`, the node's core driven offline by
+//! `io::record::offline`), to a CSV and optionally a bag.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use tensegrity::evaluate::Workspace;
+use tensegrity::io::node::params::NodeParams;
+use tensegrity::io::record;
+use tensegrity::report;
+use tensegrity::sim::SimSettings;
+use tensegrity::solve::deploy::deploy_quasi_static;
+use tensegrity::study;
+use tensegrity::{Model, State};
+
+use crate::output::*;
+
+/// The options of `deploy` (see `Command::Deploy`).
+pub struct DeployArgs {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// `--dynamic` (else quasi-static).
+    pub dynamic: bool,
+    /// `--steps`.
+    pub steps: Option<usize>,
+    /// The integrator options.
+    pub dynamics: DynamicArgs,
+    /// `--duration`.
+    pub duration: Option<f64>,
+    /// `--out`.
+    pub out: Option<PathBuf>,
+    /// `--record`.
+    pub record: Option<PathBuf>,
+}
+
+/// Runs `deploy`.
+pub fn run(args: DeployArgs) -> Result<(), String> {
+    let DeployArgs { scene, dynamic, steps, dynamics, duration, out, record: bag_dir } = args;
+    let mut model = load(&scene)?;
+    let out = out.unwrap_or_default();
+    if dynamic {
+        return deploy_dynamic(
+            &model,
+            &scene,
+            dynamics.settings(&model)?,
+            duration,
+            &out,
+            bag_dir.as_deref(),
+        );
+    }
+    if let Some(note) = report::unheld_bodies_note(&model) {
+        return Err(format!("{}: {note}", scene.display()));
+    }
+    if let Some(n) = steps {
+        let max = tensegrity::scene::limits::MAX_LOAD_STEPS;
+        if n == 0 || n > max {
+            return Err(format!("--steps must be in [1, {max}], got {n}"));
+        }
+        model.schedule.steps = n;
+    }
+    let mut file = csv_output(&out)?;
+    writeln!(file, "{}", report::path_csv_header(&model)).map_err(|e| e.to_string())?;
+    let bar = progress(model.schedule.steps as u64 + 1, "steps");
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let mut io_error = None;
+    let params = NodeParams::default();
+    let mut recorder = match &bag_dir {
+        Some(dir) => Some(
+            record::offline::quasi_static_recorder(
+                dir,
+                &model,
+                &scene.display().to_string(),
+                model.schedule.steps,
+            )
+            .map_err(|e| e.to_string())?,
+        ),
+        None => None,
+    };
+    let mut publisher: Option<record::PathPublisher> = None;
+    let path = deploy_quasi_static(&model, &mut state, &mut ws, |step, st, w| {
+        let row = report::path_csv_row(&model, st, w, step);
+        if let Err(e) = writeln!(file, "{row}") {
+            io_error.get_or_insert(e);
+        }
+        if let Some(r) = recorder.as_mut() {
+            publisher
+                .get_or_insert_with(|| record::PathPublisher::new(&model, st, w, &params))
+                .row(r, &model, st, w);
+        }
+        bar.inc(1);
+    })
+    .map_err(|e| format!("{}: {e}", scene.display()))?;
+    bar.finish_and_clear();
+    if let Some(e) = io_error {
+        return Err(write_error(&out, e));
+    }
+    file.flush().map_err(|e| e.to_string())?;
+    if let Some(r) = recorder {
+        let dir = r.dir().to_path_buf();
+        let summary = r.finish().map_err(|e| e.to_string())?;
+        say_closing(
+            &out,
+            format!(
+                "bag {}: {} messages, {} bytes",
+                dir.display(),
+                summary.counts.iter().sum::<u64>(),
+                summary.file_bytes
+            ),
+        );
+    }
+    let outputs: Vec<_> = path.output_steps().collect();
+    let unstable = outputs.iter().filter(|p| !p.report.stable).count();
+    let worst = path.steps.iter().map(|p| p.report.residual / p.report.force_scale).fold(0.0, f64::max);
+    let traced = path.steps.len() - outputs.len();
+    say_closing(
+        &out,
+        format!(
+            "{}: {} equilibria written to {} (worst relative residual {worst:.2e}, {} Newton iterations, {unstable} not stable{})",
+            model.name,
+            outputs.len(),
+            out.display(),
+            path.steps.iter().map(|p| p.report.iterations).sum::<usize>(),
+            if traced > 0 { format!("; {traced} more traced by arc length") } else { String::new() }
+        ),
+    );
+    for snap in &path.snaps {
+        let landing = &path.steps[snap.landing_row];
+        say_closing(
+            &out,
+            format!(
+                "snap-through: limit point at t = {:.6} s (the stiffness loses definiteness there); \
+                 the structure jumps {:.6} m to another stable equilibrium at t = {:.6} s ({}; rows {}..{} of the CSV)",
+                snap.limit_time,
+                snap.jump,
+                landing.time,
+                if snap.followed_path {
+                    format!("path traced through the unstable branch, {} points", snap.traced_points)
+                } else {
+                    "the traced branch ends; landing found by descending the energy from the limit point".into()
+                },
+                snap.from_row + 1,
+                snap.landing_row + 1,
+            ),
+        );
+    }
+    Ok(())
+}
+
+/// `deploy --dynamic`: the node's core driven offline (`record::offline::OfflineRun`), one CSV
+/// row per step.
+fn deploy_dynamic(
+    model: &Model,
+    scene: &Path,
+    settings: SimSettings,
+    duration: Option<f64>,
+    out: &Path,
+    record: Option<&Path>,
+) -> Result<(), String> {
+    let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
+    if !(duration.is_finite() && duration > 0.0) {
+        return Err(format!("--duration must be positive, got {duration}"));
+    }
+    let label = scene.display().to_string();
+    let mut run = record::offline::OfflineRun::start(model, &label, settings, record)?;
+    let mut file = csv_output(out)?;
+    writeln!(file, "{}", study::dynamic_csv_header(model)).map_err(|e| e.to_string())?;
+    // the row of t = 0: the start, before any step
+    writeln!(file, "{}", study::dynamic_csv_row(run.simulator(), &Default::default()))
+        .map_err(|e| e.to_string())?;
+    let steps = (duration / settings.dt).round().max(1.0) as u64;
+    let bar = progress(steps, "steps");
+    let mut totals = study::RunTotals::default();
+    for _ in 0..steps {
+        let stats = run.step().map_err(|fault| format!("{label}: {fault}"))?;
+        totals.add(&stats);
+        bar.inc(1);
+        writeln!(file, "{}", study::dynamic_csv_row(run.simulator(), &stats))
+            .map_err(|e| write_error(out, e))?;
+    }
+    bar.finish_and_clear();
+    file.flush().map_err(|e| write_error(out, e))?;
+    let bag = match run.finish().map_err(|e| e.to_string())? {
+        Some((dir, summary)) => format!(
+            "; bag {} ({} messages, {} bytes)",
+            dir.display(),
+            summary.counts.iter().sum::<u64>(),
+            summary.file_bytes
+        ),
+        None => String::new(),
+    };
+    say_closing(
+        out,
+        format!(
+            "{}: {} steps of {} s with {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){bag}",
+            model.name,
+            totals.steps,
+            settings.dt,
+            settings.integrator.name(),
+            if out.as_os_str().is_empty() { String::new() } else { format!(" written to {}", out.display()) },
+            totals.newton_iterations,
+            totals.rejected,
+            totals.wall_time.as_secs_f64()
+        ),
+    );
+    Ok(())
+}

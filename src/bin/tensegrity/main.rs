@@ -1,0 +1,182 @@
+//! `tensegrity`: command-line front end of the library: argument parsing and dispatch only; each
+//! subcommand lives in its own module (`check`, `statics`, `modes`, `deploy`, `study`, `bench`,
+//! `bag`, `generate`, `fields`), what they share in `output`.
+
+mod bag;
+mod bench;
+mod check;
+mod deploy;
+mod fields;
+mod generate;
+mod modes;
+mod output;
+mod statics;
+mod study;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+use crate::bag::BagCommand;
+use crate::bench::BenchKind;
+use crate::generate::GenerateKind;
+use crate::output::{DynamicArgs, CLOSED_PIPE};
+
+#[derive(Parser)]
+#[command(name = "tensegrity", version, about = "Clustered tensegrity multibody simulator")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the scene-file field reference (every table and field: format, unit, default,
+    /// range) as a Markdown table.
+    Fields,
+    /// Validate a scene and print counts of bodies, coordinates, constraints, cables and pulleys.
+    Check {
+        /// Scene file (TOML).
+        scene: PathBuf,
+    },
+    /// Solve for the equilibrium of a scene at its initial rest lengths.
+    Statics {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Print JSON instead of tables.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Natural frequencies and mode shapes at the equilibrium (small free oscillations, no damping).
+    Modes {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Print JSON instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// How many modes to list, lowest first (zero-frequency modes are listed besides).
+        #[arg(long, default_value_t = 10)]
+        count: usize,
+        /// Also draw the shapes of the lowest vibrating modes (at most 6 of the listed ones) to
+        /// PLOT.png and PLOT.svg.
+        #[arg(long, value_name = "PLOT")]
+        plot: Option<PathBuf>,
+    },
+    /// Follow the scene's deployment schedule: a path of equilibria (--quasi-static, one CSV row per
+    /// load step) or a time history (--dynamic, one CSV row per step).
+    #[command(group(clap::ArgGroup::new("mode").required(true).args(["quasi_static", "dynamic"])))]
+    Deploy {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Quasi-static deployment: a path of equilibria (load stepping).
+        #[arg(long)]
+        quasi_static: bool,
+        /// Dynamic deployment: implicit or explicit time integration.
+        #[arg(long)]
+        dynamic: bool,
+        /// Number of load steps (quasi-static; default: the scene's `deployment.steps`).
+        #[arg(long)]
+        steps: Option<usize>,
+        #[command(flatten)]
+        dynamics: DynamicArgs,
+        /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Output CSV file (`-`: standard output).
+        #[arg(long, required_unless_present = "record")]
+        out: Option<PathBuf>,
+        /// Also record a rosbag2 bag (MCAP) into this new directory: the topics the node
+        /// publishes, the run record for `tensegrity replay`.
+        #[arg(long, value_name = "DIR")]
+        record: Option<PathBuf>,
+    },
+    /// Run a recorded bag again (its scene, settings and applied commands at their recorded
+    /// steps) and compare every recorded message bit for bit: prints "identical" or the first
+    /// difference (exit status 1).
+    Replay {
+        /// The bag directory (or its .mcap file).
+        bag: PathBuf,
+        /// Run this scene instead of the recorded one.
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Write the re-run as a new bag into this directory.
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// Bags: what one holds, and repairing one whose writer was killed.
+    Bag {
+        #[command(subcommand)]
+        kind: BagCommand,
+    },
+    /// Quasi-static path and dynamic deployments at several actuation times: CSVs, a summary
+    /// table, and plots (PNG and SVG) of the deviation and of the time histories.
+    Study {
+        /// Scene file (TOML) with a deployment schedule.
+        scene: PathBuf,
+        /// Actuation times, s (the whole schedule is time-scaled to end at each). Default: the
+        /// scene's own actuation time T0 times 0.02, 0.05, 0.1, 0.2, 0.5, 1, 2 and 5.
+        #[arg(long, value_delimiter = ',')]
+        ramp_times: Option<Vec<f64>>,
+        /// Point whose displacement is tracked (default: the one that moves most along the
+        /// quasi-static path).
+        #[arg(long)]
+        point: Option<String>,
+        /// Time simulated after the schedule ends, s.
+        #[arg(long, default_value_t = 1.0)]
+        settle: f64,
+        #[command(flatten)]
+        dynamics: DynamicArgs,
+        /// Threads for the dynamic runs (default: one per core); the results are the same
+        /// whatever the count.
+        #[arg(long, default_value_t = 0)]
+        jobs: usize,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Benchmarks.
+    Bench {
+        #[command(subcommand)]
+        kind: BenchKind,
+    },
+    /// Write a generated scene as TOML.
+    Generate {
+        #[command(subcommand)]
+        kind: GenerateKind,
+        /// Output file (default: standard output).
+        #[arg(long, global = true)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) if e == CLOSED_PIPE => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Runs one subcommand.
+fn run(cli: Cli) -> Result<(), String> {
+    match cli.command {
+        Command::Fields => fields::run(),
+        Command::Check { scene } => check::run(&scene),
+        Command::Statics { scene, json } => statics::run(&scene, json),
+        Command::Modes { scene, json, count, plot } => modes::run(&scene, json, count, plot),
+        Command::Deploy { scene, quasi_static: _, dynamic, steps, dynamics, duration, out, record } => {
+            deploy::run(deploy::DeployArgs { scene, dynamic, steps, dynamics, duration, out, record })
+        }
+        Command::Replay { bag, scene, out } => bag::replay(&bag, scene.as_deref(), out.as_deref()),
+        Command::Bag { kind } => bag::run(kind),
+        Command::Study { scene, ramp_times, point, settle, dynamics, jobs, out } => {
+            study::run(study::StudyArgs { scene, ramp_times, point, settle, dynamics, jobs, out })
+        }
+        Command::Bench { kind } => bench::run(kind),
+        Command::Generate { kind, out } => generate::run(kind, out),
+    }
+}

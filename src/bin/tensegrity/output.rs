@@ -1,0 +1,162 @@
+//! What every subcommand shares: writing to standard output (a reader that went away ends the
+//! program quietly), CSV destinations, progress bars, loading scenes, and the integrator options
+//! of the dynamic commands (`DynamicArgs`).
+
+use std::io::Write;
+use std::path::Path;
+
+use tensegrity::report;
+use tensegrity::scene::{self};
+use tensegrity::sim::SimSettings;
+use tensegrity::solve::dynamics::Integrator;
+use tensegrity::Model;
+
+use clap::ValueEnum;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::io::IsTerminal;
+
+/// "1 ramp", "2 ramps", "0 ramps".
+pub(crate) fn counted(n: usize, what: &str) -> String {
+    format!("{n} {what}{}", if n == 1 { "" } else { "s" })
+}
+
+/// Writes to standard output; a closed pipe (`| head`) is not an error.
+/// Writes to standard output; a reader that went away (`| head`) ends the program quietly, as
+/// it would a C tool, instead of a panic from `println!`.
+pub(crate) fn emit(text: &str) {
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(text.as_bytes()).and_then(|()| out.flush()) {
+        if e.kind() == std::io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: cannot write to standard output: {e}");
+        std::process::exit(1);
+    }
+}
+
+/// `println!` through `emit`.
+macro_rules! say {
+    ($($arg:tt)*) => { $crate::output::emit(&(format!($($arg)*) + "\n")) };
+}
+pub(crate) use say;
+
+pub(crate) fn progress(len: u64, unit: &str) -> ProgressBar {
+    if std::io::stderr().is_terminal() {
+        let b = ProgressBar::new(len);
+        b.set_style(
+            ProgressStyle::with_template(&format!("{{bar:40}} {{pos}}/{{len}} {unit} {{msg}}"))
+                .expect("valid template"),
+        );
+        b
+    } else {
+        ProgressBar::hidden()
+    }
+}
+
+/// Where a CSV goes: the file `out`, standard output for `-`, nowhere for an empty path (no
+/// `--out`).
+pub(crate) fn csv_output(out: &Path) -> Result<Box<dyn Write>, String> {
+    if out.as_os_str().is_empty() {
+        Ok(Box::new(std::io::sink()))
+    } else if out == Path::new("-") {
+        Ok(Box::new(std::io::BufWriter::new(std::io::stdout())))
+    } else {
+        let file = std::fs::File::create(out).map_err(|e| format!("{}: {e}", out.display()))?;
+        Ok(Box::new(std::io::BufWriter::new(file)))
+    }
+}
+
+/// A closing summary: on standard output, or on standard error when the CSV went there (`-`).
+pub(crate) fn say_closing(out: &Path, text: String) {
+    if out == Path::new("-") {
+        eprintln!("{text}");
+    } else {
+        say!("{text}");
+    }
+}
+
+pub(crate) fn load(path: &Path) -> Result<Model, String> {
+    scene::load(path).map_err(|e| e.to_string())
+}
+
+/// Like `load`, but refuses scenes with bodies that nothing holds (they have no equilibrium).
+pub(crate) fn load_for_statics(path: &Path) -> Result<Model, String> {
+    let model = load(path)?;
+    match report::unheld_bodies_note(&model) {
+        Some(note) => Err(format!("{}: {note}", path.display())),
+        None => Ok(model),
+    }
+}
+
+/// What `run` returns when its standard output was closed by the reader (`| head`): not an error.
+pub(crate) const CLOSED_PIPE: &str = "standard output closed";
+
+/// A write error on `out`, or `CLOSED_PIPE` when the reader of standard output went away.
+pub(crate) fn write_error(out: &Path, e: std::io::Error) -> String {
+    if out == Path::new("-") && e.kind() == std::io::ErrorKind::BrokenPipe {
+        CLOSED_PIPE.into()
+    } else {
+        format!("{}: {e}", out.display())
+    }
+}
+
+#[derive(clap::Args, Clone, Copy)]
+pub(crate) struct DynamicArgs {
+    /// Integrator: generalized-alpha (ga; implicit, any step), symplectic-euler (euler), rk4 or
+    /// dormand-prince (dopri5) (explicit: refused above their stability limit).
+    #[arg(long, default_value = "generalized-alpha")]
+    integrator: IntegratorName,
+    /// Physics step, s (default: the scene's physics_dt, else 0.001); with --tol the output
+    /// interval, the sub-steps inside it chosen by the error estimate.
+    #[arg(long)]
+    dt: Option<f64>,
+    /// Spectral radius at infinity of generalized-alpha, in [0, 1].
+    #[arg(long, default_value_t = 0.8)]
+    rho_inf: f64,
+    /// Local error tolerance per step, m: error-controlled steps (generalized-alpha,
+    /// dormand-prince).
+    #[arg(long)]
+    tol: Option<f64>,
+}
+
+#[derive(ValueEnum, Clone, Copy)]
+pub(crate) enum IntegratorName {
+    #[value(name = "generalized-alpha", alias = "ga")]
+    GeneralizedAlpha,
+    #[value(name = "symplectic-euler", alias = "euler")]
+    SymplecticEuler,
+    #[value(name = "rk4")]
+    Rk4,
+    #[value(name = "dormand-prince", alias = "dopri5")]
+    DormandPrince,
+}
+
+impl IntegratorName {
+    pub(crate) fn integrator(self, rho_inf: f64) -> Integrator {
+        match self {
+            IntegratorName::GeneralizedAlpha => Integrator::GeneralizedAlpha { rho_inf },
+            IntegratorName::SymplecticEuler => Integrator::SymplecticEuler,
+            IntegratorName::Rk4 => Integrator::Rk4,
+            IntegratorName::DormandPrince => Integrator::DormandPrince,
+        }
+    }
+}
+
+impl DynamicArgs {
+    pub(crate) fn settings(&self, model: &Model) -> Result<SimSettings, String> {
+        let dt = self.dt.or(model.physics_dt).unwrap_or(1e-3);
+        if !(self.rho_inf.is_finite() && (0.0..=1.0).contains(&self.rho_inf)) {
+            return Err(format!("--rho-inf must be in [0, 1], got {}", self.rho_inf));
+        }
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(format!("--dt must be positive, got {dt}"));
+        }
+        if let Some(tol) = self.tol {
+            if !(tol.is_finite() && tol > 0.0) {
+                return Err(format!("--tol must be positive, got {tol}"));
+            }
+        }
+        let integrator = self.integrator.integrator(self.rho_inf);
+        Ok(SimSettings { dt, integrator, tolerance: self.tol, ..Default::default() })
+    }
+}

@@ -1,0 +1,175 @@
+//! `tensegrity statics SCENE`: the equilibrium at the initial rest lengths (tables or JSON).
+
+use std::path::Path;
+
+use serde::Serialize;
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
+use tensegrity::report;
+use tensegrity::report::Num;
+use tensegrity::solve::statics::{EquilibriumReport, StaticSolver};
+use tensegrity::{Model, State};
+
+use crate::output::*;
+
+#[derive(Serialize)]
+struct StaticsJson {
+    scene: String,
+    iterations: usize,
+    residual_n: f64,
+    force_scale_n: f64,
+    stable: bool,
+    negative_stiffness_modes: usize,
+    zero_stiffness_modes: usize,
+    min_stiffness_eigenvalue: f64,
+    potential_energy_j: f64,
+    largest_move_from_scene_m: f64,
+    bodies: Vec<report::BodyReport>,
+    points: Vec<(String, [f64; 3])>,
+    cables: Vec<report::CableReport>,
+}
+
+/// Runs `statics` on `scene`, as JSON when `json`.
+pub fn run(scene: &Path, json: bool) -> Result<(), String> {
+    let model = load_for_statics(scene)?;
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let reference = report::all_pulley_coordinates(&model, &state, &ws);
+    let r = StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(
+        |(it, res)| {
+            format!(
+                "{}: no equilibrium found: residual {res:.3e} N after {}",
+                scene.display(),
+                counted(it, "Newton iteration")
+            )
+        },
+    )?;
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let cables = report::cable_reports(&model, &state, &ws, &reference);
+    // how far the equilibrium lies from the pose the scene sketched, and where
+    let sketched = State::initial(&model);
+    let largest_move = model
+        .points
+        .iter()
+        .map(|p| {
+            let at = |s: &State| s.poses[p.body.0].transform_point(&p.local);
+            ((at(&state) - at(&sketched)).norm(), p.name.as_str())
+        })
+        .fold((0.0, ""), |a, b| if b.0 > a.0 { b } else { a });
+    if json {
+        let out = StaticsJson {
+            scene: model.name.clone(),
+            iterations: r.iterations,
+            residual_n: r.residual,
+            force_scale_n: r.force_scale,
+            stable: r.stable,
+            negative_stiffness_modes: r.negative_modes,
+            zero_stiffness_modes: r.zero_modes,
+            min_stiffness_eigenvalue: r.min_stiffness_eigenvalue,
+            potential_energy_j: r.potential_energy,
+            largest_move_from_scene_m: largest_move.0,
+            bodies: report::body_reports(&model, &state),
+            points: report::point_positions(&model, &ws),
+            cables,
+        };
+        emit(&(serde_json::to_string_pretty(&out).map_err(|e| e.to_string())? + "\n"));
+    } else {
+        emit(&format_statics(&model, &state, &ws, &r, &cables, largest_move));
+    }
+    Ok(())
+}
+
+fn format_statics(
+    model: &Model,
+    state: &State,
+    ws: &Workspace,
+    r: &EquilibriumReport,
+    cables: &[report::CableReport],
+    (moved, moved_point): (f64, &str),
+) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "{}: equilibrium after {}, residual {:.3e} N ({:.1e} of {:.4} N), {} (min reduced stiffness eigenvalue {:.4e})",
+        model.name,
+        counted(r.iterations, "Newton iteration"),
+        r.residual,
+        r.residual / r.force_scale,
+        r.force_scale,
+        r.stability_words(),
+        r.min_stiffness_eigenvalue
+    );
+    let _ = writeln!(
+        out,
+        "potential energy {:.6} J (elastic + gravitational); largest move from the scene's pose {:.6} m{}",
+        Num(r.potential_energy),
+        Num(moved),
+        if moved > 0.0 { format!(" ({moved_point})") } else { String::new() }
+    );
+    let _ = writeln!(
+        out,
+        "\n{:<14} {:>12} {:>12} {:>12} {:>12} {:>12}  slack",
+        "cable", "tension N", "length m", "rest m", "strain", "pulleys"
+    );
+    for c in cables {
+        let _ = writeln!(
+            out,
+            "{:<14} {:>12.6} {:>12.6} {:>12.6} {:>12.4e} {:>12}  {}",
+            c.name,
+            Num(c.tension),
+            c.length,
+            c.rest_length,
+            c.strain,
+            c.segment_lengths.len() - 1,
+            if c.slack { "yes" } else { "no" }
+        );
+    }
+    // sliding cables: where the cable runs and how far it has passed through each pulley
+    let sliding: Vec<&report::CableReport> = cables.iter().filter(|c| c.segment_lengths.len() > 1).collect();
+    if !sliding.is_empty() {
+        let _ =
+            writeln!(out, "\n{:<14} {:>8}  {:>12} {:>12}", "sliding cable", "segment", "length m", "slip m");
+        const SHOWN: usize = 12;
+        for c in sliding {
+            let m = c.segment_lengths.len();
+            for (k, l) in c.segment_lengths.iter().enumerate().take(SHOWN) {
+                // slip is at the pulley that ends segment k (the last segment ends at the anchor)
+                let slip = c.pulley_slip.get(k).map_or("-".to_string(), |s| format!("{:.6}", Num(*s)));
+                let name = if k == 0 { c.name.as_str() } else { "" };
+                let _ = writeln!(out, "{:<14} {:>8} {:>12.6} {:>12}", name, k + 1, l, slip);
+            }
+            if m > SHOWN {
+                let _ = writeln!(
+                    out,
+                    "{:<14} {:>8}  ({} more segments: --json lists them all)",
+                    "",
+                    "...",
+                    m - SHOWN
+                );
+            }
+        }
+    }
+    let _ =
+        writeln!(out, "\n{:<14} {:>12} {:>12} {:>12}   quaternion (w x y z)", "body", "x m", "y m", "z m");
+    for b in report::body_reports(model, state) {
+        let (p, q) = (b.position, b.orientation);
+        let _ = writeln!(
+            out,
+            "{:<14} {:>12.6} {:>12.6} {:>12.6}   {:.6} {:.6} {:.6} {:.6}",
+            b.name,
+            Num(p[0]),
+            Num(p[1]),
+            Num(p[2]),
+            Num(q[0]),
+            Num(q[1]),
+            Num(q[2]),
+            Num(q[3])
+        );
+    }
+    let _ = writeln!(out, "\n{:<20} {:>12} {:>12} {:>12}", "point", "x m", "y m", "z m");
+    for (name, p) in report::point_positions(model, ws) {
+        let _ = writeln!(out, "{:<20} {:>12.6} {:>12.6} {:>12.6}", name, Num(p[0]), Num(p[1]), Num(p[2]));
+    }
+    out
+}

@@ -1,0 +1,234 @@
+//! The evaluation stage: takes a `Model`, a `State` and a preallocated `Workspace`, gives every
+//! point's kinematics, the total applied force `Q` (cables + gravity, `crate::forces`), its
+//! tangents `K = -dQ/dq` and `C = -dQ/dv` (through an `assembly::TangentSink`), the joints'
+//! values and Jacobian (`crate::constraints`), every cable's response and the energies. The
+//! solvers read everything from the workspace.
+
+use nalgebra::{DMatrix, DVector, Vector3, Vector6};
+
+use crate::assembly::{add_vector, DenseTangents, TangentSink};
+use crate::constraints;
+use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableResponse, CableScratch};
+use crate::kinematics::{point_kinematics, PointKinematics};
+use crate::model::{BodyId, CableId, Model, PointId};
+use crate::state::State;
+
+/// Which tangent matrices an evaluation fills.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Tangents {
+    /// Forces and responses only.
+    None,
+    /// Also `K = -dQ/dq`.
+    Stiffness,
+    /// Also `K` and `C = -dQ/dv`.
+    StiffnessAndDamping,
+}
+
+/// Energies of a configuration, J.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Energies {
+    /// Elastic energy stored in taut cables.
+    pub elastic: f64,
+    /// Gravitational potential `-sum_b m_b g . x_b`.
+    pub gravitational: f64,
+    /// Kinetic energy `v^T M v / 2`.
+    pub kinetic: f64,
+}
+
+/// Everything an evaluation derives from (Model, State), allocated once per model.
+#[derive(Debug, Clone)]
+pub struct Workspace {
+    /// Kinematics of every point (position dependent, velocity dependent).
+    pub points: Vec<PointKinematics>,
+    /// Total applied generalized force `Q` (N, N m).
+    pub force: DVector<f64>,
+    /// `K = -dQ/dq` of the applied forces.
+    pub stiffness: DMatrix<f64>,
+    /// `C = -dQ/dv` of the applied forces.
+    pub damping: DMatrix<f64>,
+    /// Joint constraint values `Phi(q)` (m).
+    pub constraint: DVector<f64>,
+    /// Joint constraint Jacobian `Phi_q` (rows x coordinates).
+    pub constraint_jacobian: DMatrix<f64>,
+    /// Every cable's response, parallel to `Model::cables`.
+    pub cables: Vec<CableResponse>,
+    /// Segment lengths of all cables, concatenated (cable `c` starts at `route_start - c`).
+    pub segment_lengths: Vec<f64>,
+    /// Energies of the evaluated state (kinetic included).
+    pub energies: Energies,
+    /// Per-route scratch (public so that callers can pass it to `add_tangents`).
+    pub scratch: CableScratch,
+}
+
+impl Workspace {
+    /// A workspace sized for `model`.
+    pub fn new(model: &Model) -> Self {
+        Self::new_sized(model, true)
+    }
+
+    fn new_sized(model: &Model, dense: bool) -> Self {
+        let n = if dense { model.dof_count } else { 0 };
+        let max_route = model.cables.iter().map(|c| c.route_len).max().unwrap_or(2);
+        Self {
+            points: vec![
+                PointKinematics {
+                    body: BodyId(0),
+                    position: Vector3::zeros(),
+                    velocity: Vector3::zeros(),
+                    jacobian: Default::default(),
+                };
+                model.points.len()
+            ],
+            force: DVector::zeros(model.dof_count),
+            stiffness: DMatrix::zeros(n, n),
+            damping: DMatrix::zeros(n, n),
+            constraint: DVector::zeros(model.constraint_count),
+            constraint_jacobian: DMatrix::zeros(if dense { model.constraint_count } else { 0 }, n),
+            cables: vec![CableResponse::default(); model.cables.len()],
+            segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
+            energies: Energies::default(),
+            scratch: CableScratch::new(max_route),
+        }
+    }
+
+    /// A workspace for `evaluate_forces` only: the dense `K`, `C` and `Phi_q` are left empty
+    /// (`0 x 0`) and sized by the first `evaluate` that needs them, so that stepping a large scene
+    /// never holds `n x n` matrices.
+    pub fn for_forces(model: &Model) -> Self {
+        Self::new_sized(model, false)
+    }
+
+    /// Segment lengths of cable `c` from the last evaluation, m.
+    pub fn cable_segments(&self, model: &Model, c: usize) -> &[f64] {
+        let cable = &model.cables[c];
+        let start = cable.route_start - c;
+        &self.segment_lengths[start..start + cable.segment_count()]
+    }
+}
+
+/// Evaluates all position- and velocity-dependent quantities of `state` into `ws`:
+/// point kinematics, `Q`, the requested tangents, constraints and their Jacobian, cable responses
+/// and energies.
+pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tangents) {
+    evaluate_forces(model, state, ws);
+    let (n, nc) = (model.dof_count, model.constraint_count);
+    if ws.constraint_jacobian.shape() != (nc, n) {
+        ws.constraint_jacobian = DMatrix::zeros(nc, n);
+    }
+    if tangents != Tangents::None && ws.stiffness.nrows() != n {
+        ws.stiffness = DMatrix::zeros(n, n);
+        ws.damping = DMatrix::zeros(n, n);
+    }
+    let want_k = tangents != Tangents::None;
+    let want_c = tangents == Tangents::StiffnessAndDamping;
+    if want_k {
+        ws.stiffness.fill(0.0);
+        if want_c {
+            ws.damping.fill(0.0);
+        }
+        let mut sink = DenseTangents {
+            model,
+            stiffness: &mut ws.stiffness,
+            damping: if want_c { Some(&mut ws.damping) } else { None },
+        };
+        add_tangents(model, state, &ws.points, &ws.cables, &mut ws.scratch, &mut sink);
+    }
+    constraints::evaluate_jacobian(model, &ws.points, &mut ws.constraint_jacobian);
+}
+
+/// The part of `evaluate` that is linear in the scene size: point kinematics, `Q`, cable
+/// responses and segment lengths, joint constraint values `Phi` and energies. Leaves
+/// `ws.stiffness`, `ws.damping` and `ws.constraint_jacobian` untouched.
+pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
+    let v = &state.velocities;
+    for (i, p) in ws.points.iter_mut().enumerate() {
+        *p = point_kinematics(model, &state.poses, v, PointId(i));
+    }
+    ws.force.fill(0.0);
+
+    // gravity: m g on the translation rows of each body (origin = centre of mass)
+    let mut gravitational = 0.0;
+    for (b, body) in model.bodies.iter().enumerate() {
+        if body.dof_count == 0 || body.mass == 0.0 {
+            continue;
+        }
+        let w = model.gravity * body.mass;
+        gravitational -= w.dot(&state.poses[b].position);
+        let f6 = Vector6::new(w.x, w.y, w.z, 0.0, 0.0, 0.0);
+        add_vector(model, BodyId(b), &(body.basis.transpose() * f6), 1.0, &mut ws.force);
+    }
+
+    // cables
+    let mut elastic = 0.0;
+    for (c, cable) in model.cables.iter().enumerate() {
+        let route = model.route(CableId(c));
+        let response = add_cable_force(
+            model,
+            route,
+            cable.axial_stiffness,
+            cable.damping,
+            state.rest_lengths[c],
+            &ws.points,
+            &mut ws.scratch,
+            &mut ws.force,
+        );
+        elastic += response.energy;
+        ws.cables[c] = response;
+        let start = cable.route_start - c;
+        let m = cable.segment_count();
+        ws.segment_lengths[start..start + m].copy_from_slice(&ws.scratch.segment_lengths[..m]);
+    }
+
+    constraints::evaluate_values(model, &ws.points, &mut ws.constraint);
+    ws.energies = Energies { elastic, gravitational, kinetic: kinetic_energy(model, v) };
+}
+
+/// Adds the cables' tangent stiffness and damping at `state` into `sink`, using the point
+/// kinematics `points` and cable responses `cables` that `evaluate_forces` left for this state.
+pub fn add_tangents<S: TangentSink + ?Sized>(
+    model: &Model,
+    state: &State,
+    points: &[PointKinematics],
+    cables: &[CableResponse],
+    scratch: &mut CableScratch,
+    sink: &mut S,
+) {
+    for (c, cable) in model.cables.iter().enumerate() {
+        let t = cables[c].tension;
+        if t <= 0.0 {
+            continue;
+        }
+        let route = model.route(CableId(c));
+        cable::route_geometry(route, points, scratch);
+        add_cable_tangents(
+            model,
+            &state.poses,
+            &state.velocities,
+            CableId(c),
+            route,
+            cable.axial_stiffness,
+            cable.damping,
+            state.rest_lengths[c],
+            t,
+            points,
+            scratch,
+            sink,
+        );
+    }
+}
+
+/// Kinetic energy `v^T M v / 2` (J) of local velocities `v`: per body
+/// `(m |dx|^2 + w^T J w) / 2` with `(dx, w) = B v_b` (translation and body-frame rotation rates).
+pub fn kinetic_energy(model: &Model, v: &DVector<f64>) -> f64 {
+    let mut e = 0.0;
+    for body in &model.bodies {
+        if body.dof_count == 0 {
+            continue;
+        }
+        let local = body.local_increment(v.as_slice(), 1.0);
+        let dx = Vector3::new(local[0], local[1], local[2]);
+        let w = Vector3::new(local[3], local[4], local[5]);
+        e += 0.5 * (body.mass * dx.norm_squared() + w.dot(&(body.inertia * w)));
+    }
+    e
+}

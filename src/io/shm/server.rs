@@ -1,0 +1,356 @@
+//! The node's side of shared memory: takes the node core's views and the controllers' samples and
+//! requests, gives `ShmTransport`, a `Transport` of the node's loop that publishes the state,
+//! takes commands and answers lockstep requests.
+
+use std::time::{Duration, Instant};
+
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::server::Server;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::*;
+
+use crate::control::ActuatorCommand;
+use crate::io::msg::result_code;
+use crate::io::msg::SimResult;
+use crate::io::node::params::NodeParams;
+use crate::io::node::runner::{Transport, With};
+use crate::io::node::NodeCore;
+use crate::io::sink::{NodeSink, NodeView, PublishError};
+use crate::io::topics::Topic;
+use crate::model::{ActuatorId, Model};
+
+use super::payload::*;
+use super::service::*;
+
+/// Fills `out` (all zero on entry) from `view`; `commands_applied_ns` as in `StateSample`.
+fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64) {
+    let (model, state, ws) = (v.model, v.state, v.workspace);
+    out.time = state.time;
+    out.step = v.step;
+    out.commands_applied_ns = commands_applied_ns;
+    out.commands_received = v.stats.commands_received;
+    out.commands_accepted = v.stats.commands_accepted;
+    out.commands_rejected = v.stats.commands_rejected;
+    out.overruns = v.stats.overruns;
+    out.body_count = state.poses.len() as u32;
+    out.cable_count = model.cables.len() as u32;
+    out.actuator_count = model.actuators.len() as u32;
+    out.simulation_state = v.simulation_state;
+    out.faulted = u8::from(v.faulted);
+    for (i, p) in state.poses.iter().enumerate() {
+        let q = p.rotation.quaternion();
+        out.body_position[i] = [p.position.x, p.position.y, p.position.z];
+        out.body_orientation[i] = [q.i, q.j, q.k, q.w];
+    }
+    for (i, c) in ws.cables.iter().enumerate() {
+        out.cable_tension[i] = c.tension;
+        out.cable_length[i] = c.length;
+        out.cable_rest_length[i] = c.rest_length;
+        out.cable_slack[i] = u8::from(c.slack);
+    }
+    for (i, a) in model.actuators.iter().enumerate() {
+        out.actuator_rest_length[i] = state.rest_lengths[a.cable.0];
+        out.actuator_rate[i] = v.rates[a.cable.0];
+    }
+    out.published_ns = realtime_ns();
+}
+
+/// The node's shared-memory face: see the module docs.
+pub struct ShmTransport {
+    node: iceoryx2::node::Node<Svc>,
+    prefix: String,
+    state: Publisher<Svc, StateSample, ()>,
+    structure: Publisher<Svc, StructureSample, ()>,
+    commands: Subscriber<Svc, CommandSample, ()>,
+    lockstep: Server<Svc, LockstepRequest, (), LockstepResponse, ()>,
+    wake: Listener<Svc>,
+    notify: Notifier<Svc>,
+    /// Lockstep requests under way: the core's ticket, the request, the step index it started at.
+    tickets: Vec<(u64, Lockstep, u64)>,
+    /// The request being handed to the core (answered if the core answers at once), with the
+    /// step index it starts at.
+    incoming: Option<(Lockstep, u64)>,
+    spin: Duration,
+    spin_until: Option<Instant>,
+    last_cleanup: Instant,
+    commands_applied_ns: u64,
+}
+
+impl ShmTransport {
+    /// Checks the scene against the capacities, removes what dead iceoryx2 nodes left behind,
+    /// and opens the node's services under `prefix(params)`.
+    pub fn new(model: &Model, params: &NodeParams) -> Result<Self, ShmError> {
+        check_capacity(model, &params.frame_id)?;
+        let prefix = params.shm_prefix();
+        let names = ServiceNames::new(&prefix);
+        let node = new_node()?;
+        node.try_cleanup_dead_nodes();
+        let taken = |e: String| ShmError::Taken(prefix.clone(), e);
+        let state = node
+            .service_builder(&service_name(&names.state)?)
+            .publish_subscribe::<StateSample>()
+            .max_publishers(1)
+            .max_subscribers(MAX_CONTROLLERS)
+            .subscriber_max_buffer_size(STATE_BUFFER)
+            .subscriber_max_borrowed_samples(STATE_BUFFER)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(ipc("state service"))?;
+        let structure = node
+            .service_builder(&service_name(&names.structure)?)
+            .publish_subscribe::<StructureSample>()
+            .max_publishers(1)
+            .max_subscribers(MAX_CONTROLLERS)
+            .subscriber_max_buffer_size(1)
+            .subscriber_max_borrowed_samples(1)
+            .history_size(1)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(ipc("structure service"))?;
+        let commands = node
+            .service_builder(&service_name(&names.commands)?)
+            .publish_subscribe::<CommandSample>()
+            .max_publishers(MAX_CONTROLLERS)
+            .max_subscribers(1)
+            .subscriber_max_buffer_size(COMMAND_BUFFER)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .open_or_create()
+            .map_err(ipc("actuator_commands service"))?;
+        let lockstep = node
+            .service_builder(&service_name(&names.lockstep)?)
+            .request_response::<LockstepRequest, LockstepResponse>()
+            .max_servers(1)
+            .max_clients(MAX_CONTROLLERS)
+            .max_active_requests_per_client(2)
+            .max_response_buffer_size(2)
+            .open_or_create()
+            .map_err(ipc("lockstep service"))?;
+        let to_node = node
+            .service_builder(&service_name(&names.to_node)?)
+            .event()
+            .max_listeners(1)
+            .max_notifiers(2 * MAX_CONTROLLERS)
+            .open_or_create()
+            .map_err(ipc("to_node event"))?;
+        let from_node = node
+            .service_builder(&service_name(&names.from_node)?)
+            .event()
+            .max_notifiers(1)
+            .max_listeners(2 * MAX_CONTROLLERS)
+            .open_or_create()
+            .map_err(ipc("from_node event"))?;
+        // the single-owner ports: a second live node on the same prefix fails here
+        let state_publisher = state.publisher_builder().create().map_err(|e| taken(format!("{e:?}")))?;
+        let structure = structure.publisher_builder().create().map_err(|e| taken(format!("{e:?}")))?;
+        let commands = commands.subscriber_builder().create().map_err(|e| taken(format!("{e:?}")))?;
+        let lockstep = lockstep.server_builder().create().map_err(|e| taken(format!("{e:?}")))?;
+        let wake = to_node.listener_builder().create().map_err(|e| taken(format!("{e:?}")))?;
+        let notify = from_node.notifier_builder().create().map_err(|e| taken(format!("{e:?}")))?;
+        Ok(Self {
+            node,
+            prefix,
+            state: state_publisher,
+            structure,
+            commands,
+            lockstep,
+            wake,
+            notify,
+            tickets: Vec::new(),
+            incoming: None,
+            spin: Duration::from_micros(params.shm_spin_us),
+            spin_until: None,
+            last_cleanup: Instant::now(),
+            commands_applied_ns: 0,
+        })
+    }
+
+    /// The service prefix (`tensegrity_sim` by default).
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    fn publish_state(&mut self, v: &NodeView<'_>) -> Result<(), PublishError> {
+        let mut sample =
+            self.state.loan_uninit().map_err(|e| PublishError::Failed(format!("state: {e:?}")))?;
+        fill_state(zeroed(sample.payload_mut()), v, self.commands_applied_ns);
+        // SAFETY: `zeroed` initialized the whole payload
+        #[allow(unsafe_code)]
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(|e| PublishError::Failed(format!("state: {e:?}")))?;
+        let _ = self.notify.notify_with_custom_event_id(EventId::new(EVENT_STATE));
+        Ok(())
+    }
+
+    fn publish_structure(&mut self, v: &NodeView<'_>) -> Result<(), PublishError> {
+        let fail = |e: String| PublishError::Failed(format!("structure: {e}"));
+        let mut sample = self.structure.loan_uninit().map_err(|e| fail(format!("{e:?}")))?;
+        let s = zeroed(sample.payload_mut());
+        let m = v.model;
+        s.physics_dt = v.dt;
+        s.body_count = m.bodies.len() as u32;
+        s.cable_count = m.cables.len() as u32;
+        s.actuator_count = m.actuators.len() as u32;
+        write_name(&mut s.scene_name, &m.name);
+        write_name(&mut s.frame_id, v.frame_id);
+        for (i, b) in m.bodies.iter().enumerate() {
+            write_name(&mut s.body_names[i], &b.name);
+        }
+        for (i, n) in m.cable_names.iter().enumerate() {
+            write_name(&mut s.cable_names[i], n);
+        }
+        for (i, a) in m.actuators.iter().enumerate() {
+            write_name(&mut s.actuator_names[i], &m.actuator_names[i]);
+            s.actuator_cable[i] = a.cable.0 as u32;
+            s.actuator_min_rest_length[i] = a.min_rest_length;
+            s.actuator_max_rest_length[i] = a.max_rest_length;
+            s.actuator_max_rate[i] = a.max_rate;
+        }
+        // SAFETY: `zeroed` initialized the whole payload
+        #[allow(unsafe_code)]
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(|e| fail(format!("{e:?}")))?;
+        Ok(())
+    }
+
+    /// Answers a lockstep request with `result` and the state in `view`.
+    fn answer(&mut self, request: Lockstep, result: &SimResult, steps_taken: u64, view: &NodeView<'_>) {
+        if let Ok(mut response) = request.loan_uninit() {
+            let r = zeroed(response.payload_mut());
+            r.result = result.result;
+            r.steps_taken = steps_taken;
+            write_name(&mut r.message, &result.error_message);
+            fill_state(&mut r.state, view, self.commands_applied_ns);
+            // SAFETY: `zeroed` initialized the whole payload
+            #[allow(unsafe_code)]
+            let response = unsafe { response.assume_init() };
+            // a controller that went away cannot be answered; nothing to do about it
+            let _ = response.send();
+        }
+        let _ = self.notify.notify_with_custom_event_id(EventId::new(EVENT_RESPONSE));
+        self.spin_until = Some(Instant::now() + self.spin);
+    }
+
+    /// True when a command or a lockstep request waits (for the spin before blocking).
+    fn input_waiting(&self) -> bool {
+        self.commands.has_samples().unwrap_or(false) || self.lockstep.has_requests().unwrap_or(false)
+    }
+
+    /// Takes the next lockstep request if none is under way: its command is checked like any
+    /// other (a rejected one fails the request, no step is taken), then the steps are queued.
+    fn take_lockstep(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
+        if !self.tickets.is_empty() || core.steps_remaining() > 0 {
+            return; // one at a time; the rest wait in the service's queue
+        }
+        let request = match self.lockstep.receive() {
+            Ok(Some(r)) => r,
+            Ok(None) => return,
+            Err(_) => return core.incoming_malformed(),
+        };
+        let steps = request.payload().steps;
+        if request.payload().command.count > 0 {
+            let command = &request.payload().command;
+            let parsed = core.offer_parsed(|model, out| check_command(model, command, out));
+            if let Err(e) = parsed {
+                let result = SimResult::err(result_code::OPERATION_FAILED, format!("command rejected: {e}"));
+                let view = core.view();
+                return self.answer(request, &result, 0, &view);
+            }
+        }
+        self.incoming = Some((request, core.view().step));
+        let outcome = core.request_steps(steps, &mut With { own: &mut *self, others });
+        match (outcome, self.incoming.take()) {
+            (Ok(ticket), Some((request, start))) => self.tickets.push((ticket, request, start)),
+            (Err(result), Some((request, _))) => {
+                let view = core.view();
+                self.answer(request, &result, 0, &view);
+            }
+            // answered at once (0 steps)
+            (_, None) => {}
+        }
+    }
+}
+
+impl NodeSink for ShmTransport {
+    fn publish(&mut self, topic: Topic, v: &NodeView<'_>) -> Result<(), PublishError> {
+        match topic {
+            Topic::State => self.publish_state(v),
+            Topic::Structure => self.publish_structure(v),
+            // the others are DDS's (clock, transforms, diagnostics, markers) or carried in State
+            _ => Ok(()),
+        }
+    }
+
+    fn step_request_done(&mut self, ticket: u64, result: SimResult, view: &NodeView<'_>) {
+        let request = match self.tickets.iter().position(|(t, _, _)| *t == ticket) {
+            Some(k) => {
+                let (_, request, start) = self.tickets.swap_remove(k);
+                Some((request, start))
+            }
+            // the request being handed over, answered at once
+            None => self.incoming.take(),
+        };
+        if let Some((request, start)) = request {
+            self.answer(request, &result, view.step.saturating_sub(start), view);
+        }
+    }
+
+    fn commands_applied(&mut self, _time: f64, _step: u64, _commands: &[(ActuatorId, ActuatorCommand)]) {
+        self.commands_applied_ns = realtime_ns();
+    }
+}
+
+impl Transport for ShmTransport {
+    fn name(&self) -> &'static str {
+        "shm"
+    }
+
+    fn take_inputs(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
+        while core.wants_commands() {
+            match self.commands.receive() {
+                Ok(Some(sample)) => {
+                    // counted and reported by the core (StateSample::commands_rejected, /diagnostics)
+                    let _ = core.offer_parsed(|model, out| check_command(model, sample.payload(), out));
+                }
+                Ok(None) => break,
+                Err(_) => {
+                    core.incoming_malformed();
+                    break;
+                }
+            }
+        }
+        self.take_lockstep(core, others);
+        // hand the structure (history 1) to controllers that connected since the last turn
+        let _ = self.structure.update_connections();
+        if self.last_cleanup.elapsed() >= CLEANUP_PERIOD {
+            self.node.try_cleanup_dead_nodes();
+            self.last_cleanup = Instant::now();
+        }
+    }
+
+    fn event_driven(&self) -> bool {
+        true
+    }
+
+    fn wait(&mut self, timeout: Duration) {
+        let deadline = Instant::now() + timeout;
+        if let Some(until) = self.spin_until.take() {
+            if poll(until.min(deadline), || self.input_waiting()) {
+                return;
+            }
+        }
+        let left = deadline.saturating_duration_since(Instant::now());
+        if !left.is_zero() {
+            // the events only wake; what arrived is read from the services
+            let _ = self.wake.timed_wait(|_| {}, left);
+        }
+    }
+
+    fn answering(&self) -> bool {
+        !self.tickets.is_empty()
+    }
+}

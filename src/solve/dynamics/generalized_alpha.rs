@@ -1,0 +1,311 @@
+//! Generalized-alpha: one implicit step of `Dynamics` (Newton on the analytic tangent, modified
+//! Newton with reused factors) and its Newton matrix.
+//!
+//! **Generalized-alpha** (Chung & Hulbert 1993; Lie-group form of Bruls, Cardona & Arnold 2012,
+//! constraints at position level as in Arnold & Bruls 2007). With spectral radius at infinity
+//! `rho` in [0, 1]: `alpha_m = (2 rho - 1)/(rho + 1)`, `alpha_f = rho/(rho + 1)`,
+//! `gamma = 1/2 + alpha_f - alpha_m`, `beta = (gamma + 1/2)^2 / 4`; the pseudo-acceleration `a`
+//! obeys `(1 - alpha_m) a_(n+1) + alpha_m a_n = (1 - alpha_f) vdot_(n+1) + alpha_f vdot_n`,
+//! `q_(n+1) = q_n exp(h v_n + h^2 (1/2 - beta) a_n + h^2 beta a_(n+1))`,
+//! `v_(n+1) = v_n + h (1 - gamma) a_n + h gamma a_(n+1)`, and the equations hold at `t_(n+1)`.
+//! Newton on the increment `delta` uses the analytic tangent
+//! `S = M beta' + (C + C_gyro) gamma' + K + H_lambda`, `beta' = (1 - alpha_m)/(h^2 beta (1 - alpha_f))`,
+//! `gamma' = gamma/(h beta)` (the exponential map's tangent operator is taken as identity, which
+//! costs Newton a little speed, never accuracy), with the constraint rows scaled by `beta'`.
+//! Second order, A-stable, `rho = 1` has no numerical dissipation, `rho = 0` annihilates the
+//! highest frequencies in one step.
+//!
+//! Modified Newton: the factors of the Newton matrix are kept across iterations and steps while
+//! they contract the residual by at least `1 / REFACTOR_CONTRACTION` per iteration; on the sparse
+//! backend they are the `LDL^T` of the matrix's symmetric part, replaced by the exact LU for the
+//! rest of a step when fresh symmetric factors contract poorly (`crate::solve::linear`); a step
+//! that needed `SLOW_STEP_ITERATIONS` iterations on old factors makes the next one start with
+//! fresh factors. The convergence test is the residual test above either way. The workspace of
+//! the last (converged) evaluation is handed to the caller (`take_final_evaluation`), so a step
+//! evaluates the forces once per Newton iteration plus once to confirm convergence, no more.
+//!
+use nalgebra::Matrix6;
+
+use crate::constraints::{add_multiplier_hessian_to, add_reaction_force};
+use crate::evaluate::{add_tangents, evaluate_forces, Workspace};
+use crate::model::Model;
+use crate::solve::linear::{FactorKind, KktSystem};
+use crate::state::{retract, State};
+
+use super::error_control::{damped_mode_relief, jerk_decay_rate, jerk_envelope, ENVELOPE_HOLD};
+use super::{
+    add_gyroscopic, add_gyroscopic_damping, all_finite, assemble_mass_and_joints, force_floor, force_scale,
+    AttemptFailure, AttemptStats, Dynamics, NewtonSettings, MAX_STALE_ITERATIONS, REFACTOR_CONTRACTION,
+    SLOW_STEP_ITERATIONS,
+};
+
+/// Generalized-alpha coefficients for a spectral radius.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlphaCoefficients {
+    /// `alpha_m`.
+    pub alpha_m: f64,
+    /// `alpha_f`.
+    pub alpha_f: f64,
+    /// `gamma`.
+    pub gamma: f64,
+    /// `beta`.
+    pub beta: f64,
+}
+
+impl AlphaCoefficients {
+    /// Chung-Hulbert coefficients for `rho_inf` in [0, 1].
+    pub fn new(rho_inf: f64) -> Self {
+        let rho = rho_inf.clamp(0.0, 1.0);
+        let alpha_m = (2.0 * rho - 1.0) / (rho + 1.0);
+        let alpha_f = rho / (rho + 1.0);
+        let gamma = 0.5 + alpha_f - alpha_m;
+        let beta = 0.25 * (gamma + 0.5).powi(2);
+        Self { alpha_m, alpha_f, gamma, beta }
+    }
+}
+
+impl Dynamics {
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn generalized_alpha(
+        &mut self,
+        model: &Model,
+        c: AlphaCoefficients,
+        newton: &NewtonSettings,
+        state: &mut State,
+        rest_next: &[f64],
+        h: f64,
+        tolerance: Option<f64>,
+    ) -> Result<AttemptStats, AttemptFailure> {
+        self.explicit.invalidate();
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        let beta_p = (1.0 - c.alpha_m) / (h * h * c.beta * (1.0 - c.alpha_f));
+        let gamma_p = c.gamma / (h * c.beta);
+
+        // predictor: constant acceleration
+        self.vdot.copy_from(&self.acceleration);
+        self.update_pseudo_acceleration(&c);
+        self.v.copy_from(&state.velocities);
+        self.v.axpy(h * (1.0 - c.gamma), &self.pseudo_acceleration, 1.0);
+        self.v.axpy(h * c.gamma, &self.a_next, 1.0);
+        self.delta.copy_from(&state.velocities);
+        self.delta.axpy(h * h * (0.5 - c.beta), &self.pseudo_acceleration, h);
+        self.delta.axpy(h * h * c.beta, &self.a_next, 1.0);
+        self.lambda.copy_from(&state.multipliers);
+
+        self.trial.time = state.time + h;
+        self.trial.rest_lengths.copy_from_slice(rest_next);
+        let mut stats = AttemptStats::default();
+        let coefficients = (beta_p, gamma_p);
+        let mut reuse =
+            newton.reuse_factorization && self.factored_for == Some(coefficients) && !self.refresh;
+        let mut previous = f64::INFINITY;
+        let mut stale = 0;
+        let mut factorizations = 0;
+        // full Newton factors the exact matrix; modified Newton starts from the symmetric part's
+        // LDL^T and turns to the exact LU for the rest of the step when fresh symmetric factors
+        // do not contract the residual well enough
+        let mut exact = !newton.reuse_factorization;
+        let mut fresh = false;
+        for iter in 0..=newton.max_iterations {
+            self.trial.poses.copy_from_slice(&state.poses);
+            retract(model, &mut self.trial.poses, &self.delta, 1.0);
+            self.trial.velocities.copy_from(&self.v);
+            self.trial.multipliers.copy_from(&self.lambda);
+            evaluate_forces(model, &self.trial, &mut self.ws);
+
+            // residual r = M vdot + gyro - Q + Phi_q^T lambda
+            let mut residual = std::mem::take(&mut self.residual);
+            self.mass_times(model, &self.vdot, &mut residual);
+            let inertial = residual.amax();
+            add_gyroscopic(model, &self.v, &mut residual);
+            residual -= &self.ws.force;
+            add_reaction_force(model, &self.ws.points, &self.lambda, 1.0, &mut residual);
+            self.residual = residual;
+            if !all_finite(&self.residual) {
+                return Err(AttemptFailure::Diverged);
+            }
+            let r_norm = self.residual.amax();
+            let phi_norm = if nc > 0 { self.ws.constraint.amax() } else { 0.0 };
+            let scale = force_scale(model, &self.ws, inertial);
+            let length_scale = self.ws.cables.iter().map(|c| c.length).fold(1e-3, f64::max);
+            stats = AttemptStats {
+                iterations: iter,
+                residual: r_norm,
+                factorizations,
+                evaluations: iter + 1,
+                error: None,
+                error_ratio: None,
+            };
+            if r_norm <= (newton.tolerance * scale).max(force_floor(model, &self.ws))
+                && phi_norm <= 1e-12 * length_scale
+            {
+                break;
+            }
+            if iter == newton.max_iterations {
+                self.factored_for = None;
+                return Err(AttemptFailure::Diverged);
+            }
+            let contraction = r_norm.max(phi_norm * scale / length_scale);
+            if reuse && (contraction > REFACTOR_CONTRACTION * previous || stale >= MAX_STALE_ITERATIONS) {
+                reuse = false;
+                exact |= fresh && self.kkt.factor_kind() == FactorKind::SymmetricLdlt;
+            }
+            previous = contraction;
+            // [M + (gamma' C + K + H_lambda)/beta', Phi_q^T; Phi_q, 0] [d delta; d lambda / beta'] = [-r / beta'; -Phi]
+            self.rhs.fill(0.0);
+            self.rhs.rows_mut(0, n).axpy(-1.0 / beta_p, &self.residual, 0.0);
+            self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
+            if reuse && self.kkt.solve_factored(&mut self.rhs) {
+                stale += 1;
+                fresh = false;
+            } else {
+                self.assemble_newton_matrix(model, beta_p, gamma_p);
+                factorizations += 1;
+                self.factored_for = None;
+                let factored = if exact { self.kkt.factor() } else { self.kkt.factor_symmetric() };
+                if !factored {
+                    return Err(AttemptFailure::Diverged);
+                }
+                fresh = true;
+                self.factored_for = Some(coefficients);
+                if reuse {
+                    // the failed solve on the old factors overwrote the right-hand side
+                    self.rhs.fill(0.0);
+                    self.rhs.rows_mut(0, n).axpy(-1.0 / beta_p, &self.residual, 0.0);
+                    self.rhs.rows_mut(n, nc).axpy(-1.0, &self.ws.constraint, 0.0);
+                }
+                if !self.kkt.solve_factored(&mut self.rhs) {
+                    self.factored_for = None;
+                    return Err(AttemptFailure::Diverged);
+                }
+                reuse = newton.reuse_factorization;
+                stale = 0;
+            }
+            let dd = self.rhs.rows(0, n);
+            self.delta += dd;
+            self.v.axpy(gamma_p, &dd, 1.0);
+            self.vdot.axpy(beta_p, &dd, 1.0);
+            if nc > 0 {
+                self.lambda.axpy(beta_p, &self.rhs.rows(n, nc), 1.0);
+            }
+        }
+        // local error estimate (after Zienkiewicz & Xie 1991): the displacement's truncation
+        // error (beta - 1/6) h^3 (jerk), with the jerk's envelope (`jerk_envelope`) in place of
+        // the jerk, so that an oscillation gets the same step through its cycle. The jerk is the
+        // central difference of the accelerations over this and the previous step,
+        // `(vdot_(n+1) - vdot_(n-1)) / (h + h_prev)`: a jump of the acceleration (an actuator
+        // starting) rings in generalized-alpha's spurious mode, which alternates in sign from
+        // step to step and cancels in this difference, where the plain `vdot_(n+1) - vdot_n` would
+        // keep the steps small long after. First step after a restart: the one-step difference,
+        // no envelope. A rotation's error counts times the body's reach. The largest envelope is
+        // held over the next steps (`ENVELOPE_HOLD`).
+        let weight = h * h * h * (c.beta - 1.0 / 6.0).abs();
+        let length_scale = self.ws.cables.iter().map(|c| c.length).fold(1e-3, f64::max);
+        // the joints hold to 1e-12 of the length scale at position level, Newton's residual to
+        // `newton.tolerance` of the forces: the accelerations' noise (see below)
+        let joint_noise = if nc > 0 { 1e-12 * length_scale / (c.beta * h * h) } else { 0.0 };
+        let mut largest: f64 = 0.0;
+        for (b, body) in model.bodies.iter().enumerate() {
+            for k in 0..body.dof_count {
+                let j = body.dof_offset + k;
+                let lever =
+                    if body.basis.column(k).fixed_rows::<3>(3).norm() > 0.0 { self.reach[b] } else { 1.0 };
+                let (now, next) = (self.acceleration[j], self.vdot[j]);
+                let envelope = match self.previous_step {
+                    Some(h_prev) => {
+                        let noise = joint_noise + newton.tolerance * now.abs().max(next.abs());
+                        jerk_envelope(self.previous_acceleration[j], now, next, h_prev, h, noise)
+                    }
+                    None => (next - now).abs() / h,
+                };
+                largest = largest.max(envelope * lever);
+            }
+        }
+        let held = if largest.is_finite() { self.held_envelope.max(largest) } else { largest };
+        // the joints' noise in the accelerations, `joint_noise` at each of two samples, is a
+        // floor of 2 |beta - 1/6| / beta 1e-12 L in the jerk term whatever the step: below it the
+        // estimate says nothing
+        let noise = 2.0 * weight * joint_noise / h;
+        let error = (weight * held - noise).max(0.0);
+        stats.error = Some(error);
+        if let Some(tol) = tolerance {
+            // the caller's per-step share of the tolerance (`Simulator::step`), more where the
+            // error goes into damped modes and dies out (`damped_mode_relief`)
+            let mut relief = 1.0;
+            if let Some(h_prev) = self.previous_step {
+                self.jerk.copy_from(&self.vdot);
+                self.jerk -= &self.previous_acceleration;
+                self.jerk /= h + h_prev;
+                let rate = jerk_decay_rate(model, &mut self.ws, &self.jerk);
+                if rate.is_finite() {
+                    self.largest_decay_rate = self.largest_decay_rate.max(rate);
+                    relief = damped_mode_relief(rate, self.largest_decay_rate);
+                }
+            }
+            let allowed = tol * relief;
+            stats.error_ratio = Some(error / allowed);
+            if error > allowed || error.is_nan() {
+                // a refused attempt measured the envelope too, over a longer step
+                if held.is_finite() {
+                    self.held_envelope = held;
+                }
+                return Err(if error.is_finite() {
+                    AttemptFailure::ErrorTooLarge(error / allowed)
+                } else {
+                    AttemptFailure::Diverged
+                });
+            }
+        }
+        // commit (the workspace holds the evaluation of exactly the committed state)
+        self.final_evaluation = true;
+        self.refresh = stats.iterations >= SLOW_STEP_ITERATIONS && factorizations == 0;
+        self.update_pseudo_acceleration(&c);
+        state.poses.copy_from_slice(&self.trial.poses);
+        state.velocities.copy_from(&self.v);
+        state.multipliers.copy_from(&self.lambda);
+        state.rest_lengths.copy_from_slice(rest_next);
+        state.time = self.trial.time;
+        self.previous_acceleration.copy_from(&self.acceleration);
+        self.previous_step = Some(h);
+        self.held_envelope = if held.is_finite() { ENVELOPE_HOLD * held } else { 0.0 };
+        self.acceleration.copy_from(&self.vdot);
+        self.pseudo_acceleration.copy_from(&self.a_next);
+        Ok(stats)
+    }
+
+    /// Assembles the generalized-alpha Newton matrix at the trial state.
+    fn assemble_newton_matrix(&mut self, model: &Model, beta_p: f64, gamma_p: f64) {
+        assemble_newton_matrix(model, &self.trial, &mut self.ws, &self.mass, &mut self.kkt, beta_p, gamma_p);
+    }
+
+    /// `a_next = (alpha_f vdot_n - alpha_m a_n + (1 - alpha_f) vdot) / (1 - alpha_m)`, in place.
+    fn update_pseudo_acceleration(&mut self, c: &AlphaCoefficients) {
+        self.a_next.copy_from(&self.acceleration);
+        self.a_next.axpy(-c.alpha_m, &self.pseudo_acceleration, c.alpha_f);
+        self.a_next.axpy(1.0 - c.alpha_f, &self.vdot, 1.0);
+        self.a_next /= 1.0 - c.alpha_m;
+    }
+}
+
+/// Assembles the generalized-alpha Newton matrix
+/// `[M + (gamma' C + K + H_lambda)/beta', Phi_q^T; Phi_q, 0]` into `kkt` at `state` (its
+/// velocities and multipliers are the iterate's), with `ws` evaluated there by
+/// `evaluate::evaluate_forces`. `beta'` (1/s^2) and `gamma'` (1/s) as in the module docs.
+pub fn assemble_newton_matrix(
+    model: &Model,
+    state: &State,
+    ws: &mut Workspace,
+    mass: &[Matrix6<f64>],
+    kkt: &mut KktSystem,
+    beta_p: f64,
+    gamma_p: f64,
+) {
+    assemble_mass_and_joints(model, ws, mass, kkt);
+    let mut sink = kkt.tangents(1.0 / beta_p, gamma_p / beta_p);
+    add_tangents(model, state, &ws.points, &ws.cables, &mut ws.scratch, &mut sink);
+    add_gyroscopic_damping(model, &state.velocities, &mut sink);
+    if model.constraint_count > 0 {
+        add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
+    }
+}

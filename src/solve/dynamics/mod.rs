@@ -1,0 +1,555 @@
+//! Time integration: takes a `Model`, a `State` with its accelerations, and a step size; gives the
+//! state one step later, or `None` when the step failed (Newton did not converge, or a non-finite
+//! number appeared) so that the caller can retry with a smaller step. The state is only written on
+//! success.
+//!
+//! Equations of motion in local coordinates (see `crate::model`):
+//! `M vdot + w x (J w) + Phi_q^T lambda = Q(q, v, t)`, `Phi(q) = 0`, with `M` the constant
+//! block-diagonal body mass matrix and `w x (J w)` the gyroscopic torque of rigid bodies.
+//!
+//! The methods, one file each: `generalized_alpha` (implicit, Newton on the analytic tangent),
+//! `symplectic_euler` and `explicit` (RK4, Dormand-Prince 5(4)); `error_control` holds what
+//! generalized-alpha's error estimate reads (the jerk envelope, the damped modes' relief).
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SymmetricEigen, Vector3, Vector6};
+
+use crate::assembly::TangentSink;
+use crate::assembly::{add_block, add_vector};
+use crate::constraints::{evaluate_rates, joint_points};
+use crate::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
+use crate::model::{BodyId, BodyKind, Model};
+use crate::solve::linear::{KktSystem, LinearBackend};
+use crate::state::{retract, State};
+
+mod error_control;
+pub mod explicit;
+mod generalized_alpha;
+mod joint_schur;
+mod symplectic_euler;
+
+pub use error_control::*;
+pub use generalized_alpha::{assemble_newton_matrix, AlphaCoefficients};
+use joint_schur::JointSchur;
+
+/// Which integrator advances the dynamics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Integrator {
+    /// Implicit generalized-alpha with spectral radius at infinity `rho_inf` in [0, 1].
+    GeneralizedAlpha {
+        /// High-frequency spectral radius: 1 = no numerical dissipation, 0 = maximal.
+        rho_inf: f64,
+    },
+    /// Semi-implicit (symplectic) Euler; conditionally stable.
+    SymplecticEuler,
+    /// The classical explicit 4th-order Runge-Kutta method (`explicit`); conditionally stable.
+    Rk4,
+    /// The Dormand-Prince 5(4) explicit embedded pair (`explicit`): 5th order, with a local error
+    /// estimate for step-size control; conditionally stable.
+    DormandPrince,
+}
+
+impl Integrator {
+    /// Parses `generalized-alpha` / `ga`, `symplectic-euler` / `euler`, `rk4`,
+    /// `dormand-prince` / `dopri5`.
+    pub fn parse(name: &str, rho_inf: f64) -> Option<Self> {
+        match name {
+            "generalized-alpha" | "ga" => Some(Integrator::GeneralizedAlpha { rho_inf }),
+            "symplectic-euler" | "euler" => Some(Integrator::SymplecticEuler),
+            "rk4" => Some(Integrator::Rk4),
+            "dormand-prince" | "dopri5" => Some(Integrator::DormandPrince),
+            _ => None,
+        }
+    }
+    /// Short name for tables.
+    pub fn name(&self) -> String {
+        match self {
+            Integrator::GeneralizedAlpha { rho_inf } => format!("generalized-alpha(rho={rho_inf})"),
+            Integrator::SymplecticEuler => "symplectic-euler".into(),
+            Integrator::Rk4 => "rk4".into(),
+            Integrator::DormandPrince => "dormand-prince".into(),
+        }
+    }
+    /// Order of the local error of a step: `h^(order + 1)`.
+    pub fn order(&self) -> u32 {
+        match self {
+            Integrator::GeneralizedAlpha { .. } => 2,
+            Integrator::SymplecticEuler => 1,
+            Integrator::Rk4 => 4,
+            Integrator::DormandPrince => 5,
+        }
+    }
+    /// True for the explicit (conditionally stable) integrators.
+    pub fn is_explicit(&self) -> bool {
+        !matches!(self, Integrator::GeneralizedAlpha { .. })
+    }
+    /// True when the integrator estimates its local error, so that it can choose its steps
+    /// (`SimSettings::tolerance`).
+    pub fn estimates_error(&self) -> bool {
+        matches!(self, Integrator::GeneralizedAlpha { .. } | Integrator::DormandPrince)
+    }
+    /// How the error ratio of `AttemptStats::error_ratio` scales with the step, `ratio ~ h^(1/e)`:
+    /// the step that would meet the tolerance is `h ratio^(-e)`. Generalized-alpha's local error
+    /// goes like `h^3` (`e = 1/3`), Dormand-Prince's 4th-order estimate like `h^5` (`e = 1/5`).
+    pub fn error_exponent(&self) -> f64 {
+        match self {
+            Integrator::DormandPrince => 0.2,
+            _ => 1.0 / 3.0,
+        }
+    }
+}
+
+/// Newton settings of the implicit integrator.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NewtonSettings {
+    /// Converged when `|residual|_inf <= tolerance * force_scale` (or at the round-off floor).
+    pub tolerance: f64,
+    /// Iterations before the step is rejected.
+    pub max_iterations: usize,
+    /// Modified Newton: keep the last factored Newton matrix (across iterations and steps of the
+    /// same size) and refactor only when an iteration contracts the residual by less than
+    /// `REFACTOR_CONTRACTION`, after `MAX_STALE_ITERATIONS` iterations on old factors, or when
+    /// the step size changes. The convergence test is the same residual test either way.
+    pub reuse_factorization: bool,
+}
+
+/// A reused factorization is replaced when an iteration leaves more than this fraction of the
+/// residual (`|r_k| > REFACTOR_CONTRACTION |r_(k-1)|`).
+pub const REFACTOR_CONTRACTION: f64 = 0.25;
+/// Iterations in a row on one reused factorization before it is replaced anyway.
+pub const MAX_STALE_ITERATIONS: usize = 4;
+/// Generalized-alpha's local errors add up over the steps: each step may make `tolerance
+/// h_avg / TOLERANCE_TIME` of it, `h_avg` the running mean step, so that a second's worth of
+/// steps adds up to about the tolerance, while each step gets the same share (equidistributed
+/// local errors take the fewest steps for a total), s. Errors that go into damped modes get more
+/// (`damped_mode_relief`).
+pub const TOLERANCE_TIME: f64 = 1.0;
+
+/// A step that needed this many Newton iterations on factors from earlier steps makes the next
+/// step start with fresh factors. On a structure whose stiffness keeps changing (a 64-stage
+/// helical tower deploying through every stage) factors a step old already need 3 iterations
+/// and a factorization costs about 2.6 iterations: refreshing after 3-iteration steps cost
+/// 9.0e9 instructions per 1000 steps, after 4-iteration steps 7.1e9, never 7.7e9 (callgrind,
+/// `bench steps tower:helical:64 --steps 1000`).
+pub const SLOW_STEP_ITERATIONS: usize = 4;
+
+impl Default for NewtonSettings {
+    fn default() -> Self {
+        Self { tolerance: 1e-9, max_iterations: 15, reuse_factorization: true }
+    }
+}
+
+/// What one successful step attempt cost.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct AttemptStats {
+    /// Newton iterations (0 for the explicit integrators).
+    pub iterations: usize,
+    /// Final residual max-norm, N.
+    pub residual: f64,
+    /// Newton-matrix factorizations (0 when every iteration reused older factors).
+    pub factorizations: usize,
+    /// Force evaluations (stages of an explicit method, iterations plus one of an implicit one).
+    pub evaluations: usize,
+    /// The local error estimate of the step, m (`None` for integrators without one).
+    pub error: Option<f64>,
+    /// The error estimate over what the tolerance allows this step (`<= 1` when accepted;
+    /// `None` without a tolerance or an estimate).
+    pub error_ratio: Option<f64>,
+}
+
+/// Why a step attempt was refused. The state is unchanged either way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AttemptFailure {
+    /// Newton did not converge, a solve failed, or a number was not finite.
+    Diverged,
+    /// The local error estimate exceeded the tolerance by this factor (> 1).
+    ErrorTooLarge(f64),
+}
+
+/// Integrator memory and preallocated buffers for one model.
+#[derive(Debug, Clone)]
+pub struct Dynamics {
+    /// Each body's constant mass matrix in its local coordinates (`BodyModel::mass_matrix`).
+    mass: Vec<Matrix6<f64>>,
+    /// True acceleration `vdot` at the current state.
+    pub acceleration: DVector<f64>,
+    /// Generalized-alpha pseudo-acceleration `a`.
+    pub pseudo_acceleration: DVector<f64>,
+    ws: Workspace,
+    /// The explicit integrator's joint projection on the dense backend (`JointSchur`).
+    schur: JointSchur,
+    /// Stage buffers of the Runge-Kutta integrators.
+    explicit: explicit::ExplicitBuffers,
+    /// Per body: the largest distance of its points from its origin (at least 1 mm), m; a
+    /// rotation error times this is a point error.
+    reach: Vec<f64>,
+    trial: State,
+    rhs: DVector<f64>,
+    residual: DVector<f64>,
+    kkt: KktSystem,
+    /// `(beta', gamma')` of the generalized-alpha matrix whose factors `kkt` holds.
+    factored_for: Option<(f64, f64)>,
+    /// The last step needed `SLOW_STEP_ITERATIONS` or more iterations on reused factors: the
+    /// next step starts with fresh ones.
+    refresh: bool,
+    /// `ws` holds the evaluation of the state the last step committed.
+    final_evaluation: bool,
+    /// The acceleration before the last generalized-alpha step, and that step's size (`None`
+    /// after a restart): the central difference of the error estimate.
+    previous_acceleration: DVector<f64>,
+    previous_step: Option<f64>,
+    /// The largest jerk envelope times lever of the recent attempts, decaying by
+    /// `ENVELOPE_HOLD` per accepted step (m/s^3; 0 after a restart).
+    held_envelope: f64,
+    /// The largest `jerk_decay_rate` of the error-controlled steps so far, 1/s
+    /// (`damped_mode_relief`).
+    largest_decay_rate: f64,
+    /// The jerk of the last generalized-alpha attempt (scratch of `jerk_decay_rate`).
+    jerk: DVector<f64>,
+    // generalized-alpha iterates, preallocated so that a step never allocates
+    vdot: DVector<f64>,
+    a_next: DVector<f64>,
+    v: DVector<f64>,
+    delta: DVector<f64>,
+    lambda: DVector<f64>,
+}
+
+/// Gyroscopic generalized force `B^T [0; w x J w]` of rigid bodies (N m), added into `out`.
+pub fn add_gyroscopic(model: &Model, v: &DVector<f64>, out: &mut DVector<f64>) {
+    for (b, body) in model.bodies.iter().enumerate() {
+        if body.kind != BodyKind::Rigid {
+            continue;
+        }
+        let local = body.local_increment(v.as_slice(), 1.0);
+        let w = Vector3::new(local[3], local[4], local[5]);
+        let t = w.cross(&(body.inertia * w));
+        add_vector(
+            model,
+            BodyId(b),
+            &(body.basis.transpose() * Vector6::new(0.0, 0.0, 0.0, t.x, t.y, t.z)),
+            1.0,
+            out,
+        );
+    }
+}
+
+/// The velocity derivative of the gyroscopic force, `B^T [[0,0],[0, [w]x J - [J w]x]] B`
+/// (N m s), added into the damping blocks of `sink`.
+pub fn add_gyroscopic_damping<S: TangentSink + ?Sized>(model: &Model, v: &DVector<f64>, sink: &mut S) {
+    for (b, body) in model.bodies.iter().enumerate() {
+        if body.kind != BodyKind::Rigid {
+            continue;
+        }
+        let local = body.local_increment(v.as_slice(), 1.0);
+        let w = Vector3::new(local[3], local[4], local[5]);
+        let jw = body.inertia * w;
+        let d: Matrix3<f64> = w.cross_matrix() * body.inertia - jw.cross_matrix();
+        let mut d6 = Matrix6::zeros();
+        d6.fixed_view_mut::<3, 3>(3, 3).copy_from(&d);
+        sink.damping(BodyId(b), BodyId(b), &(body.basis.transpose() * d6 * body.basis), 1.0);
+    }
+}
+
+/// Constant mass matrix of `model` (dense, block diagonal, kg and kg m^2).
+pub fn mass_matrix(model: &Model) -> DMatrix<f64> {
+    let mut m = DMatrix::zeros(model.dof_count, model.dof_count);
+    for (b, body) in model.bodies.iter().enumerate() {
+        add_block(model, BodyId(b), BodyId(b), &body.mass_matrix(), 1.0, &mut m);
+    }
+    m
+}
+
+/// `d(Phi_q)/dt v` by a central difference of `Phi_q v` along `v` (m/s^2), the velocity-squared
+/// term of the constraint acceleration; zero without joints.
+fn constraint_curvature(model: &Model, state: &State, ws: &mut Workspace) -> DVector<f64> {
+    let nc = model.constraint_count;
+    if nc == 0 || state.velocities.amax() == 0.0 {
+        return DVector::zeros(nc);
+    }
+    let eps = 1e-6 / state.velocities.amax().max(1e-12);
+    let mut s = state.clone();
+    let mut out = DVector::zeros(nc);
+    let mut rates = DVector::zeros(nc);
+    for (sign, scale) in [(1.0, eps), (-1.0, -eps)] {
+        s.poses.copy_from_slice(&state.poses);
+        retract(model, &mut s.poses, &state.velocities, scale);
+        evaluate_forces(model, &s, ws);
+        evaluate_rates(model, &ws.points, &mut rates);
+        out.axpy(sign / (2.0 * eps), &rates, 1.0);
+    }
+    out
+}
+
+fn force_scale(model: &Model, ws: &Workspace, inertial: f64) -> f64 {
+    let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
+    let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+    weight.max(tension).max(inertial).max(1e-9)
+}
+
+fn force_floor(model: &Model, ws: &Workspace) -> f64 {
+    model
+        .cables
+        .iter()
+        .zip(&ws.cables)
+        .map(|(m, c)| 64.0 * f64::EPSILON * m.axial_stiffness * c.length / c.rest_length)
+        .fold(0.0, f64::max)
+}
+
+fn all_finite(v: &DVector<f64>) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+impl Dynamics {
+    /// Buffers for `model`, solving its Newton systems with `backend`.
+    pub fn new(model: &Model, backend: LinearBackend) -> Self {
+        let n = model.dof_count;
+        let kkt = KktSystem::new(model, backend);
+        Self {
+            mass: model.bodies.iter().map(|b| b.mass_matrix()).collect(),
+            acceleration: DVector::zeros(n),
+            pseudo_acceleration: DVector::zeros(n),
+            ws: Workspace::for_forces(model),
+            schur: JointSchur::new(model),
+            explicit: explicit::ExplicitBuffers::new(model, n + model.constraint_count),
+            reach: body_reach(model),
+            trial: State::initial(model),
+            rhs: DVector::zeros(kkt.size()),
+            residual: DVector::zeros(n),
+            kkt,
+            factored_for: None,
+            refresh: false,
+            final_evaluation: false,
+            previous_acceleration: DVector::zeros(n),
+            previous_step: None,
+            held_envelope: 0.0,
+            largest_decay_rate: 0.0,
+            jerk: DVector::zeros(n),
+            vdot: DVector::zeros(n),
+            a_next: DVector::zeros(n),
+            v: DVector::zeros(n),
+            delta: DVector::zeros(n),
+            lambda: DVector::zeros(model.constraint_count),
+        }
+    }
+
+    /// Swaps `ws` with the workspace the last successful generalized-alpha step evaluated at the
+    /// state it committed (its convergence check), and returns true; false (nothing swapped)
+    /// after a symplectic Euler step, whose evaluation is of the state before the step. Saves the
+    /// caller a force evaluation per step.
+    pub fn take_final_evaluation(&mut self, ws: &mut Workspace) -> bool {
+        if !self.final_evaluation {
+            return false;
+        }
+        std::mem::swap(ws, &mut self.ws);
+        self.final_evaluation = false;
+        true
+    }
+
+    /// The linear-solver backend in use (dense or sparse).
+    pub fn linear_backend(&self) -> LinearBackend {
+        self.kkt.backend()
+    }
+
+    /// The Newton system (size, nonzeros, bordered cables).
+    pub fn kkt(&self) -> &KktSystem {
+        &self.kkt
+    }
+
+    /// `out = M x` with the block-diagonal mass matrix (no `n x n` product).
+    fn mass_times(&self, model: &Model, x: &DVector<f64>, out: &mut DVector<f64>) {
+        for (b, body) in model.bodies.iter().enumerate() {
+            let (o, k) = (body.dof_offset, body.dof_count);
+            for r in 0..k {
+                let mut sum = 0.0;
+                for c in 0..k {
+                    sum += self.mass[b][(r, c)] * x[o + c];
+                }
+                out[o + r] = sum;
+            }
+        }
+    }
+
+    /// Starts the matrix `[M, Phi_q^T; Phi_q, 0]` (bordered rows `dT = 0`) at the point
+    /// kinematics in the workspace.
+    fn assemble_mass_and_joints(&mut self, model: &Model) {
+        assemble_mass_and_joints(model, &self.ws, &self.mass, &mut self.kkt);
+    }
+
+    /// Sets consistent accelerations and reactions at `state` (solves
+    /// `[M Phi_q^T; Phi_q 0][vdot; lambda] = [Q - gyro; -dPhi_q/dt v]`), and `a = vdot`.
+    pub fn initialize(&mut self, model: &Model, state: &mut State) -> bool {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        let curvature = constraint_curvature(model, state, &mut self.ws);
+        evaluate_forces(model, state, &mut self.ws);
+        let mut gyro = DVector::zeros(n);
+        add_gyroscopic(model, &state.velocities, &mut gyro);
+        self.assemble_mass_and_joints(model);
+        self.rhs.fill(0.0);
+        self.rhs.rows_mut(0, n).copy_from(&(&self.ws.force - gyro));
+        self.rhs.rows_mut(n, nc).copy_from(&(-curvature));
+        self.factored_for = None;
+        if !self.kkt.solve(&mut self.rhs) {
+            return false;
+        }
+        self.acceleration.copy_from(&self.rhs.rows(0, n));
+        self.pseudo_acceleration.copy_from(&self.acceleration);
+        self.previous_step = None;
+        self.held_envelope = 0.0;
+        state.multipliers.copy_from(&self.rhs.rows(n, nc));
+        true
+    }
+
+    /// One step of size `h` with rest lengths `rest_next` at the new time. On success writes the
+    /// new state into `state` (and the accelerations here) and returns the attempt's statistics;
+    /// on failure leaves everything unchanged and returns `None`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn step(
+        &mut self,
+        model: &Model,
+        integrator: Integrator,
+        newton: &NewtonSettings,
+        state: &mut State,
+        rest_now: &[f64],
+        rest_next: &[f64],
+        h: f64,
+        tolerance: Option<f64>,
+    ) -> Result<AttemptStats, AttemptFailure> {
+        match integrator {
+            Integrator::GeneralizedAlpha { rho_inf } => self.generalized_alpha(
+                model,
+                AlphaCoefficients::new(rho_inf),
+                newton,
+                state,
+                rest_next,
+                h,
+                tolerance,
+            ),
+            Integrator::SymplecticEuler => {
+                self.explicit.invalidate();
+                self.previous_step = None;
+                self.symplectic_euler(model, state, rest_now, rest_next, h).ok_or(AttemptFailure::Diverged)
+            }
+            Integrator::Rk4 | Integrator::DormandPrince => {
+                self.previous_step = None;
+                let tableau = if integrator == Integrator::Rk4 { &explicit::RK4 } else { &explicit::DOPRI5 };
+                // the local errors of a run add up to a few times each one's: aim lower
+                let tolerance = tolerance.map(explicit::local_tolerance);
+                match self.explicit_step(model, tableau, state, rest_now, rest_next, h, tolerance) {
+                    Ok(s) => Ok(AttemptStats {
+                        iterations: 0,
+                        residual: 0.0,
+                        factorizations: 0,
+                        evaluations: s.evaluations,
+                        error: s.error,
+                        error_ratio: s.error.zip(tolerance).map(|(e, t)| e / t),
+                    }),
+                    Err(ratio) if ratio.is_finite() => Err(AttemptFailure::ErrorTooLarge(ratio)),
+                    Err(_) => Err(AttemptFailure::Diverged),
+                }
+            }
+        }
+    }
+}
+
+/// Per body: the largest distance of its points from its origin, at least 1 mm (m).
+fn body_reach(model: &Model) -> Vec<f64> {
+    let mut reach = vec![1e-3f64; model.bodies.len()];
+    for p in &model.points {
+        reach[p.body.0] = reach[p.body.0].max(p.local.norm());
+    }
+    reach
+}
+
+/// Zeroes `kkt` and adds `[M, Phi_q^T; Phi_q, 0]`: the body mass blocks `mass` (one 6 x 6 per
+/// body, `BodyModel::mass_matrix`) and the joint Jacobian rows at the point kinematics in `ws`.
+pub fn assemble_mass_and_joints(model: &Model, ws: &Workspace, mass: &[Matrix6<f64>], kkt: &mut KktSystem) {
+    kkt.clear();
+    for (b, m) in mass.iter().enumerate() {
+        kkt.add_body_block(BodyId(b), BodyId(b), m, 1.0);
+    }
+    for (j, joint) in model.joints.iter().enumerate() {
+        for (side, (p, sign)) in joint_points(joint).enumerate() {
+            let point = &ws.points[p.0];
+            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
+        }
+    }
+}
+
+/// Largest stable step of an explicit integrator at `state` (infinite for generalized-alpha):
+/// symplectic Euler's `stability_limit`; for the Runge-Kutta methods the radius of the left
+/// half-disk inside their stability region (`explicit::RK4_STABILITY_RADIUS`,
+/// `explicit::DOPRI5_STABILITY_RADIUS`) over the largest eigenvalue modulus of the linearized
+/// system, bounded by `max(omega_max, c_max)` (`spectral_bounds`).
+pub fn explicit_stability_limit(model: &Model, state: &State, integrator: Integrator) -> f64 {
+    let radius = match integrator {
+        Integrator::GeneralizedAlpha { .. } => return f64::INFINITY,
+        Integrator::SymplecticEuler => return stability_limit(model, state),
+        Integrator::Rk4 => explicit::RK4_STABILITY_RADIUS,
+        Integrator::DormandPrince => explicit::DOPRI5_STABILITY_RADIUS,
+    };
+    let (w, c) = spectral_bounds(model, state);
+    let rho = w.max(c);
+    if rho > 0.0 {
+        radius / rho
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// `(omega_max, c_max)` at `state`: the highest natural frequency on the directions the joints
+/// allow (`Z^T K Z x = w^2 Z^T M Z x`, `Z` a null-space basis of `Phi_q`, rad/s) and the largest
+/// eigenvalue of the mass-normalized damping matrix there (1/s). `(0, 0)` without coordinates or
+/// freedom; `(inf, inf)` when the mass matrix there is singular.
+pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
+    let n = model.dof_count;
+    if n == 0 {
+        return (0.0, 0.0);
+    }
+    let mut ws = Workspace::new(model);
+    evaluate(model, state, &mut ws, Tangents::StiffnessAndDamping);
+    let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return (0.0, 0.0) };
+    let m = z.transpose() * mass_matrix(model) * &z;
+    let k = z.transpose() * ((&ws.stiffness + ws.stiffness.transpose()) * 0.5) * &z;
+    let c = z.transpose() * ((&ws.damping + ws.damping.transpose()) * 0.5) * &z;
+    // symmetric form L^-1 K L^-T with M = L L^T
+    let Some(chol) = m.cholesky() else { return (f64::INFINITY, f64::INFINITY) };
+    let l_inv = chol.l().try_inverse().unwrap_or_else(|| DMatrix::identity(z.ncols(), z.ncols()));
+    let w2 = SymmetricEigen::new(&l_inv * k * l_inv.transpose()).eigenvalues.max().max(0.0);
+    let c_max = SymmetricEigen::new(&l_inv * c * l_inv.transpose()).eigenvalues.max().max(0.0);
+    (w2.sqrt(), c_max)
+}
+
+/// Largest stable step of the symplectic Euler integrator at `state`: `2 / omega_max`, with
+/// `omega_max^2` the largest eigenvalue of `M^-1 K` on the directions the joints allow
+/// (`Z^T K Z x = w^2 Z^T M Z x`, `Z` a null-space basis of `Phi_q`), reduced for cable damping:
+/// for a damped mode the explicit limit is `h < 2 / (omega (sqrt(1 + z^2) + z))`, `z = c/(2 omega)`
+/// with `c` the largest eigenvalue of the mass-normalized damping matrix. Infinite without
+/// stiffness and damping.
+pub fn stability_limit(model: &Model, state: &State) -> f64 {
+    let (w, c_max) = spectral_bounds(model, state);
+    if w == f64::INFINITY {
+        return 0.0;
+    }
+    if w == 0.0 {
+        return if c_max > 0.0 { 2.0 / c_max } else { f64::INFINITY };
+    }
+    let zeta = c_max / (2.0 * w);
+    2.0 / (w * ((1.0 + zeta * zeta).sqrt() + zeta))
+}
+
+/// Power flows of the cables at one instant (W): actuator power into the cables and power lost
+/// in the dampers (see `EnergyAccount`).
+pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f64) {
+    let mut actuator = 0.0;
+    let mut loss = 0.0;
+    for (c, r) in ws.cables.iter().enumerate() {
+        if r.length <= r.rest_length {
+            continue;
+        }
+        let ea = model.cables[c].axial_stiffness;
+        let t_el = ea / r.rest_length * (r.length - r.rest_length);
+        actuator -= t_el * (r.length + r.rest_length) / (2.0 * r.rest_length) * rest_rate[c];
+        loss += (r.tension - t_el) * r.length_rate;
+    }
+    (actuator, loss)
+}

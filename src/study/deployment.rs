@@ -1,0 +1,335 @@
+//! The deployment study: the quasi-static path and one dynamic deployment per actuation time,
+//! their peak tensions and displacements and how far they depart from the path (CSVs, a summary
+//! table, plots).
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+
+use nalgebra::Vector3;
+
+use crate::evaluate::Workspace;
+use crate::model::Model;
+use crate::plot::{self, Chart, Series};
+use crate::report;
+use crate::sim::SimSettings;
+use crate::solve::deploy::deploy_quasi_static;
+use crate::state::State;
+
+use super::{
+    create, dynamic_csv_header, dynamic_csv_row, parallel_map, rigidly_aligned, run_dynamic, scale_schedule,
+    within_rate_limits,
+};
+
+/// One row of the study summary.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StudyRow {
+    /// Actuation (schedule) time, s.
+    pub ramp_time: f64,
+    /// Largest tension over all cables and the whole run, N.
+    pub peak_tension: f64,
+    /// `(peak - quasi-static peak) / quasi-static peak`.
+    pub tension_deviation: f64,
+    /// Largest displacement of the chosen point from its start, m.
+    pub peak_displacement: f64,
+    /// `(peak - quasi-static peak) / quasi-static peak`.
+    pub displacement_deviation: f64,
+    /// Whether the time-scaled schedule respects every actuator's `max_rate`.
+    pub within_rate: bool,
+    /// Wall time of the run, s.
+    pub wall_time: f64,
+}
+
+/// What a deployment study found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StudyResult {
+    /// The point whose displacement is tracked.
+    pub point: String,
+    /// Quasi-static peak tension, N.
+    pub qs_peak_tension: f64,
+    /// Quasi-static peak displacement of the point, m.
+    pub qs_peak_displacement: f64,
+    /// One row per actuation time, in increasing time.
+    pub rows: Vec<StudyRow>,
+    /// Displacements were measured after removing the rigid-body motion (free-floating scene).
+    pub rigid_motion_removed: bool,
+    /// Actuation time below which the deviation exceeds 1 % (interpolated in log-log between
+    /// the bracketing runs); `None` when no run exceeds 1 %; `Some(inf)` when all do.
+    pub threshold: Option<f64>,
+}
+
+impl StudyResult {
+    /// Markdown table of the summary.
+    pub fn markdown(&self) -> String {
+        let mut s = format!(
+            "Quasi-static peak tension {:.4} N, peak displacement of `{}` {:.6} m{}.\n\n| actuation time s | peak tension N | deviation % | peak displacement m | deviation % | within max_rate | wall time s |\n| ---: | ---: | ---: | ---: | ---: | :---: | ---: |\n",
+            self.qs_peak_tension,
+            self.point,
+            self.qs_peak_displacement,
+            if self.rigid_motion_removed {
+                " (free-floating scene: displacements after removing the rigid-body motion by optimal rigid alignment)"
+            } else {
+                ""
+            }
+        );
+        for r in &self.rows {
+            let _ = writeln!(
+                s,
+                "| {} | {:.4} | {:+.3} | {:.6} | {:+.3} | {} | {:.2} |",
+                r.ramp_time,
+                r.peak_tension,
+                100.0 * r.tension_deviation,
+                r.peak_displacement,
+                100.0 * r.displacement_deviation,
+                if r.within_rate { "yes" } else { "no" },
+                r.wall_time
+            );
+        }
+        let _ = match self.threshold {
+            None => writeln!(s, "\nNo run deviates by more than 1 % from the quasi-static path."),
+            Some(t) if t.is_infinite() => {
+                writeln!(s, "\nEvery run deviates by more than 1 %; slower actuation is needed.")
+            }
+            Some(t) => writeln!(s, "\nThe deviation exceeds 1 % for actuation times below about {t:.3} s."),
+        };
+        s
+    }
+}
+
+/// Deviation threshold: the actuation time where `dev` crosses 1 % (see `StudyResult::threshold`).
+pub fn one_percent_threshold(times: &[f64], dev: &[f64]) -> Option<f64> {
+    let over: Vec<bool> = dev.iter().map(|d| d.abs() > 0.01).collect();
+    if !over.iter().any(|o| *o) {
+        return None;
+    }
+    let last_over = over.iter().rposition(|o| *o).expect("some over");
+    if last_over + 1 == times.len() {
+        return Some(f64::INFINITY);
+    }
+    let (t0, t1) = (times[last_over], times[last_over + 1]);
+    let (d0, d1) = (dev[last_over].abs(), dev[last_over + 1].abs().max(1e-12));
+    let f = (0.01f64.ln() - d0.ln()) / (d1.ln() - d0.ln());
+    Some((t0.ln() + f * (t1.ln() - t0.ln())).exp())
+}
+
+/// Actuation-time factors of `default_ramp_times`.
+pub const DEFAULT_RAMP_FACTORS: [f64; 8] = [0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0];
+
+/// A span of actuation times around the scene's own (the end of its schedule, `T0`):
+/// `T0 x (0.02, 0.05, 0.1, 0.2, 0.5, 1, 2, 5)` s, each to 3 significant digits. Err when the
+/// scene has no deployment schedule.
+pub fn default_ramp_times(model: &Model) -> Result<Vec<f64>, String> {
+    let t0 = model.schedule.end_time();
+    if model.schedule.ramps.is_empty() || t0.is_nan() || t0 <= 0.0 {
+        return Err(format!("scene '{}' has no deployment schedule to study", model.name));
+    }
+    Ok(DEFAULT_RAMP_FACTORS
+        .iter()
+        .map(|f| {
+            let t = f * t0;
+            let scale = 10f64.powi(2 - t.log10().floor() as i32);
+            (t * scale).round() / scale
+        })
+        .collect())
+}
+
+/// Runs the deployment study (see the module docs) and writes into `out_dir`. `point` defaults to
+/// the point that moves most along the quasi-static path. Files:
+/// `quasi_static.csv`, `dynamic_T<time>.csv`, `summary.csv`, `summary.md`, `deviation.{png,svg}`,
+/// `histories.{png,svg}`.
+pub fn deployment_study(
+    model: &Model,
+    ramp_times: &[f64],
+    point: Option<&str>,
+    settings: SimSettings,
+    settle: f64,
+    jobs: usize,
+    out_dir: &Path,
+) -> Result<StudyResult, String> {
+    std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
+    if let Some(p) = point {
+        model.point_id(p).ok_or_else(|| format!("unknown point '{p}'"))?;
+    }
+    if model.schedule.ramps.is_empty() {
+        return Err(format!("scene '{}' has no deployment schedule to study", model.name));
+    }
+    let mut times: Vec<f64> = ramp_times.to_vec();
+    times.sort_by(f64::total_cmp);
+    if times.iter().any(|t| !(t.is_finite() && *t > 0.0)) {
+        return Err("ramp times must be positive".into());
+    }
+
+    // quasi-static path (parameterized by the fraction of the schedule done)
+    let mut state = State::initial(model);
+    let mut ws = Workspace::new(model);
+    let mut qs_file = create(&out_dir.join("quasi_static.csv"))?;
+    writeln!(qs_file, "{}", report::path_csv_header(model)).map_err(|e| e.to_string())?;
+    let end = model.schedule.end_time();
+    let mut qs_tension: Vec<(f64, f64)> = Vec::new();
+    let mut qs_peak_tension: f64 = 0.0;
+    let mut start_pos: Vec<Vector3<f64>> = Vec::new();
+    let mut qs_disp = vec![0.0f64; model.points.len()];
+    let free = model.is_free_floating();
+    // positions to compare with the start: as they are, or rigidly aligned onto the start
+    let shape = |now: Vec<Vector3<f64>>, start: &[Vector3<f64>]| {
+        if free {
+            rigidly_aligned(&now, start)
+        } else {
+            now
+        }
+    };
+    deploy_quasi_static(model, &mut state, &mut ws, |step, st, w| {
+        let row = report::path_csv_row(model, st, w, step);
+        let _ = writeln!(qs_file, "{row}");
+        if step.kind == crate::solve::deploy::PathKind::ArcLength {
+            // points traced through a limit point are not states the structure rests in
+            return;
+        }
+        let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+        qs_peak_tension = qs_peak_tension.max(t_max);
+        if start_pos.is_empty() {
+            start_pos = w.points.iter().map(|p| p.position).collect();
+        }
+        let now = shape(w.points.iter().map(|p| p.position).collect(), &start_pos);
+        for (i, p) in now.iter().enumerate() {
+            qs_disp[i] = qs_disp[i].max((p - start_pos[i]).norm());
+        }
+        qs_tension.push((st.time / end, t_max));
+    })
+    .map_err(|e| e.to_string())?;
+    qs_file.flush().map_err(|e| e.to_string())?;
+    let pid = match point {
+        Some(p) => model.point_id(p).expect("checked above"),
+        // the first point (in file order) within 1e-9 of the largest displacement: symmetric
+        // points tie, and round-off must not pick between them
+        None => {
+            let top = qs_disp.iter().copied().fold(0.0, f64::max);
+            crate::model::PointId((0..qs_disp.len()).find(|&i| qs_disp[i] >= top * (1.0 - 1e-9)).unwrap_or(0))
+        }
+    };
+    let point = model.points[pid.0].name.as_str();
+    let qs_peak_disp = qs_disp[pid.0];
+
+    // every time-scaled run starts from the model's initial state: one start position for all
+    let dynamic_start: Vec<Vector3<f64>> = {
+        let mut s0 = Workspace::new(model);
+        crate::evaluate::evaluate(model, &State::initial(model), &mut s0, crate::evaluate::Tangents::None);
+        s0.points.iter().map(|p| p.position).collect()
+    };
+    // one dynamic deployment per actuation time, on `jobs` threads (each run is independent and
+    // deterministic: the same rows whatever the thread count)
+    let run_one = |&t_ramp: &f64| -> Result<(StudyRow, Series), String> {
+        let mut m = model.clone();
+        scale_schedule(&mut m, t_ramp);
+        let within_rate = within_rate_limits(&m);
+        let mut file = create(&out_dir.join(format!("dynamic_T{t_ramp}.csv")))?;
+        writeln!(file, "{}", dynamic_csv_header(&m)).map_err(|e| e.to_string())?;
+        let mut peak_t: f64 = 0.0;
+        let mut peak_d: f64 = 0.0;
+        let mut history = Vec::new();
+        let totals = run_dynamic(&m, settings, t_ramp + settle, |sim, stats| {
+            writeln!(file, "{}", dynamic_csv_row(sim, stats)).map_err(|e| e.to_string())?;
+            let w = sim.workspace();
+            let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+            peak_t = peak_t.max(t_max);
+            let d = if free {
+                let now = shape(w.points.iter().map(|p| p.position).collect(), &dynamic_start);
+                (now[pid.0] - dynamic_start[pid.0]).norm()
+            } else {
+                (w.points[pid.0].position - dynamic_start[pid.0]).norm()
+            };
+            peak_d = peak_d.max(d);
+            if sim.state().time <= 2.5 * t_ramp {
+                history.push((sim.state().time / t_ramp, t_max));
+            }
+            Ok(())
+        })
+        .map_err(|e| format!("actuation time {t_ramp} s: {e}"))?;
+        file.flush().map_err(|e| e.to_string())?;
+        let row = StudyRow {
+            ramp_time: t_ramp,
+            peak_tension: peak_t,
+            tension_deviation: (peak_t - qs_peak_tension) / qs_peak_tension,
+            peak_displacement: peak_d,
+            displacement_deviation: if qs_peak_disp > 0.0 {
+                (peak_d - qs_peak_disp) / qs_peak_disp
+            } else {
+                0.0
+            },
+            within_rate,
+            wall_time: totals.wall_time.as_secs_f64(),
+        };
+        Ok((row, Series::new(format!("T = {t_ramp} s"), history, false)))
+    };
+    let runs = parallel_map(&times, jobs, run_one)?;
+    let mut histories = vec![Series { reference: true, ..Series::new("quasi-static", qs_tension, false) }];
+    let mut rows = Vec::new();
+    for (row, history) in runs {
+        rows.push(row);
+        histories.push(history);
+    }
+    let worst: Vec<f64> =
+        rows.iter().map(|r| r.tension_deviation.abs().max(r.displacement_deviation.abs())).collect();
+    let result = StudyResult {
+        point: point.to_string(),
+        qs_peak_tension,
+        qs_peak_displacement: qs_peak_disp,
+        threshold: one_percent_threshold(&times, &worst),
+        rows,
+        rigid_motion_removed: free,
+    };
+
+    let mut summary = create(&out_dir.join("summary.csv"))?;
+    let _ = writeln!(summary, "ramp_time_s,peak_tension_N,tension_deviation_percent,peak_displacement_m,displacement_deviation_percent,within_max_rate,wall_time_s");
+    for r in &result.rows {
+        let _ = writeln!(
+            summary,
+            "{},{:.9},{:.6e},{:.9},{:.6e},{},{:.4}",
+            r.ramp_time,
+            r.peak_tension,
+            100.0 * r.tension_deviation,
+            r.peak_displacement,
+            100.0 * r.displacement_deviation,
+            r.within_rate,
+            r.wall_time
+        );
+    }
+    summary.flush().map_err(|e| e.to_string())?;
+    std::fs::write(out_dir.join("summary.md"), result.markdown()).map_err(|e| e.to_string())?;
+
+    let dev_series = |name: &str, f: &dyn Fn(&StudyRow) -> f64| {
+        Series::new(
+            name,
+            result.rows.iter().map(|r| (r.ramp_time, 100.0 * f(r).abs().max(1e-6))).collect(),
+            true,
+        )
+    };
+    plot::write(
+        &Chart {
+            title: format!("{}: dynamic vs quasi-static deployment", model.name),
+            x_label: "actuation time (s)".into(),
+            y_label: "|deviation| (%)".into(),
+            log_x: true,
+            log_y: true,
+            series: vec![
+                dev_series("peak tension", &|r| r.tension_deviation),
+                dev_series(&format!("peak displacement of {point}"), &|r| r.displacement_deviation),
+            ],
+            reference: Some((1.0, "1 %".into())),
+        },
+        &out_dir.join("deviation"),
+    )?;
+    plot::write(
+        &Chart {
+            title: format!("{}: largest cable tension during deployment (to 2.5 T)", model.name),
+            x_label: "time / actuation time".into(),
+            y_label: "largest tension (N)".into(),
+            log_x: false,
+            log_y: false,
+            series: histories,
+            reference: None,
+        },
+        &out_dir.join("histories"),
+    )?;
+    Ok(result)
+}

@@ -1,0 +1,333 @@
+//! The work-precision benchmark: one deployment over integrators, step sizes and tolerances,
+//! each run's error against a converged reference and its median wall time (table and plot).
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use crate::model::Model;
+use crate::plot::{self, Chart, Series};
+use crate::sim::SimSettings;
+use crate::solve::dynamics::Integrator;
+use crate::state::State;
+
+use super::{create, parallel_map, rigidly_aligned, run_dynamic, RunTotals};
+
+/// One run of the work-precision benchmark: an integrator at a fixed step, or under error
+/// control with a tolerance (then it steps between samples as its estimate decides).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunConfig {
+    /// Integrator.
+    pub integrator: Integrator,
+    /// Fixed step, s (`None`: error-controlled).
+    pub dt: Option<f64>,
+    /// Local error tolerance, m (error-controlled runs).
+    pub tolerance: Option<f64>,
+}
+
+impl RunConfig {
+    /// A fixed-step run.
+    pub fn fixed(integrator: Integrator, dt: f64) -> Self {
+        Self { integrator, dt: Some(dt), tolerance: None }
+    }
+    /// An error-controlled run.
+    pub fn controlled(integrator: Integrator, tolerance: f64) -> Self {
+        Self { integrator, dt: None, tolerance: Some(tolerance) }
+    }
+    /// Simulator settings with `sample` (s) the output interval of an error-controlled run.
+    fn settings(&self, sample: f64) -> SimSettings {
+        SimSettings {
+            dt: self.dt.unwrap_or(sample),
+            integrator: self.integrator,
+            tolerance: self.tolerance,
+            ..Default::default()
+        }
+    }
+}
+
+/// One row of the work-precision table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorkPrecisionRow {
+    /// Integrator name.
+    pub integrator: String,
+    /// The run.
+    pub config: RunConfig,
+    /// Step, s (fixed runs).
+    pub dt: f64,
+    /// Largest point distance from the reference over the samples, m.
+    pub error: f64,
+    /// Median wall time over the repeats, s.
+    pub wall_time: f64,
+    /// Newton iterations per step.
+    pub newton_per_step: f64,
+    /// Steps taken (sub-steps of an error-controlled run).
+    pub steps: usize,
+    /// Rejected attempts in the run.
+    pub rejected: usize,
+}
+
+/// Positions of every point at one sample time, m.
+type PointSample = Vec<Vector3<f64>>;
+
+/// Point positions every `sample` seconds (from `run_dynamic`), flattened.
+fn sampled_positions(
+    model: &Model,
+    settings: SimSettings,
+    duration: f64,
+    sample: f64,
+) -> Result<(Vec<PointSample>, RunTotals), String> {
+    let every = (sample / settings.dt).round().max(1.0) as usize;
+    let mut out = Vec::new();
+    let mut k = 0;
+    let totals = run_dynamic(model, settings, duration, |sim, _| {
+        k += 1;
+        if k % every == 0 {
+            out.push(sim.workspace().points.iter().map(|p| p.position).collect());
+        }
+        Ok(())
+    })?;
+    Ok((out, totals))
+}
+
+/// Work-precision settings besides the runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorkPrecisionSettings {
+    /// Fixed step of the Dormand-Prince reference run, s.
+    pub reference_dt: f64,
+    /// Simulated time, s.
+    pub duration: f64,
+    /// Sample interval of the error (and output interval of error-controlled runs), s.
+    pub sample: f64,
+    /// Timed repeats per run (the median is reported).
+    pub repeats: usize,
+    /// Threads for the error runs (0: one per core); timing runs one at a time.
+    pub jobs: usize,
+}
+
+/// Runs the work-precision benchmark: every run of `configs` against a Dormand-Prince reference
+/// at `reference_dt`; error = largest point distance from the reference over the samples (after
+/// the optimal rigid alignment onto it for a free-floating structure). The error runs go on
+/// `jobs` threads, then each run is timed `repeats` times one at a time (so that the timings do
+/// not share the cores); results are the same whatever `jobs` is. Fixed-step explicit runs
+/// above their stability limit, and fixed steps that do not divide the sample interval, are left
+/// out. Writes `work_precision.csv`, `work_precision.md`
+/// (with, for each accuracy of 1e-4 and 1e-6 m, the cheapest run that meets it, and for each
+/// error-controlled run its cost against the cheapest fixed-step run at least as accurate) and
+/// `work_precision.{png,svg}`.
+pub fn work_precision(
+    model: &Model,
+    configs: &[RunConfig],
+    bench: WorkPrecisionSettings,
+    out_dir: &Path,
+) -> Result<Vec<WorkPrecisionRow>, String> {
+    std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
+    let WorkPrecisionSettings { reference_dt, duration, sample, repeats, jobs } = bench;
+    if !(sample > 0.0 && reference_dt > 0.0 && reference_dt <= sample && duration >= sample) {
+        return Err(format!(
+            "the reference step ({reference_dt} s) must be positive and at most the sample interval ({sample} s), itself at most the duration ({duration} s)"
+        ));
+    }
+    let reference_settings =
+        SimSettings { dt: reference_dt, integrator: Integrator::DormandPrince, ..Default::default() };
+    let (reference, _) = sampled_positions(model, reference_settings, duration, sample)
+        .map_err(|e| format!("reference run (Dormand-Prince at {reference_dt} s): {e}"))?;
+    let start = State::initial(model);
+    let limit = |i: Integrator| crate::solve::dynamics::explicit_stability_limit(model, &start, i);
+    let runs: Vec<RunConfig> = configs
+        .iter()
+        .copied()
+        .filter(|c| match c.dt {
+            // a step must divide the sample interval, so that samples fall at the reference's times
+            Some(dt) => {
+                let per_sample = sample / dt;
+                dt <= sample * (1.0 + 1e-9)
+                    && (per_sample - per_sample.round()).abs() <= 1e-6 * per_sample
+                    && !(c.integrator.is_explicit() && dt > limit(c.integrator))
+            }
+            None => true,
+        })
+        .collect();
+    let free = model.is_free_floating();
+    let error_of = |samples: &[PointSample]| {
+        samples
+            .iter()
+            .zip(&reference)
+            .flat_map(|(a, b)| {
+                // a structure held by nothing drifts differently under each integrator: compare
+                // shapes, after the optimal rigid alignment onto the reference
+                let a = if free { rigidly_aligned(a, b) } else { a.clone() };
+                a.iter().zip(b).map(|(p, q)| (p - q).norm()).collect::<Vec<_>>()
+            })
+            .fold(0.0, f64::max)
+    };
+    // errors on all cores
+    let accuracy = parallel_map(&runs, jobs, |c| {
+        let (samples, totals) = sampled_positions(model, c.settings(sample), duration, sample)
+            .map_err(|e| format!("{}: {e}", c.integrator.name()))?;
+        Ok((error_of(&samples), totals))
+    })?;
+    // timings one at a time
+    let mut rows = Vec::new();
+    for (c, (error, totals)) in runs.iter().zip(accuracy) {
+        let mut walls = Vec::new();
+        for _ in 0..repeats.max(1) {
+            let begin = Instant::now();
+            sampled_positions(model, c.settings(sample), duration, sample)?;
+            walls.push(begin.elapsed().as_secs_f64());
+        }
+        walls.sort_by(f64::total_cmp);
+        rows.push(WorkPrecisionRow {
+            integrator: match c.tolerance {
+                Some(_) => format!("{} (tol)", c.integrator.name()),
+                None => c.integrator.name(),
+            },
+            config: *c,
+            dt: c.dt.unwrap_or(0.0),
+            error,
+            wall_time: walls[walls.len() / 2],
+            newton_per_step: totals.newton_iterations as f64 / totals.substeps.max(1) as f64,
+            steps: totals.substeps,
+            rejected: totals.rejected,
+        });
+    }
+    write_work_precision(model, &rows, bench, free, out_dir)?;
+    Ok(rows)
+}
+
+/// The work-precision table, its verdicts and its plot.
+fn write_work_precision(
+    model: &Model,
+    rows: &[WorkPrecisionRow],
+    bench: WorkPrecisionSettings,
+    free: bool,
+    out_dir: &Path,
+) -> Result<(), String> {
+    let WorkPrecisionSettings { reference_dt, duration, sample, repeats, .. } = bench;
+    let start = State::initial(model);
+    let mut csv = create(&out_dir.join("work_precision.csv"))?;
+    let _ = writeln!(
+        csv,
+        "integrator,dt_s,tolerance_m,max_point_error_m,median_wall_time_s,steps,rejected,newton_per_step"
+    );
+    let limits: Vec<String> = [Integrator::SymplecticEuler, Integrator::Rk4, Integrator::DormandPrince]
+        .iter()
+        .map(|&i| {
+            format!(
+                "{} {:.3e} s",
+                i.name(),
+                crate::solve::dynamics::explicit_stability_limit(model, &start, i)
+            )
+        })
+        .collect();
+    let mut md = format!(
+        "Reference: dormand-prince at dt = {reference_dt:e} s; error = largest distance of any point from the reference{}, sampled every {sample} s over {duration} s; wall time = median of {repeats} runs, one at a time; error-controlled runs (tol) step between samples as their estimate decides. Stability limits of the explicit integrators at the start: {}.\n\n| integrator | dt s | tolerance m | max point error m | median wall time s | steps | rejected | Newton iterations / step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        if free {
+            " after the optimal rigid alignment of each sample onto it (the structure floats free: shapes are compared, not drift)"
+        } else {
+            ""
+        },
+        limits.join(", ")
+    );
+    let fmt_opt = |x: Option<f64>| x.map(|v| format!("{v:e}")).unwrap_or_else(|| "-".into());
+    for r in rows {
+        let _ = writeln!(
+            csv,
+            "{},{},{},{:.6e},{:.6},{},{},{:.3}",
+            r.integrator,
+            r.config.dt.map(|d| d.to_string()).unwrap_or_default(),
+            r.config.tolerance.map(|t| t.to_string()).unwrap_or_default(),
+            r.error,
+            r.wall_time,
+            r.steps,
+            r.rejected,
+            r.newton_per_step
+        );
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {:.3e} | {:.4} | {} | {} | {:.2} |",
+            r.integrator,
+            fmt_opt(r.config.dt),
+            fmt_opt(r.config.tolerance),
+            r.error,
+            r.wall_time,
+            r.steps,
+            r.rejected,
+            r.newton_per_step
+        );
+    }
+    // verdicts: the cheapest run at each accuracy, and each error-controlled run's cost
+    md.push('\n');
+    for target in [1e-4, 1e-6] {
+        match rows.iter().filter(|r| r.error <= target).min_by(|a, b| a.wall_time.total_cmp(&b.wall_time)) {
+            Some(best) => {
+                let _ = writeln!(
+                    md,
+                    "Cheapest run with at most {target:e} m error: {} at {}, {:.3e} m in {:.4} s.  ",
+                    best.integrator,
+                    best.config
+                        .dt
+                        .map(|d| format!("dt = {d} s"))
+                        .unwrap_or_else(|| format!("tolerance {} m", fmt_opt(best.config.tolerance))),
+                    best.error,
+                    best.wall_time
+                );
+            }
+            None => {
+                let _ = writeln!(md, "No run reached {target:e} m.  ");
+            }
+        }
+    }
+    for r in rows.iter().filter(|r| r.config.tolerance.is_some()) {
+        let cheapest = |same: bool| {
+            rows.iter()
+                .filter(|f| f.config.tolerance.is_none() && f.error <= r.error)
+                .filter(|f| !same || f.config.integrator == r.config.integrator)
+                .min_by(|a, b| a.wall_time.total_cmp(&b.wall_time))
+        };
+        let versus = |f: Option<&WorkPrecisionRow>, what: &str| match f {
+            Some(f) => format!(
+                "{:.2} x the cheapest fixed-step run of {what} at least as accurate ({} at dt = {} s)",
+                r.wall_time / f.wall_time,
+                f.integrator,
+                f.dt
+            ),
+            None => format!("no fixed-step run of {what} here is as accurate"),
+        };
+        let tol = r.config.tolerance.unwrap_or(0.0);
+        let _ = writeln!(
+            md,
+            "{} at tolerance {tol:e} m: error {:.2} x the tolerance; wall time {}; {}.  ",
+            r.integrator,
+            r.error / tol,
+            versus(cheapest(true), "the same integrator"),
+            versus(cheapest(false), "any integrator"),
+        );
+    }
+    csv.flush().map_err(|e| e.to_string())?;
+    std::fs::write(out_dir.join("work_precision.md"), &md).map_err(|e| e.to_string())?;
+    let mut series: Vec<Series> = Vec::new();
+    for r in rows {
+        match series.iter_mut().find(|s| s.name == r.integrator) {
+            Some(s) => s.points.push((r.wall_time, r.error.max(1e-16))),
+            None => {
+                series.push(Series::new(r.integrator.clone(), vec![(r.wall_time, r.error.max(1e-16))], true))
+            }
+        }
+    }
+    plot::write(
+        &Chart {
+            title: format!("{}: work-precision", model.name),
+            x_label: "wall time (s)".into(),
+            y_label: "max point error (m)".into(),
+            log_x: true,
+            log_y: true,
+            series,
+            reference: None,
+        },
+        &out_dir.join("work_precision"),
+    )?;
+    Ok(())
+}
