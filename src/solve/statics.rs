@@ -22,15 +22,22 @@
 //! residual norm or the energy. Translations are capped at the structure's length scale (the
 //! largest cable length or body size) per iteration, rotations at 0.5 rad.
 //!
+//! Stiff cables (`stiff_cables`: `EA/L0` above `STIFF_CABLE_RATIO` times the structure's own
+//! force-per-length scale, in a structure loaded by its weights rather than held by prestress)
+//! have their tensions as unknowns (`equilibrate_mixed`): Newton then measures their misfit as a
+//! length, not as `EA/L0` times it, and its iteration count does not grow with EA
+//! (`tests/stiff_statics.rs`: 1e2 to 1e9 N at the same cost).
+//!
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
 //! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
 //! Neutral directions (free rigid motions, unstressed mechanisms) count as not stable.
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
+use crate::assembly::DenseTangents;
 use crate::constraints::add_multiplier_hessian;
 use crate::evaluate::{evaluate, Tangents, Workspace};
-use crate::model::{Model, Pose, SolverSettings};
+use crate::model::{CableId, Model, Pose, SolverSettings};
 use crate::state::{retract, State};
 
 /// Outcome of one equilibrium solve.
@@ -395,6 +402,10 @@ impl StaticSolver {
         ws: &mut Workspace,
         settings: &SolverSettings,
     ) -> Result<EquilibriumReport, (usize, f64)> {
+        let stiff = stiff_cables(model, ws, self.size);
+        if !stiff.is_empty() {
+            return self.equilibrate_mixed(model, state, ws, settings, stiff);
+        }
         let n = model.dof_count;
         let nc = model.constraint_count;
         state.velocities.fill(0.0);
@@ -440,7 +451,14 @@ impl StaticSolver {
             check_convexity |= merit_now > 0.25 * previous_merit;
             previous_merit = merit_now;
             let correction = if check_convexity {
-                convexity_correction(model, &tangent, ws, &self.mass, &res, &residual_force)
+                convexity_correction(
+                    model,
+                    &tangent,
+                    &ws.constraint_jacobian,
+                    &self.mass,
+                    &res,
+                    &residual_force,
+                )
             } else {
                 None
             };
@@ -594,6 +612,560 @@ impl StaticSolver {
     }
 }
 
+/// A cable is stiff, and `StaticSolver::equilibrate` carries its tension as an unknown, when its
+/// material stiffness `EA / L0` exceeds this many times the structure's own stiffness scale
+/// `F_ref / L_scale` (`F_ref` the largest body weight or cable tension, N, the weight alone when
+/// the start is out of equilibrium; `L_scale` the longest cable or body, m), both taken in the
+/// scene's initial state: its stretch under the structure's
+/// loads is then below a thousandth of the structure's size, and a Newton step that moves its
+/// ends along an arc would stretch it by far more than that (see `equilibrate_mixed`).
+pub const STIFF_CABLE_RATIO: f64 = 1e1;
+
+/// Largest residual, relative to the largest tension, of a start that counts as an equilibrium
+/// held by prestress (`stiff_cables`).
+pub const PRESTRESSED_START: f64 = 1e-6;
+
+/// The cables `equilibrate` treats as stiff (`STIFF_CABLE_RATIO`), in model order: a property of
+/// the model, judged in its initial state (`State::initial`), so that every solve of a scene (a
+/// deployment's load steps, a disturbed start) takes the same formulation. A structure that
+/// starts in equilibrium (residual below `PRESTRESSED_START` of its largest tension) with more
+/// tension than its heaviest body weighs is held by its prestress (a form-found tensegrity) and
+/// has none: from a badly disturbed start the mixed iteration can lose a self-stress (every
+/// cable slack is an equilibrium of a free structure too), where the displacement form comes back
+/// to it (`tests/free_structures.rs`, `tests/perturbed_starts.rs`). A sketch drawn with its
+/// cables overstretched is not in equilibrium and keeps its stiff cables. `size` is
+/// `body_size(model)`; `ws` is left evaluated at the initial state.
+pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> {
+    if model.cables.is_empty() {
+        return Vec::new();
+    }
+    let mut initial = State::initial(model);
+    least_squares_multipliers(model, &mut initial, ws);
+    evaluate(model, &initial, ws, Tangents::None);
+    let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
+    let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+    let mut residual = ws.force.clone_owned();
+    if model.constraint_count > 0 {
+        residual -= ws.constraint_jacobian.transpose() * &initial.multipliers;
+    }
+    let balanced = residual.amax() <= PRESTRESSED_START * tension.max(weight);
+    if tension > weight && balanced {
+        return Vec::new();
+    }
+    // the tensions of a sketch out of equilibrium say nothing of the loads: the weights do
+    let force = if balanced || weight == 0.0 { weight.max(tension) } else { weight };
+    let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max).max(size);
+    let reference = force.max(1e-12) / length;
+    (0..model.cables.len())
+        .filter(|&c| {
+            model.cables[c].axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
+        })
+        .collect()
+}
+
+/// A stiff cable's tension after a step `dt` from `t` (N): at least `TENSION_FLOOR` of `t`, so
+/// that one step from a badly strained start (where the linearized balance asks for a tension
+/// far below zero) cannot drop a prestress whole; a cable goes slack only when it is shorter than
+/// its rest length (`equilibrate_mixed`'s active set).
+fn next_tension(t: f64, dt: f64) -> f64 {
+    (t + dt).max(TENSION_FLOOR * t).max(0.0)
+}
+
+/// The least fraction of its tension a stiff cable keeps over one Newton step (`next_tension`).
+const TENSION_FLOOR: f64 = 0.1;
+
+/// The stiff cables of a mixed iteration: their tensions as unknowns and what the current
+/// iterate's evaluation found for them.
+struct StiffCables {
+    /// Model cable indices.
+    ids: Vec<usize>,
+    /// Tension unknowns `T`, N (0 while inactive).
+    tension: Vec<f64>,
+    /// Compliances `c = L0 / EA`, m/N.
+    compliance: Vec<f64>,
+    /// True while a cable is taut in the iteration (its length equation is imposed).
+    active: Vec<bool>,
+    /// Lengths `L` at the last evaluation, m.
+    length: Vec<f64>,
+    /// Length gradients `g = dL/dq` at the last evaluation.
+    gradient: Vec<DVector<f64>>,
+}
+
+impl StiffCables {
+    /// The length equation's residual of stiff cable `i`, m: `L - L0 - c T` while active,
+    /// else the stretch of a cable that carries no tension (`max(0, L - L0)`).
+    fn length_residual(&self, i: usize, rest_length: f64) -> f64 {
+        if self.active[i] {
+            self.length[i] - rest_length - self.compliance[i] * self.tension[i]
+        } else {
+            (self.length[i] - rest_length).max(0.0)
+        }
+    }
+    fn active_ids(&self) -> Vec<usize> {
+        (0..self.ids.len()).filter(|&i| self.active[i]).collect()
+    }
+}
+
+/// What a mixed evaluation's residual measures (see `StaticSolver::mixed_residual`).
+struct MixedResidual {
+    /// `|Q - sum T g - Phi_q^T lambda|_inf`, N.
+    force: f64,
+    /// `|Phi|_inf`, m.
+    constraint: f64,
+    /// Largest length residual of the stiff cables, m.
+    cable: f64,
+}
+
+impl MixedResidual {
+    fn merit(&self, f_scale: f64, l_scale: f64) -> f64 {
+        (self.force / f_scale).powi(2) + (self.constraint / l_scale).powi(2) + (self.cable / l_scale).powi(2)
+    }
+}
+
+impl StaticSolver {
+    /// Evaluates `work` (the state with the stiff cables made slack, `slack_rest_lengths`) and
+    /// adds the stiff cables' forces `-T g` and, with `tangents`, their geometric stiffness
+    /// `T sum_k G_k^T P_k G_k + T sum_i d(J_i^T n_i)/dq` (no material term: their stretch is
+    /// the length equation's) for the tension unknowns of `stiff`; records their lengths and
+    /// gradients.
+    fn mixed_evaluate(
+        model: &Model,
+        work: &State,
+        ws: &mut Workspace,
+        stiff: &mut StiffCables,
+        tangents: bool,
+    ) {
+        evaluate(model, work, ws, if tangents { Tangents::Stiffness } else { Tangents::None });
+        let Workspace { points, scratch, stiffness, force, .. } = ws;
+        for (i, &c) in stiff.ids.iter().enumerate() {
+            let route = model.route(CableId(c));
+            let (length, _) = crate::forces::cable::route_geometry(route, points, scratch);
+            stiff.length[i] = length;
+            stiff.gradient[i].fill(0.0);
+            crate::forces::cable::add_length_gradient(
+                model,
+                route,
+                points,
+                scratch,
+                1.0,
+                &mut stiff.gradient[i],
+            );
+            let t = stiff.tension[i];
+            if !stiff.active[i] || t <= 0.0 {
+                continue;
+            }
+            force.axpy(-t, &stiff.gradient[i], 1.0);
+            if tangents {
+                let mut sink = DenseTangents { model, stiffness: &mut *stiffness, damping: None };
+                crate::forces::cable::add_cable_tangents(
+                    model,
+                    &work.poses,
+                    &work.velocities,
+                    CableId(c),
+                    route,
+                    0.0,
+                    0.0,
+                    1.0,
+                    t,
+                    points,
+                    scratch,
+                    &mut sink,
+                );
+            }
+        }
+    }
+
+    /// The residual of a mixed evaluation (`mixed_evaluate` just ran): force balance with the
+    /// tension unknowns, joints, and the stiff cables' length equations (`rest` the true rest
+    /// lengths). Fills `rhs` (`[r; -Phi; -h_active]`) when given.
+    fn mixed_residual(
+        model: &Model,
+        state: &State,
+        ws: &Workspace,
+        stiff: &StiffCables,
+        rest: &[f64],
+        rhs: Option<&mut DVector<f64>>,
+    ) -> MixedResidual {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        let mut r = ws.force.clone_owned();
+        if nc > 0 {
+            r -= ws.constraint_jacobian.transpose() * &state.multipliers;
+        }
+        let cable = (0..stiff.ids.len())
+            .map(|i| stiff.length_residual(i, rest[stiff.ids[i]]).abs())
+            .fold(0.0, f64::max);
+        if let Some(rhs) = rhs {
+            rhs.rows_mut(0, n).copy_from(&r);
+            if nc > 0 {
+                rhs.rows_mut(n, nc).copy_from(&(-&ws.constraint));
+            }
+            for (k, i) in stiff.active_ids().into_iter().enumerate() {
+                rhs[n + nc + k] = -stiff.length_residual(i, rest[stiff.ids[i]]);
+            }
+        }
+        MixedResidual { force: r.amax(), constraint: ws.constraint.amax(), cable }
+    }
+
+    /// `equilibrate` with the tensions of the stiff cables `ids` as unknowns (a mixed, or
+    /// perturbed-Lagrangian, formulation): Newton on
+    /// `[Q - sum_s T_s g_s - Phi_q^T lambda; Phi; L_s - L0_s - c_s T_s] = 0` (`c = L0/EA`) for
+    /// every taut stiff cable `s`, whose matrix
+    /// `[[K' + H_lambda, Phi_q^T, G], [Phi_q, 0, 0], [G^T, 0, -diag(c)]]` stays well conditioned
+    /// as `c -> 0` (`K'` the tangent of the other cables and gravity plus the stiff cables'
+    /// geometric stiffness at `T`, `G` their length gradients). Its residual measures a stiff
+    /// cable's misfit as a length, where the displacement form measures `EA/L0` times it as a
+    /// force: a step that swings a bar about its pin stretches a cable tied to it to second
+    /// order, which the displacement form's line search sees as a force `EA/L0` times that
+    /// stretch and refuses, so its iteration count grew with EA until the cap (1e6 N on a bar
+    /// held over a pulley); here the tension follows the step linearly. A cable whose tension
+    /// falls to zero while its length is below its rest length goes slack (its equation is
+    /// dropped), and a slack one is taken up again as soon as it is stretched. Convergence is
+    /// tested on the displacement form's residual, as in `equilibrate`.
+    fn equilibrate_mixed(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+        ids: Vec<usize>,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        state.velocities.fill(0.0);
+        let start_poses = state.poses.clone();
+        let start_multipliers = state.multipliers.clone();
+        let rest = state.rest_lengths.clone();
+        let fresh = state.multipliers.iter().all(|l| *l == 0.0);
+        // the work state: the stiff cables made slack, their forces added from the unknowns
+        let mut work = state.clone();
+        for &c in &ids {
+            work.rest_lengths[c] = f64::MAX;
+        }
+        evaluate(model, state, ws, Tangents::None);
+        let m = ids.len();
+        let mut stiff = StiffCables {
+            tension: ids.iter().map(|&c| ws.cables[c].tension).collect(),
+            compliance: ids.iter().map(|&c| rest[c] / model.cables[c].axial_stiffness).collect(),
+            active: ids.iter().map(|&c| ws.cables[c].tension > 0.0).collect(),
+            length: vec![0.0; m],
+            gradient: vec![DVector::zeros(n); m],
+            ids,
+        };
+        if fresh {
+            work.poses.copy_from_slice(&state.poses);
+            Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
+            least_squares_tensions(model, &mut work, ws, &mut stiff, &rest);
+            state.multipliers.copy_from(&work.multipliers);
+        }
+        let mut best = f64::INFINITY;
+        let mut iterations = 0;
+        let mut check_convexity = true;
+        let mut previous_merit = f64::INFINITY;
+        loop {
+            // converged in the displacement form, as `equilibrate` tests it
+            evaluate(model, state, ws, Tangents::Stiffness);
+            let res = residual_of(model, state, ws, &mut self.rhs, self.size);
+            if !res.force.is_finite() || !res.constraint.is_finite() {
+                break;
+            }
+            best = best.min(res.force);
+            if res.converged(settings) {
+                return Ok(self.report(model, state, ws, &res, iterations));
+            }
+            if iterations >= settings.max_iterations {
+                break;
+            }
+            iterations += 1;
+
+            // the active set: taut where the cable carries tension or is stretched
+            work.poses.copy_from_slice(&state.poses);
+            work.multipliers.copy_from(&state.multipliers);
+            Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
+            for i in 0..m {
+                // taut while it carries tension or is stretched
+                stiff.active[i] = stiff.tension[i] > 0.0 || stiff.length[i] > rest[stiff.ids[i]];
+                if !stiff.active[i] {
+                    stiff.tension[i] = 0.0;
+                }
+            }
+            Self::mixed_evaluate(model, &work, ws, &mut stiff, true);
+            let active = stiff.active_ids();
+            let ma = active.len();
+            let size = n + nc + ma;
+            let mut rhs = DVector::zeros(size);
+            let mres = Self::mixed_residual(model, &work, ws, &stiff, &rest, Some(&mut rhs));
+            let f_scale = model
+                .bodies
+                .iter()
+                .map(|b| b.mass * model.gravity.norm())
+                .chain(ws.cables.iter().map(|c| c.tension))
+                .chain(stiff.tension.iter().copied())
+                .fold(1e-12, f64::max);
+            let l_scale = res.length_scale;
+
+            // [[K' + H, Phi_q^T, G], [Phi_q, 0, 0], [G^T, 0, -c]]
+            let mut kkt = DMatrix::zeros(size, size);
+            kkt.view_mut((0, 0), (n, n)).copy_from(&ws.stiffness);
+            if nc > 0 {
+                let mut h = DMatrix::zeros(n, n);
+                add_multiplier_hessian(model, &work.poses, &work.multipliers, &mut h);
+                let mut top = kkt.view_mut((0, 0), (n, n));
+                top += &h;
+                kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
+                kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+            }
+            let mut jacobian = DMatrix::zeros(nc + ma, n);
+            if nc > 0 {
+                jacobian.view_mut((0, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+            }
+            for (k, &i) in active.iter().enumerate() {
+                let g = &stiff.gradient[i];
+                kkt.view_mut((0, n + nc + k), (n, 1)).copy_from(g);
+                kkt.view_mut((n + nc + k, 0), (1, n)).copy_from(&g.transpose());
+                kkt[(n + nc + k, n + nc + k)] = -stiff.compliance[i];
+                jacobian.view_mut((nc + k, 0), (1, n)).copy_from(&g.transpose());
+            }
+            // saddle-free on the null space of the joints and the stiff cables' lengths
+            let tangent = kkt.view((0, 0), (n, n)).into_owned();
+            let residual_force = rhs.rows(0, n).into_owned();
+            let merit_now = mres.merit(f_scale, l_scale);
+            check_convexity |= merit_now > 0.25 * previous_merit;
+            previous_merit = merit_now;
+            let mut energy_mode = false;
+            let checked = check_convexity;
+            check_convexity = false;
+            if checked {
+                let scales = Residual { force_scale: f_scale, length_scale: l_scale, ..res };
+                if let Some((correction, descent)) =
+                    convexity_correction(model, &tangent, &jacobian, &self.mass, &scales, &residual_force)
+                {
+                    check_convexity = true;
+                    let mut top = kkt.view_mut((0, 0), (n, n));
+                    top += &correction;
+                    energy_mode = descent;
+                }
+            }
+            let Some(step) = solve_regularized(&kkt, &rhs, n) else { break };
+            self.dq.copy_from(&step.rows(0, n));
+            let limit = self.step_limit(model, l_scale);
+            let dlambda = step.rows(n, nc).into_owned();
+            let mut dt = vec![0.0; m];
+            for (k, &i) in active.iter().enumerate() {
+                dt[i] = step[n + nc + k];
+            }
+
+            // line search, as in `equilibrate`, on the mixed residual or the energy
+            let penalty = 10.0
+                * ((&state.multipliers + &dlambda).amax()
+                    + (0..m).map(|i| (stiff.tension[i] + dt[i]).abs()).fold(0.0, f64::max)
+                    + f_scale);
+            let energy_of = |ws: &Workspace, stiff: &StiffCables, cable: f64| {
+                let stiff_energy: f64 = (0..m)
+                    .filter(|&i| stiff.active[i])
+                    .map(|i| 0.5 * stiff.compliance[i] * stiff.tension[i].powi(2))
+                    .sum();
+                ws.energies.elastic
+                    + ws.energies.gravitational
+                    + stiff_energy
+                    + penalty * (ws.constraint.amax() + cable)
+            };
+            let energy0 = energy_of(ws, &stiff, mres.cable);
+            let merit0 = merit_now;
+            let base_multipliers = state.multipliers.clone();
+            let base_tension = stiff.tension.clone();
+            let mut alpha = limit;
+            let mut best_trial = (f64::INFINITY, alpha);
+            for _ in 0..12 {
+                work.poses.copy_from_slice(&state.poses);
+                retract(model, &mut work.poses, &self.dq, alpha);
+                work.multipliers = &base_multipliers + &dlambda * alpha;
+                for i in 0..m {
+                    stiff.tension[i] = next_tension(base_tension[i], alpha * dt[i]);
+                }
+                if energy_mode {
+                    Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
+                    project_onto_mixed(model, &mut work, ws, &mut stiff, &rest, l_scale);
+                }
+                Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
+                let trial_res = Self::mixed_residual(model, &work, ws, &stiff, &rest, None);
+                let residual_merit = trial_res.merit(f_scale, l_scale);
+                let trial_energy = energy_of(ws, &stiff, trial_res.cable);
+                let trial = if energy_mode { trial_energy } else { residual_merit };
+                if trial.is_finite() && trial < best_trial.0 {
+                    best_trial = (trial, alpha);
+                }
+                let decreased = if energy_mode {
+                    trial < energy0
+                } else {
+                    trial <= (1.0 - 1e-4 * alpha) * merit0 || trial_energy < energy0
+                };
+                if trial.is_finite() && decreased {
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !best_trial.0.is_finite() {
+                stiff.tension.copy_from_slice(&base_tension);
+                break;
+            }
+            let alpha = best_trial.1;
+            check_convexity |= alpha < limit.min(1.0);
+            retract(model, &mut state.poses, &self.dq, alpha);
+            state.multipliers = &base_multipliers + &dlambda * alpha;
+            for i in 0..m {
+                stiff.tension[i] = next_tension(base_tension[i], alpha * dt[i]);
+            }
+            if energy_mode {
+                // a descent step moves the poses, not towards the reactions: take them afresh
+                work.poses.copy_from_slice(&state.poses);
+                work.multipliers.copy_from(&state.multipliers);
+                Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
+                project_onto_mixed(model, &mut work, ws, &mut stiff, &rest, l_scale);
+                least_squares_reactions(model, &mut work, ws);
+                state.poses.copy_from_slice(&work.poses);
+                state.multipliers.copy_from(&work.multipliers);
+            }
+        }
+        state.poses.copy_from_slice(&start_poses);
+        state.multipliers.copy_from(&start_multipliers);
+        Err((iterations, best))
+    }
+
+    /// The largest fraction of the Newton step `self.dq` that moves no body by more than 0.5 rad
+    /// or `STEP_CAP` length scales.
+    fn step_limit(&self, model: &Model, length_scale: f64) -> f64 {
+        let mut limit: f64 = 1.0;
+        for b in &model.bodies {
+            for c in 0..b.dof_count {
+                let col = b.basis.column(c);
+                let x = self.dq[b.dof_offset + c].abs();
+                let cap = if col.fixed_rows::<3>(3).norm() > 0.0 { 0.5 } else { STEP_CAP * length_scale };
+                if x > cap {
+                    limit = limit.min(cap / x);
+                }
+            }
+        }
+        limit
+    }
+}
+
+/// The joint reactions that best balance the forces of a mixed evaluation (`ws` from
+/// `mixed_evaluate` at `work`, the stiff cables' tensions held):
+/// `lambda = argmin |Q - sum T g - Phi_q^T lambda|`, as `least_squares_multipliers` for the
+/// displacement form. The tensions are not fitted: a prestressed structure's self-stress is not
+/// decided by its loads, and a fit would drop it.
+fn least_squares_reactions(model: &Model, work: &mut State, ws: &Workspace) {
+    if model.constraint_count == 0 {
+        return;
+    }
+    let j = &ws.constraint_jacobian;
+    if let Some(lambda) = (j * j.transpose()).lu().solve(&(j * &ws.force)) {
+        if lambda.iter().all(|x| x.is_finite()) {
+            work.multipliers = lambda;
+        }
+    }
+}
+
+/// The joint reactions and stiff-cable tensions that best balance the other forces, the tensions
+/// kept near their current values along any self-stress the forces do not decide:
+/// `[lambda; T] = argmin |Q_other - Phi_q^T lambda - G T|^2 + eps |T - T_now|^2` over the joints
+/// and the stiff cables that are stretched or just taut (`L >= L0`, `rest` the true rest
+/// lengths), tensions clamped at zero, `eps` a 1e-8 part of the largest diagonal entry. `ws` and
+/// `stiff` come from `mixed_evaluate` at `work` (`Q_other` is its force with the stiff cables'
+/// tensions added back). A fresh start's tensions so balance the loads instead of following an
+/// overstretched sketch (1e5 N for a 1 kg mass on a cable of EA 1e6 N drawn 10 % too long).
+/// Left unchanged when the system is singular.
+fn least_squares_tensions(
+    model: &Model,
+    work: &mut State,
+    ws: &Workspace,
+    stiff: &mut StiffCables,
+    rest: &[f64],
+) {
+    let n = model.dof_count;
+    let nc = model.constraint_count;
+    let mut q = ws.force.clone_owned();
+    for i in 0..stiff.ids.len() {
+        if stiff.active[i] && stiff.tension[i] > 0.0 {
+            q.axpy(stiff.tension[i], &stiff.gradient[i], 1.0);
+        }
+    }
+    let taut: Vec<usize> = (0..stiff.ids.len()).filter(|&i| stiff.length[i] >= rest[stiff.ids[i]]).collect();
+    let rows = nc + taut.len();
+    if rows == 0 {
+        return;
+    }
+    let mut j = DMatrix::zeros(rows, n);
+    if nc > 0 {
+        j.view_mut((0, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+    }
+    for (k, &i) in taut.iter().enumerate() {
+        j.view_mut((nc + k, 0), (1, n)).copy_from(&stiff.gradient[i].transpose());
+    }
+    let mut normal = &j * j.transpose();
+    let mut rhs = &j * &q;
+    let eps = 1e-8 * (0..rows).map(|r| normal[(r, r)]).fold(0.0, f64::max);
+    for (k, &i) in taut.iter().enumerate() {
+        normal[(nc + k, nc + k)] += eps;
+        rhs[nc + k] += eps * stiff.tension[i];
+    }
+    let Some(y) = normal.lu().solve(&rhs) else { return };
+    if !y.iter().all(|x| x.is_finite()) {
+        return;
+    }
+    if nc > 0 {
+        work.multipliers.copy_from(&y.rows(0, nc));
+    }
+    for (k, &i) in taut.iter().enumerate() {
+        stiff.tension[i] = y[nc + k].max(0.0);
+        stiff.active[i] = true;
+    }
+}
+
+/// Moves `work`'s poses onto `Phi = 0` and the active stiff cables' `L = L0 + c T` (tensions
+/// held) by Gauss-Newton steps of the smallest correction, like `project_onto_joints`; leaves
+/// `ws` and `stiff` evaluated at the result (no tangents).
+fn project_onto_mixed(
+    model: &Model,
+    work: &mut State,
+    ws: &mut Workspace,
+    stiff: &mut StiffCables,
+    rest: &[f64],
+    length_scale: f64,
+) {
+    let n = model.dof_count;
+    let nc = model.constraint_count;
+    for _ in 0..8 {
+        StaticSolver::mixed_evaluate(model, work, ws, stiff, false);
+        let active = stiff.active_ids();
+        let rows = nc + active.len();
+        if rows == 0 {
+            return;
+        }
+        let mut j = DMatrix::zeros(rows, n);
+        let mut phi = DVector::zeros(rows);
+        if nc > 0 {
+            j.view_mut((0, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+            phi.rows_mut(0, nc).copy_from(&ws.constraint);
+        }
+        for (k, &i) in active.iter().enumerate() {
+            j.view_mut((nc + k, 0), (1, n)).copy_from(&stiff.gradient[i].transpose());
+            phi[nc + k] = stiff.length_residual(i, rest[stiff.ids[i]]);
+        }
+        if phi.amax() <= 1e-12 * length_scale {
+            return;
+        }
+        let Some(y) = (&j * j.transpose()).lu().solve(&phi) else { return };
+        let dq = -(j.transpose() * y);
+        if !dq.iter().all(|x| x.is_finite()) {
+            return;
+        }
+        retract(model, &mut work.poses, &dq, 1.0);
+    }
+    StaticSolver::mixed_evaluate(model, work, ws, stiff, false);
+}
+
 /// The joint reactions that best balance the current forces: `lambda = argmin |Q - Phi_q^T lambda|`,
 /// i.e. `(Phi_q Phi_q^T) lambda = Phi_q Q`. Exact at an equilibrium; elsewhere it gives the joints'
 /// geometric stiffness `H_lambda` its right sign and size from the first iteration on (a hanging
@@ -642,8 +1214,9 @@ pub const STEP_CAP: f64 = 1.0;
 /// iteration (a dense eigenproblem); larger systems take plain Newton steps.
 pub const MAX_CONVEXITY_CHECK: usize = 600;
 
-/// A positive-definite modification of the tangent on the joints' null space ("saddle-free"
-/// Newton). With `Z` spanning the null space of `Phi_q`, `Z^T M Z = L L^T` and the mass-normalized
+/// A positive-definite modification of the tangent on the null space of `jacobian` (the joints'
+/// `Phi_q`, with the stiff cables' length gradients in the mixed iteration: "saddle-free"
+/// Newton). With `Z` spanning the null space of `jacobian`, `Z^T M Z = L L^T` and the mass-normalized
 /// reduced tangent `S = L^-1 Z^T A Z L^-T = V diag(e) V^T` (`A` the symmetric part of `tangent`),
 /// each eigenvalue at or below `1e-8 max|e|` (negative: heading for a maximum or saddle; zero: a
 /// neutral or slack direction) becomes `max(|e|, delta)`, `delta = max(1e-2 max|e|, 1e-3 (|g| +
@@ -655,7 +1228,7 @@ pub const MAX_CONVEXITY_CHECK: usize = 600;
 fn convexity_correction(
     model: &Model,
     tangent: &DMatrix<f64>,
-    ws: &Workspace,
+    jacobian: &DMatrix<f64>,
     mass: &DMatrix<f64>,
     res: &Residual,
     residual: &DVector<f64>,
@@ -664,7 +1237,7 @@ fn convexity_correction(
     if n == 0 || n > MAX_CONVEXITY_CHECK {
         return None;
     }
-    let z = crate::constraints::null_space(&ws.constraint_jacobian, n)?;
+    let z = crate::constraints::null_space(jacobian, n)?;
     let a = (tangent + tangent.transpose()) * 0.5;
     let chol = (z.transpose() * mass * &z).cholesky()?;
     let l_inv = chol.l().try_inverse()?;

@@ -1,0 +1,129 @@
+//! Invariant: `statics` costs about the same at every cable stiffness. Mechanisms held by cables
+//! (a bar pinned at one end with its tip held over a pulley by a counterweight; a point mass hung
+//! on a cable from a hook; a point mass riding on a sliding cable between two hooks), with EA
+//! from 1e2 to 1e9 N, from starts around the circle where the geometry allows (cables just taut,
+//! slack with the mass inside the cable's reach, or overstretched), each converge in at most
+//! `BUDGET` Newton iterations, to the equilibrium a continuation in EA reaches from the soft one
+//! (each stiffer solve started from the softer solution). The prestressed bundled structures
+//! (prism, T-bar) with their cables stiffened to 1e9 N come back from disturbed starts too.
+
+use nalgebra::{DVector, Vector3};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
+use tensegrity::scene::generate::{prism, tbar, PrismParams, TbarParams};
+use tensegrity::solve::statics::StaticSolver;
+use tensegrity::state::retract;
+use tensegrity::{Model, State};
+
+/// Most Newton iterations any case may take (docs/accuracy.md gives the measured worst).
+const BUDGET: usize = 30;
+const STIFFNESSES: [f64; 8] = [1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+
+/// Solves from `state`; the iterations and every named point's position, or why not.
+fn solve(model: &Model, state: &mut State) -> Result<(usize, Vec<Vector3<f64>>), String> {
+    let mut ws = Workspace::new(model);
+    let r = StaticSolver::new(model)
+        .equilibrate(model, state, &mut ws, &model.solver)
+        .map_err(|(it, res)| format!("no equilibrium: residual {res:.3e} N after {it} iterations"))?;
+    if !r.stable {
+        return Err(format!("{} after {} iterations", r.stability_words(), r.iterations));
+    }
+    evaluate(model, state, &mut ws, Tangents::None);
+    Ok((r.iterations, ws.points.iter().map(|p| p.position).collect()))
+}
+
+/// Checks one mechanism (`scene(ea, start)` gives its scene text) over every stiffness and start:
+/// the iteration budget, and the equilibrium against a continuation in EA from the softest.
+/// Prints and returns the worst iteration count at each stiffness.
+fn sweep(what: &str, starts: &[f64], scene: impl Fn(f64, f64) -> String) -> [usize; 8] {
+    let mut worst = [0; 8];
+    for &start in starts {
+        let mut continued: Option<State> = None;
+        for (e, ea) in STIFFNESSES.into_iter().enumerate() {
+            let case = format!("{what}, EA {ea:e} N, start {start}");
+            let model =
+                tensegrity::scene::from_toml(&scene(ea, start), &case).unwrap_or_else(|e| panic!("{e}"));
+            let mut state = State::initial(&model);
+            let (iterations, points) = solve(&model, &mut state).unwrap_or_else(|e| panic!("{case}: {e}"));
+            assert!(iterations <= BUDGET, "{case}: {iterations} Newton iterations");
+            worst[e] = worst[e].max(iterations);
+            // the continuation: this stiffness from the softer one's equilibrium
+            let mut from_softer = match &continued {
+                Some(softer) => State { rest_lengths: state.rest_lengths.clone(), ..softer.clone() },
+                None => State::initial(&model),
+            };
+            let (_, along) =
+                solve(&model, &mut from_softer).unwrap_or_else(|e| panic!("{case}, continued: {e}"));
+            for (p, (a, b)) in points.iter().zip(&along).enumerate() {
+                assert!((a - b).norm() < 1e-8, "{case}: point {p} at {a:?}, the continuation's at {b:?}");
+            }
+            continued = Some(from_softer);
+        }
+    }
+    println!("{what}: worst Newton iterations at EA 1e2..1e9 N: {worst:?}");
+    worst
+}
+
+#[test]
+fn a_bar_held_over_a_pulley_by_a_counterweight_costs_the_same_at_every_stiffness() {
+    // bar pinned at the origin (length 1 m, 2 kg), its tip tied to a 2 m rope over a pulley at
+    // (1, 0, 0) down to a 0.6 kg weight; started at `deg` from hanging, the rope just taut
+    sweep("bar over a pulley", &[0.0, 10.0, 30.0, 45.0, 60.0, 90.0, 120.0, 150.0, 170.0], |ea, deg| {
+        let (bx, bz) = (deg.to_radians().sin(), -deg.to_radians().cos());
+        let weight_z = -(2.0 - (1.0 - bx).hypot(bz));
+        format!(
+            "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"ground\"\nkind = \"fixed\"\npoints = {{ pulley = [1.0, 0.0, 0.0] }}\n[[bodies]]\nname = \"arm\"\nkind = \"bar\"\nmass = 2.0\nends = [[0.0, 0.0, 0.0], [{bx}, 0.0, {bz}]]\n[[bodies]]\nname = \"weight\"\nkind = \"node\"\nmass = 0.6\nposition = [1.0, 0.0, {weight_z}]\n[[joints]]\nkind = \"pin\"\na = \"arm.a\"\n[[cables]]\nname = \"rope\"\nroute = [\"arm.b\", \"ground.pulley\", \"weight\"]\nea = {ea}\nrest_length = 2.0\n"
+        )
+    });
+}
+
+#[test]
+fn a_mass_hung_on_a_cable_costs_the_same_at_every_stiffness_slack_or_overstretched() {
+    // a 1 kg point mass on a 1 m cable from a hook, started at `r` m from the hook at 40 degrees
+    // from the vertical: inside the cable's reach (slack), at it, or beyond it (overstretched)
+    sweep("mass on a cable", &[0.3, 0.9, 1.0, 1.1, 1.5], |ea, r| {
+        let (x, z) = (r * 40f64.to_radians().sin(), -r * 40f64.to_radians().cos());
+        format!(
+            "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"ground\"\nkind = \"fixed\"\npoints = {{ hook = [0.0, 0.0, 0.0] }}\n[[bodies]]\nname = \"bob\"\nkind = \"node\"\nmass = 1.0\nposition = [{x}, 0.0, {z}]\n[[cables]]\nname = \"cable\"\nroute = [\"ground.hook\", \"bob\"]\nea = {ea}\nrest_length = 1.0\n"
+        )
+    });
+}
+
+#[test]
+fn a_mass_riding_on_a_sliding_cable_costs_the_same_at_every_stiffness() {
+    // a 1 kg point mass rides on a 3 m cable between hooks 2 m apart (a pulley on the mass),
+    // started off to one side at `x` m from the middle, at the cable's length or short of it
+    sweep("mass on a sliding cable", &[-0.8, -0.4, 0.0, 0.5, 0.9], |ea, x| {
+        format!(
+            "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"ground\"\nkind = \"fixed\"\npoints = {{ left = [-1.0, 0.0, 0.0], right = [1.0, 0.0, 0.0] }}\n[[bodies]]\nname = \"bob\"\nkind = \"node\"\nmass = 1.0\nposition = [{x}, 0.0, -1.0]\n[[cables]]\nname = \"cable\"\nroute = [\"ground.left\", \"bob\", \"ground.right\"]\nea = {ea}\nrest_length = 3.0\n"
+        )
+    });
+}
+
+/// A prestressed structure with cables of axial stiffness `ea`, from its form-found start moved
+/// by small rotations and translations of every body (`seed`): back to an equilibrium within the
+/// budget.
+fn prestressed_comes_back(model: &Model, what: &str) -> usize {
+    let mut worst = 0;
+    for k in 0..4 {
+        let mut state = State::initial(model);
+        let dq = DVector::from_fn(model.dof_count, |i, _| 0.02 * ((i * 7 + k * 13) as f64).sin());
+        retract(model, &mut state.poses, &dq, 1.0);
+        let (iterations, _) = solve(model, &mut state).unwrap_or_else(|e| panic!("{what}, case {k}: {e}"));
+        assert!(iterations <= BUDGET, "{what}, case {k}: {iterations} Newton iterations");
+        worst = worst.max(iterations);
+    }
+    worst
+}
+
+#[test]
+fn prestressed_structures_with_stiff_cables_come_back_from_disturbed_starts() {
+    for ea in STIFFNESSES {
+        let spec = prism(&PrismParams { ea, cluster_top_ring: true, ..Default::default() });
+        let model = tensegrity::scene::build_model(&spec, "<prism>", None).unwrap();
+        let p = prestressed_comes_back(&model, &format!("prism, EA {ea:e} N"));
+        let spec = tbar(&TbarParams { ea, ..Default::default() });
+        let model = tensegrity::scene::build_model(&spec, "<tbar>", None).unwrap();
+        let t = prestressed_comes_back(&model, &format!("T-bar, EA {ea:e} N"));
+        println!("EA {ea:e} N: prism worst {p}, T-bar worst {t} Newton iterations");
+    }
+}
