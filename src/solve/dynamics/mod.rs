@@ -498,14 +498,20 @@ pub fn explicit_stability_limit(model: &Model, state: &State, integrator: Integr
 
 /// `(omega_max, c_max)` at `state`: the highest natural frequency on the directions the joints
 /// allow (`Z^T K Z x = w^2 Z^T M Z x`, `Z` a null-space basis of `Phi_q`, rad/s) and the largest
-/// eigenvalue of the mass-normalized damping matrix there (1/s). `(0, 0)` without coordinates or
-/// freedom; `(inf, inf)` when the mass matrix there is singular.
+/// eigenvalue of the mass-normalized damping matrix there (1/s), with every cable counted as
+/// taut (`taut_stiffness_model`): a cable that starts slack or just taut (a rope at zero tension)
+/// has no stiffness yet, but it will have `EA / L0` as soon as it stretches, and a step above
+/// the limit that stiffness sets diverges then. `(0, 0)` without coordinates or freedom;
+/// `(inf, inf)` when the mass matrix there is singular.
 pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
     let n = model.dof_count;
     if n == 0 {
         return (0.0, 0.0);
     }
     let mut ws = Workspace::new(model);
+    evaluate(model, state, &mut ws, Tangents::None);
+    let (taut_model, taut_state) = taut_stiffness_model(model, state, &ws);
+    let (model, state) = (&taut_model, &taut_state);
     evaluate(model, state, &mut ws, Tangents::StiffnessAndDamping);
     let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return (0.0, 0.0) };
     let m = z.transpose() * mass_matrix(model) * &z;
@@ -517,6 +523,24 @@ pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
     let w2 = SymmetricEigen::new(&l_inv * k * l_inv.transpose()).eigenvalues.max().max(0.0);
     let c_max = SymmetricEigen::new(&l_inv * c * l_inv.transpose()).eigenvalues.max().max(0.0);
     (w2.sqrt(), c_max)
+}
+
+/// `model` and `state` with every slack or just-taut cable (`L <= L0`, lengths from `ws`
+/// evaluated at `state`) made taut by a part in 1e9 with its material stiffness kept: rest length
+/// `L0' = L (1 - 1e-9)` and `EA' = EA L0' / L0`, so `EA'/L0' = EA/L0` and its tension is about
+/// zero. Taut cables are left as they are. For stability limits (`spectral_bounds`).
+pub fn taut_stiffness_model(model: &Model, state: &State, ws: &Workspace) -> (Model, State) {
+    let mut taut_model = model.clone();
+    let mut taut_state = state.clone();
+    for (c, response) in ws.cables.iter().enumerate() {
+        let l0 = state.rest_lengths[c];
+        if response.length <= l0 && response.length > 0.0 {
+            let shorter = response.length * (1.0 - 1e-9);
+            taut_model.cables[c].axial_stiffness *= shorter / l0;
+            taut_state.rest_lengths[c] = shorter;
+        }
+    }
+    (taut_model, taut_state)
 }
 
 /// Largest stable step of the symplectic Euler integrator at `state`: `2 / omega_max`, with
