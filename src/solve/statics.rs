@@ -627,10 +627,10 @@ pub const PRESTRESSED_START: f64 = 1e-6;
 
 /// The cables `equilibrate` treats as stiff (`STIFF_CABLE_RATIO`), in model order: a property of
 /// the model, judged in its initial state (`State::initial`), so that every solve of a scene (a
-/// deployment's load steps, a disturbed start) takes the same formulation. A structure that
-/// starts in equilibrium (residual below `PRESTRESSED_START` of its largest tension) with more
-/// tension than its heaviest body weighs is held by its prestress (a form-found tensegrity) and
-/// has none: from a badly disturbed start the mixed iteration can lose a self-stress (every
+/// deployment's load steps, a disturbed start) takes the same formulation. A structure without
+/// weight, or one that starts in equilibrium (residual below `PRESTRESSED_START` of its largest
+/// tension) with more tension than its heaviest body weighs, is held by its prestress (a
+/// form-found tensegrity, a lever between springs) and has none: from a badly disturbed start the mixed iteration can lose a self-stress (every
 /// cable slack is an equilibrium of a free structure too), where the displacement form comes back
 /// to it (`tests/free_structures.rs`, `tests/perturbed_starts.rs`). A sketch drawn with its
 /// cables overstretched is not in equilibrium and keeps its stiff cables. `size` is
@@ -649,11 +649,11 @@ pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> 
         residual -= ws.constraint_jacobian.transpose() * &initial.multipliers;
     }
     let balanced = residual.amax() <= PRESTRESSED_START * tension.max(weight);
-    if tension > weight && balanced {
+    if weight == 0.0 || (tension > weight && balanced) {
         return Vec::new();
     }
     // the tensions of a sketch out of equilibrium say nothing of the loads: the weights do
-    let force = if balanced || weight == 0.0 { weight.max(tension) } else { weight };
+    let force = if balanced { weight.max(tension) } else { weight };
     let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max).max(size);
     let reference = force.max(1e-12) / length;
     (0..model.cables.len())
