@@ -761,46 +761,161 @@ fn check_mass_on_free_coordinates(model: &Model, cx: &Ctx) -> Result<(), SceneEr
     Ok(())
 }
 
-/// Largest number of joint equations whose independence `check_redundant_joints` checks (a dense
-/// rank-revealing QR of `Phi_q^T`, about `2 n rows^2` flops: 40 ms for the 576 rows of a 64-stage
-/// tower on the development machine).
+/// Largest number of joint equations of one group of joined bodies whose independence
+/// `check_redundant_joints` checks (a dense rank-revealing QR of the group's block of `Phi_q^T`,
+/// about `2 n rows^2` flops: 40 ms for the 576 rows of a 64-stage tower on the development
+/// machine).
 pub const MAX_REDUNDANCY_CHECK_ROWS: usize = 4000;
+
+/// True when the joint equations are independent at the point kinematics `kin`: a rank check per
+/// group of bodies the joints tie together (bodies with coordinates joined by ball joints, found
+/// by union-find; a pin ties one body to the ground and joins nothing), each the column-pivoted QR
+/// of that group's block of `Phi_q^T` (its joints' rows, its bodies' coordinates), with the
+/// relative tolerance `1e-10` of the largest row norm of `Phi_q`. Joints of different groups
+/// share no coordinate, so `Phi_q` has full row rank exactly when every block has, and no dense
+/// `Phi_q` is formed: a prism of 999 pinned struts is 999 blocks of 3 rows and 5 coordinates,
+/// where one QR of the whole `Phi_q^T` (5000 x 3000) took 13.6 s; a tower's stages joined by ball
+/// joints are one block, as before. On failure, the joints of every deficient group, in scene
+/// order.
+fn joints_independent(model: &Model, kin: &[crate::kinematics::PointKinematics]) -> Result<(), Vec<usize>> {
+    let rows_per_joint = model.joint_rows();
+    let mut parent: Vec<usize> = (0..model.bodies.len()).collect();
+    fn root(parent: &mut [usize], mut b: usize) -> usize {
+        while parent[b] != b {
+            parent[b] = parent[parent[b]];
+            b = parent[b];
+        }
+        b
+    }
+    let body_of = |p: PointId| model.points[p.0].body.0;
+    let moving = |b: usize| model.bodies[b].dof_count > 0;
+    for joint in &model.joints {
+        if let JointTarget::Point(b) = joint.target {
+            let (x, y) = (body_of(joint.point), body_of(b));
+            // a fixed body has no coordinates: joining through it would merge what is independent
+            if moving(x) && moving(y) {
+                let (rx, ry) = (root(&mut parent, x), root(&mut parent, y));
+                parent[rx] = ry;
+            }
+        }
+    }
+    // each group: its joints and its bodies
+    let mut groups: BTreeMap<usize, (Vec<usize>, Vec<usize>)> = BTreeMap::new();
+    for (j, joint) in model.joints.iter().enumerate() {
+        let first = body_of(joint.point);
+        let body = match joint.target {
+            _ if moving(first) => first,
+            JointTarget::Point(b) if moving(body_of(b)) => body_of(b),
+            _ => return Err(vec![j]), // a joint on fixed bodies alone holds nothing: a zero row
+        };
+        let group = root(&mut parent, body);
+        groups.entry(group).or_default().0.push(j);
+    }
+    for b in 0..model.bodies.len() {
+        if moving(b) {
+            let group = root(&mut parent, b);
+            if let Some((_, bodies)) = groups.get_mut(&group) {
+                bodies.push(b);
+            }
+        }
+    }
+    // each group's block of Phi_q^T (coordinates x rows)
+    let blocks: Vec<faer::Mat<f64>> = groups
+        .values()
+        .map(|(joints, bodies)| {
+            let mut column_of = BTreeMap::new();
+            for &b in bodies {
+                let body = &model.bodies[b];
+                for c in 0..body.dof_count {
+                    column_of.insert(body.dof_offset + c, column_of.len());
+                }
+            }
+            let mut block = faer::Mat::<f64>::zeros(column_of.len(), joints.len() * rows_per_joint);
+            for (k, &j) in joints.iter().enumerate() {
+                for (pid, sign) in crate::constraints::joint_points(&model.joints[j]) {
+                    let p = &kin[pid.0];
+                    let body = &model.bodies[p.body.0];
+                    for c in 0..body.dof_count {
+                        if let Some(&col) = column_of.get(&(body.dof_offset + c)) {
+                            for r in 0..rows_per_joint {
+                                block[(col, k * rows_per_joint + r)] += sign * p.jacobian[(r, c)];
+                            }
+                        }
+                    }
+                }
+            }
+            block
+        })
+        .collect();
+    let scale = blocks
+        .iter()
+        .flat_map(|b| {
+            (0..b.ncols()).map(move |r| (0..b.nrows()).map(|i| b[(i, r)].powi(2)).sum::<f64>().sqrt())
+        })
+        .fold(0.0, f64::max)
+        .max(1e-300);
+    let tol = 1e-10 * scale;
+    let mut deficient: Vec<usize> = Vec::new();
+    for (block, (joints, _)) in blocks.iter().zip(groups.values()) {
+        let independent = if block.ncols() > block.nrows() {
+            false // more equations than coordinates
+        } else if block.ncols() > MAX_REDUNDANCY_CHECK_ROWS {
+            true // too large to check (a dense QR)
+        } else {
+            let qr = block.col_piv_qr();
+            let r = qr.thin_R();
+            (0..block.ncols()).all(|i| r[(i, i)].abs() > tol)
+        };
+        if !independent {
+            deficient.extend(joints);
+        }
+    }
+    if deficient.is_empty() {
+        Ok(())
+    } else {
+        deficient.sort_unstable();
+        Err(deficient)
+    }
+}
 
 /// Refuses joints whose equations repeat what earlier joints already impose at the initial pose
 /// (a bar pinned at both ends and at its middle; a bar pinned at both ends, whose length already
 /// fixes the distance between the pins): the joint Jacobian `Phi_q` loses rank, no solver can
 /// tell the joints' reactions apart, and the dynamics cannot start. The rank comes from faer's
-/// column-pivoted QR of `Phi_q^T` (relative tolerance `1e-10`); only when it is deficient are the
+/// column-pivoted QR of `Phi_q^T`, group by group of joined bodies (`joints_independent`,
+/// relative tolerance `1e-10`); only when it is deficient are the
 /// rows taken in scene order (Gram-Schmidt) to find the first joint with an equation implied by
 /// earlier ones, and a least-squares fit of that equation on the earlier ones names the joints
 /// it repeats.
 fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
     use nalgebra::{DMatrix, DVector};
-    let (n, nc) = (model.dof_count, model.constraint_count);
-    if nc == 0 || nc > MAX_REDUNDANCY_CHECK_ROWS {
+    let n = model.dof_count;
+    if model.constraint_count == 0 {
         return Ok(());
     }
     let state = crate::state::State::initial(model);
     let kin: Vec<_> = (0..model.points.len())
         .map(|p| crate::kinematics::point_kinematics(model, &state.poses, &state.velocities, PointId(p)))
         .collect();
-    let mut phi_q = DMatrix::zeros(nc, n);
-    crate::constraints::evaluate_jacobian(model, &kin, &mut phi_q);
+    let Err(suspects) = joints_independent(model, &kin) else { return Ok(()) };
+    // the deficient groups' rows only (other groups share no coordinate with them)
+    let rows = model.joint_rows();
+    let mut phi_q = DMatrix::zeros(suspects.len() * rows, n);
+    for (k, &j) in suspects.iter().enumerate() {
+        for (pid, sign) in crate::constraints::joint_points(&model.joints[j]) {
+            let p = &kin[pid.0];
+            let body = &model.bodies[p.body.0];
+            for r in 0..rows {
+                for c in 0..body.dof_count {
+                    phi_q[(k * rows + r, body.dof_offset + c)] += sign * p.jacobian[(r, c)];
+                }
+            }
+        }
+    }
     let scale = phi_q.row_iter().map(|r| r.norm()).fold(0.0, f64::max).max(1e-300);
     let tol = 1e-10 * scale;
-    let rank = if nc > n {
-        n.min(nc) // more equations than coordinates: deficient for sure, found below
-    } else {
-        let a = faer::Mat::<f64>::from_fn(n, nc, |i, j| phi_q[(j, i)]);
-        let qr = a.col_piv_qr();
-        let r = qr.thin_R();
-        (0..nc.min(n)).filter(|&i| r[(i, i)].abs() > tol).count()
-    };
-    if rank == nc {
-        return Ok(());
-    }
+    let nc = phi_q.nrows();
     // in scene order: the first row that earlier rows already span
-    let rows = model.joint_rows();
     let mut basis: Vec<DVector<f64>> = Vec::new();
     let mut independent: Vec<usize> = Vec::new();
     let mut dependent: Vec<usize> = Vec::new();
@@ -821,10 +936,11 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
         }
         // report the first joint with a dependent equation once all its rows are seen
         if let Some(&first) = dependent.first() {
-            let joint = first / rows;
-            if r + 1 == (joint + 1) * rows {
-                let own: Vec<usize> = dependent.iter().copied().filter(|d| d / rows == joint).collect();
-                let earlier: Vec<usize> = independent.iter().copied().filter(|&i| i / rows < joint).collect();
+            let local = first / rows;
+            let joint = suspects[local];
+            if r + 1 == (local + 1) * rows {
+                let own: Vec<usize> = dependent.iter().copied().filter(|d| d / rows == local).collect();
+                let earlier: Vec<usize> = independent.iter().copied().filter(|&i| i / rows < local).collect();
                 // which earlier joints the dependent equations are combinations of
                 let mut named = BTreeSet::new();
                 if !earlier.is_empty() {
@@ -835,7 +951,7 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
                             let big = c.amax();
                             for (k, &e) in earlier.iter().enumerate() {
                                 if c[k].abs() > 1e-8 * big {
-                                    named.insert(e / rows);
+                                    named.insert(suspects[e / rows]);
                                 }
                             }
                         }
