@@ -7,6 +7,8 @@
 //! (each stiffer solve started from the softer solution). The prestressed bundled structures
 //! (prism, T-bar) with their cables stiffened to 1e9 N come back from disturbed starts too.
 
+mod common;
+
 use nalgebra::{DVector, Vector3};
 use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::scene::generate::{prism, tbar, PrismParams, TbarParams};
@@ -126,4 +128,41 @@ fn prestressed_structures_with_stiff_cables_come_back_from_disturbed_starts() {
         let t = prestressed_comes_back(&model, &format!("T-bar, EA {ea:e} N"));
         println!("EA {ea:e} N: prism worst {p}, T-bar worst {t} Newton iterations");
     }
+}
+
+/// Invariant: a solve says why it stopped and how its residual went. A converged solve has one
+/// residual per iteration and the final one; a solve cut short by its cap while the residual still
+/// falls says `iteration limit`; one that cannot converge (the atwood machine's unequal masses
+/// have no static equilibrium) says it stagnated or diverged, never that it converged.
+#[test]
+fn a_solve_reports_why_it_stopped_and_its_residual_history() {
+    use tensegrity::solve::statics::StopReason;
+    let text = |max: usize| {
+        format!(
+        "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"ground\"\nkind = \"fixed\"\npoints = {{ pulley = [1.0, 0.0, 0.0] }}\n[[bodies]]\nname = \"arm\"\nkind = \"bar\"\nmass = 2.0\nends = [[0.0, 0.0, 0.0], [0.7071067811865476, 0.0, -0.7071067811865476]]\n[[bodies]]\nname = \"weight\"\nkind = \"node\"\nmass = 0.6\nposition = [1.0, 0.0, -1.2346331352698203]\n[[joints]]\nkind = \"pin\"\na = \"arm.a\"\n[[cables]]\nname = \"rope\"\nroute = [\"arm.b\", \"ground.pulley\", \"weight\"]\nea = 1e6\nrest_length = 2.0\n[solver]\nmax_iterations = {max}\n"
+    )
+    };
+    let model = tensegrity::scene::from_toml(&text(60), "bar").unwrap();
+    let mut solver = StaticSolver::new(&model);
+    let mut ws = Workspace::new(&model);
+    let r = solver.equilibrate(&model, &mut State::initial(&model), &mut ws, &model.solver).unwrap();
+    let h = solver.residual_history();
+    assert_eq!((solver.stop_reason(), h.len()), (StopReason::Converged, r.iterations + 1), "{h:?}");
+    assert!(h[h.len() - 1] < 1e-6 * h[0], "{h:?}");
+
+    let model = tensegrity::scene::from_toml(&text(2), "bar, capped").unwrap();
+    let e = solver.equilibrate(&model, &mut State::initial(&model), &mut ws, &model.solver).unwrap_err();
+    assert_eq!((e.0, solver.stop_reason()), (2, StopReason::IterationLimit));
+    assert_eq!(solver.residual_history().len(), 3);
+
+    let atwood = common::bundled("atwood");
+    let mut solver = StaticSolver::new(&atwood);
+    let mut ws = Workspace::new(&atwood);
+    assert!(solver.equilibrate(&atwood, &mut State::initial(&atwood), &mut ws, &atwood.solver).is_err());
+    assert!(
+        matches!(solver.stop_reason(), StopReason::Stagnated | StopReason::Diverged | StopReason::Singular),
+        "{:?}: {:?}",
+        solver.stop_reason(),
+        solver.residual_history()
+    );
 }

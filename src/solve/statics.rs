@@ -217,6 +217,57 @@ struct Modes {
     rigid: usize,
 }
 
+/// Why the last `StaticSolver::equilibrate` stopped (`StaticSolver::stop_reason`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum StopReason {
+    /// The residual passed the convergence test.
+    #[default]
+    Converged,
+    /// The iteration cap (`SolverSettings::max_iterations`) was reached while the residual was
+    /// still falling (its best over the last `STAGNATION_WINDOW` iterations below half the best
+    /// before them).
+    IterationLimit,
+    /// The iteration cap was reached with the residual no longer falling.
+    Stagnated,
+    /// A residual or every trial of a step's line search was not finite.
+    Diverged,
+    /// The Newton matrix could not be solved even with regularization.
+    Singular,
+}
+
+impl StopReason {
+    /// The reason in words (`converged`, `iteration limit`, `stagnated`, `diverged`, `singular`).
+    pub fn words(self) -> &'static str {
+        match self {
+            StopReason::Converged => "converged",
+            StopReason::IterationLimit => "iteration limit",
+            StopReason::Stagnated => "stagnated",
+            StopReason::Diverged => "diverged",
+            StopReason::Singular => "singular",
+        }
+    }
+
+    /// `IterationLimit` or `Stagnated` for a solve that reached its cap with the residuals
+    /// `history` (one per iteration, N).
+    fn at_cap(history: &[f64]) -> Self {
+        let k = history.len();
+        if k < 2 * STAGNATION_WINDOW {
+            return StopReason::IterationLimit;
+        }
+        let best = |h: &[f64]| h.iter().copied().fold(f64::INFINITY, f64::min);
+        let (before, last) = history.split_at(k - STAGNATION_WINDOW);
+        if best(last) < 0.5 * best(before) {
+            StopReason::IterationLimit
+        } else {
+            StopReason::Stagnated
+        }
+    }
+}
+
+/// Iterations over which `StopReason::at_cap` judges whether a solve that reached its cap was
+/// still making progress.
+pub const STAGNATION_WINDOW: usize = 10;
+
 /// Buffers for the Newton iteration, sized once per model.
 #[derive(Debug, Clone)]
 pub struct StaticSolver {
@@ -229,6 +280,10 @@ pub struct StaticSolver {
     mass: DMatrix<f64>,
     /// `body_size(model)`, m.
     size: f64,
+    /// The force residual at the start of each iteration of the last solve, N.
+    history: Vec<f64>,
+    /// Why the last solve stopped.
+    stop: StopReason,
 }
 
 pub(crate) struct Residual {
@@ -341,6 +396,8 @@ impl StaticSolver {
             best_poses: poses,
             mass: crate::solve::dynamics::mass_matrix(model),
             size: body_size(model),
+            history: Vec::new(),
+            stop: StopReason::Converged,
         }
     }
 
@@ -359,6 +416,17 @@ impl StaticSolver {
             self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
             self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
         }
+    }
+
+    /// Why the last `equilibrate` stopped.
+    pub fn stop_reason(&self) -> StopReason {
+        self.stop
+    }
+
+    /// The force residual `|Q - Phi_q^T lambda|_inf` (N) at the start of each Newton iteration of
+    /// the last `equilibrate`, and at its end: `iterations + 1` values for a converged solve.
+    pub fn residual_history(&self) -> &[f64] {
+        &self.history
     }
 
     /// The KKT matrix last assembled by `assemble_kkt`.
@@ -402,6 +470,8 @@ impl StaticSolver {
         ws: &mut Workspace,
         settings: &SolverSettings,
     ) -> Result<EquilibriumReport, (usize, f64)> {
+        self.history.clear();
+        self.stop = StopReason::Converged;
         let stiff = stiff_cables(model, ws, self.size);
         if !stiff.is_empty() {
             return self.equilibrate_mixed(model, state, ws, settings, stiff);
@@ -426,7 +496,9 @@ impl StaticSolver {
         loop {
             evaluate(model, state, ws, Tangents::Stiffness);
             let res = residual_of(model, state, ws, &mut self.rhs, self.size);
+            self.history.push(res.force);
             if !res.force.is_finite() || !res.constraint.is_finite() {
+                self.stop = StopReason::Diverged;
                 break;
             }
             best = best.min(res.force);
@@ -436,6 +508,7 @@ impl StaticSolver {
                 return Ok(self.report(model, state, ws, &res, iterations));
             }
             if iterations >= settings.max_iterations {
+                self.stop = StopReason::at_cap(&self.history);
                 break;
             }
             iterations += 1;
@@ -469,7 +542,10 @@ impl StaticSolver {
                 top += &correction;
                 energy_mode = descent;
             }
-            let Some(step) = solve_regularized(&self.kkt, &self.rhs, n) else { break };
+            let Some(step) = solve_regularized(&self.kkt, &self.rhs, n) else {
+                self.stop = StopReason::Singular;
+                break;
+            };
             self.dq.copy_from(&step.rows(0, n));
             // limit rotations to 0.5 rad and translations to STEP_CAP length scales per iteration
             let mut limit: f64 = 1.0;
@@ -533,6 +609,7 @@ impl StaticSolver {
                 alpha *= 0.5;
             }
             if !best_trial.0.is_finite() {
+                self.stop = StopReason::Diverged;
                 break;
             }
             let alpha = best_trial.1;
@@ -866,7 +943,9 @@ impl StaticSolver {
             // converged in the displacement form, as `equilibrate` tests it
             evaluate(model, state, ws, Tangents::Stiffness);
             let res = residual_of(model, state, ws, &mut self.rhs, self.size);
+            self.history.push(res.force);
             if !res.force.is_finite() || !res.constraint.is_finite() {
+                self.stop = StopReason::Diverged;
                 break;
             }
             best = best.min(res.force);
@@ -874,6 +953,7 @@ impl StaticSolver {
                 return Ok(self.report(model, state, ws, &res, iterations));
             }
             if iterations >= settings.max_iterations {
+                self.stop = StopReason::at_cap(&self.history);
                 break;
             }
             iterations += 1;
@@ -946,7 +1026,10 @@ impl StaticSolver {
                     energy_mode = descent;
                 }
             }
-            let Some(step) = solve_regularized(&kkt, &rhs, n) else { break };
+            let Some(step) = solve_regularized(&kkt, &rhs, n) else {
+                self.stop = StopReason::Singular;
+                break;
+            };
             self.dq.copy_from(&step.rows(0, n));
             let limit = self.step_limit(model, l_scale);
             let dlambda = step.rows(n, nc).into_owned();
@@ -1007,6 +1090,7 @@ impl StaticSolver {
             }
             if !best_trial.0.is_finite() {
                 stiff.tension.copy_from_slice(&base_tension);
+                self.stop = StopReason::Diverged;
                 break;
             }
             let alpha = best_trial.1;

@@ -16,14 +16,14 @@ pub fn run(scene: &Path, json: bool, count: usize, plot: Option<PathBuf>) -> Res
     let model = load_for_statics(scene)?;
     let mut state = State::initial(&model);
     let mut ws = Workspace::new(&model);
-    let r = StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(
-        |(it, res)| {
-            format!(
-                "{}: no equilibrium found: residual {res:.3e} N after {it} Newton iterations",
-                scene.display()
-            )
-        },
-    )?;
+    let mut solver = StaticSolver::new(&model);
+    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(|(it, res)| {
+        format!(
+            "{}: no equilibrium found: residual {res:.3e} N after {it} Newton iterations ({})",
+            scene.display(),
+            solver.stop_reason().words()
+        )
+    })?;
     let modes = tensegrity::solve::modes::natural_modes(&model, &state).ok_or_else(|| {
         format!("{}: the mass matrix is singular on the joints' null space", scene.display())
     })?;

@@ -15,7 +15,9 @@ use crate::output::*;
 struct StaticsJson {
     scene: String,
     iterations: usize,
+    stop_reason: &'static str,
     residual_n: f64,
+    residual_history_n: Vec<f64>,
     force_scale_n: f64,
     stable: bool,
     negative_stiffness_modes: usize,
@@ -35,15 +37,16 @@ pub fn run(scene: &Path, json: bool) -> Result<(), String> {
     let mut ws = Workspace::new(&model);
     evaluate(&model, &state, &mut ws, Tangents::None);
     let reference = report::all_pulley_coordinates(&model, &state, &ws);
-    let r = StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(
-        |(it, res)| {
-            format!(
-                "{}: no equilibrium found: residual {res:.3e} N after {}",
-                scene.display(),
-                counted(it, "Newton iteration")
-            )
-        },
-    )?;
+    let mut solver = StaticSolver::new(&model);
+    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(|(it, res)| {
+        format!(
+            "{}: no equilibrium found: residual {res:.3e} N after {} ({}; residual by iteration {})",
+            scene.display(),
+            counted(it, "Newton iteration"),
+            solver.stop_reason().words(),
+            history_words(solver.residual_history())
+        )
+    })?;
     evaluate(&model, &state, &mut ws, Tangents::None);
     let cables = report::cable_reports(&model, &state, &ws, &reference);
     // how far the equilibrium lies from the pose the scene sketched, and where
@@ -60,7 +63,9 @@ pub fn run(scene: &Path, json: bool) -> Result<(), String> {
         let out = StaticsJson {
             scene: model.name.clone(),
             iterations: r.iterations,
+            stop_reason: solver.stop_reason().words(),
             residual_n: r.residual,
+            residual_history_n: solver.residual_history().to_vec(),
             force_scale_n: r.force_scale,
             stable: r.stable,
             negative_stiffness_modes: r.negative_modes,
@@ -172,4 +177,15 @@ fn format_statics(
         let _ = writeln!(out, "{:<20} {:>12.6} {:>12.6} {:>12.6}", name, Num(p[0]), Num(p[1]), Num(p[2]));
     }
     out
+}
+
+/// A residual history as a person reads it: at most the first 5 and the last 5 values, `1.2e3`
+/// form, N.
+fn history_words(history: &[f64]) -> String {
+    let words = |h: &[f64]| h.iter().map(|x| format!("{x:.1e}")).collect::<Vec<_>>().join(", ");
+    if history.len() <= 10 {
+        format!("[{}] N", words(history))
+    } else {
+        format!("[{}, ..., {}] N", words(&history[..5]), words(&history[history.len() - 5..]))
+    }
 }
