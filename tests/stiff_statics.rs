@@ -130,10 +130,11 @@ fn prestressed_structures_with_stiff_cables_come_back_from_disturbed_starts() {
     }
 }
 
-/// Invariant: a solve says why it stopped and how its residual went. A converged solve has one
-/// residual per iteration and the final one; a solve cut short by its cap while the residual still
-/// falls says `iteration limit`; one that cannot converge (the atwood machine's unequal masses
-/// have no static equilibrium) says it stagnated or diverged, never that it converged.
+/// Invariant: a solve says why it stopped and how its residual went, and its cap ends a solve that
+/// stagnates, not one that converges. A converged solve has one residual per iteration and the
+/// final one; a solve that reaches its cap while the residual still falls goes on and converges;
+/// one that cannot converge (the atwood machine's unequal masses have no static equilibrium)
+/// stops at its cap and says it stagnated or diverged, never that it converged.
 #[test]
 fn a_solve_reports_why_it_stopped_and_its_residual_history() {
     use tensegrity::solve::statics::StopReason;
@@ -150,15 +151,17 @@ fn a_solve_reports_why_it_stopped_and_its_residual_history() {
     assert_eq!((solver.stop_reason(), h.len()), (StopReason::Converged, r.iterations + 1), "{h:?}");
     assert!(h[h.len() - 1] < 1e-6 * h[0], "{h:?}");
 
+    // capped at 2 while the residual still falls: the solve goes on (to 4 times the cap) and converges
     let model = tensegrity::scene::from_toml(&text(2), "bar, capped").unwrap();
-    let e = solver.equilibrate(&model, &mut State::initial(&model), &mut ws, &model.solver).unwrap_err();
-    assert_eq!((e.0, solver.stop_reason()), (2, StopReason::IterationLimit));
-    assert_eq!(solver.residual_history().len(), 3);
+    let r = solver.equilibrate(&model, &mut State::initial(&model), &mut ws, &model.solver).unwrap();
+    assert!(r.iterations > 2 && r.iterations <= 8, "{r:?}");
+    assert_eq!(solver.stop_reason(), StopReason::Converged);
 
     let atwood = common::bundled("atwood");
     let mut solver = StaticSolver::new(&atwood);
     let mut ws = Workspace::new(&atwood);
-    assert!(solver.equilibrate(&atwood, &mut State::initial(&atwood), &mut ws, &atwood.solver).is_err());
+    let e = solver.equilibrate(&atwood, &mut State::initial(&atwood), &mut ws, &atwood.solver).unwrap_err();
+    assert_eq!(e.0, atwood.solver.max_iterations, "a stagnating solve stops at its cap");
     assert!(
         matches!(solver.stop_reason(), StopReason::Stagnated | StopReason::Diverged | StopReason::Singular),
         "{:?}: {:?}",

@@ -223,11 +223,11 @@ pub enum StopReason {
     /// The residual passed the convergence test.
     #[default]
     Converged,
-    /// The iteration cap (`SolverSettings::max_iterations`) was reached while the residual was
-    /// still falling (its best over the last `STAGNATION_WINDOW` iterations below half the best
-    /// before them).
+    /// The solve was still converging at its cap (`SolverSettings::max_iterations`: its best
+    /// residual over the last `STAGNATION_WINDOW` iterations below half the best before them) and
+    /// went on to `CAP_EXTENSION` times the cap, or was stopped at a cap too short to judge.
     IterationLimit,
-    /// The iteration cap was reached with the residual no longer falling.
+    /// The residual had stopped falling at the cap.
     Stagnated,
     /// A residual or every trial of a step's line search was not finite.
     Diverged,
@@ -267,6 +267,10 @@ impl StopReason {
 /// Iterations over which `StopReason::at_cap` judges whether a solve that reached its cap was
 /// still making progress.
 pub const STAGNATION_WINDOW: usize = 10;
+
+/// A solve that is still converging at its cap (`SolverSettings::max_iterations`) goes on, up to
+/// this many times the cap: the cap ends a solve that stagnates, not one that makes progress.
+pub const CAP_EXTENSION: usize = 4;
 
 /// Buffers for the Newton iteration, sized once per model.
 #[derive(Debug, Clone)]
@@ -505,11 +509,17 @@ impl StaticSolver {
             // the round-off floor may relax the tolerance, but never to a residual that is a
             // sizeable part of the forces themselves (ill-conditioned input: no claim is made)
             if res.converged(settings) {
+                self.stop = StopReason::Converged;
                 return Ok(self.report(model, state, ws, &res, iterations));
             }
             if iterations >= settings.max_iterations {
+                // the cap ends a solve that stagnates, not one that is still converging
                 self.stop = StopReason::at_cap(&self.history);
-                break;
+                if self.stop != StopReason::IterationLimit
+                    || iterations >= CAP_EXTENSION * settings.max_iterations
+                {
+                    break;
+                }
             }
             iterations += 1;
 
@@ -950,11 +960,17 @@ impl StaticSolver {
             }
             best = best.min(res.force);
             if res.converged(settings) {
+                self.stop = StopReason::Converged;
                 return Ok(self.report(model, state, ws, &res, iterations));
             }
             if iterations >= settings.max_iterations {
+                // the cap ends a solve that stagnates, not one that is still converging
                 self.stop = StopReason::at_cap(&self.history);
-                break;
+                if self.stop != StopReason::IterationLimit
+                    || iterations >= CAP_EXTENSION * settings.max_iterations
+                {
+                    break;
+                }
             }
             iterations += 1;
 
