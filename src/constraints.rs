@@ -32,15 +32,27 @@ pub fn evaluate_jacobian(model: &Model, kin: &[PointKinematics], phi_q: &mut DMa
         return;
     }
     phi_q.fill(0.0);
-    let rows = model.joint_rows();
     for joint in &model.joints {
-        for (pid, sign) in joint_points(joint) {
-            let p = &kin[pid.0];
-            let body = &model.bodies[p.body.0];
-            for r in 0..rows {
-                for c in 0..body.dof_count {
-                    phi_q[(joint.row_offset + r, body.dof_offset + c)] += sign * p.jacobian[(r, c)];
-                }
+        add_jacobian_entries(model, kin, joint, |r, c, x| phi_q[(joint.row_offset + r, c)] += x);
+    }
+}
+
+/// Calls `add(row, coordinate, value)` for each term of `joint`'s rows of `Phi_q` at the point
+/// kinematics `kin` (`row` counted from the joint's first, `0..model.joint_rows()`; a coordinate
+/// may come twice, once per point, and the terms add up), so that a caller can assemble them
+/// into any layout (`evaluate_jacobian`'s dense matrix, a block of some joints and bodies).
+pub fn add_jacobian_entries(
+    model: &Model,
+    kin: &[PointKinematics],
+    joint: &JointModel,
+    mut add: impl FnMut(usize, usize, f64),
+) {
+    for (pid, sign) in joint_points(joint) {
+        let p = &kin[pid.0];
+        let body = &model.bodies[p.body.0];
+        for r in 0..model.joint_rows() {
+            for c in 0..body.dof_count {
+                add(r, body.dof_offset + c, sign * p.jacobian[(r, c)]);
             }
         }
     }

@@ -832,17 +832,9 @@ fn joints_independent(model: &Model, kin: &[crate::kinematics::PointKinematics])
             }
             let mut block = faer::Mat::<f64>::zeros(column_of.len(), joints.len() * rows_per_joint);
             for (k, &j) in joints.iter().enumerate() {
-                for (pid, sign) in crate::constraints::joint_points(&model.joints[j]) {
-                    let p = &kin[pid.0];
-                    let body = &model.bodies[p.body.0];
-                    for c in 0..body.dof_count {
-                        if let Some(&col) = column_of.get(&(body.dof_offset + c)) {
-                            for r in 0..rows_per_joint {
-                                block[(col, k * rows_per_joint + r)] += sign * p.jacobian[(r, c)];
-                            }
-                        }
-                    }
-                }
+                crate::constraints::add_jacobian_entries(model, kin, &model.joints[j], |r, c, x| {
+                    block[(column_of[&c], k * rows_per_joint + r)] += x;
+                });
             }
             block
         })
@@ -902,15 +894,9 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
     let rows = model.joint_rows();
     let mut phi_q = DMatrix::zeros(suspects.len() * rows, n);
     for (k, &j) in suspects.iter().enumerate() {
-        for (pid, sign) in crate::constraints::joint_points(&model.joints[j]) {
-            let p = &kin[pid.0];
-            let body = &model.bodies[p.body.0];
-            for r in 0..rows {
-                for c in 0..body.dof_count {
-                    phi_q[(k * rows + r, body.dof_offset + c)] += sign * p.jacobian[(r, c)];
-                }
-            }
-        }
+        crate::constraints::add_jacobian_entries(model, &kin, &model.joints[j], |r, c, x| {
+            phi_q[(k * rows + r, c)] += x;
+        });
     }
     let scale = phi_q.row_iter().map(|r| r.norm()).fold(0.0, f64::max).max(1e-300);
     let tol = 1e-10 * scale;

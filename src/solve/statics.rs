@@ -272,6 +272,16 @@ pub const STAGNATION_WINDOW: usize = 10;
 /// this many times the cap: the cap ends a solve that stagnates, not one that makes progress.
 pub const CAP_EXTENSION: usize = 4;
 
+/// What `StaticSolver::start_iteration` found.
+enum Start {
+    /// Go on with this residual.
+    Go(Residual),
+    /// Converged: the report.
+    Converged(EquilibriumReport),
+    /// Stop without an equilibrium (`StaticSolver::stop_reason` says why).
+    Stop,
+}
+
 /// Buffers for the Newton iteration, sized once per model.
 #[derive(Debug, Clone)]
 pub struct StaticSolver {
@@ -288,6 +298,8 @@ pub struct StaticSolver {
     history: Vec<f64>,
     /// Why the last solve stopped.
     stop: StopReason,
+    /// The model's stiff cables (`stiff_cables`), whose tensions `equilibrate` solves for.
+    stiff: Vec<usize>,
 }
 
 pub(crate) struct Residual {
@@ -402,6 +414,7 @@ impl StaticSolver {
             size: body_size(model),
             history: Vec::new(),
             stop: StopReason::Converged,
+            stiff: stiff_cables(model, &mut Workspace::for_forces(model), body_size(model)),
         }
     }
 
@@ -420,6 +433,44 @@ impl StaticSolver {
             self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
             self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
         }
+    }
+
+    /// The start of every Newton iteration of `equilibrate` (both forms): evaluates `state`
+    /// with its stiffness, records the displacement form's force residual, and tells whether the
+    /// solve converged (the residual test below `settings.tolerance`, or its round-off floor but
+    /// never above `ROUND_OFF_CEILING`: ill-conditioned input gets no claim), diverged (a
+    /// non-finite residual) or stops at its cap (`StopReason::at_cap`; a solve still converging
+    /// goes on to `CAP_EXTENSION` times the cap). `best` keeps the smallest residual seen.
+    fn start_iteration(
+        &mut self,
+        model: &Model,
+        state: &State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+        iterations: usize,
+        best: &mut f64,
+    ) -> Start {
+        evaluate(model, state, ws, Tangents::Stiffness);
+        let res = residual_of(model, state, ws, &mut self.rhs, self.size);
+        self.history.push(res.force);
+        if !res.force.is_finite() || !res.constraint.is_finite() {
+            self.stop = StopReason::Diverged;
+            return Start::Stop;
+        }
+        *best = best.min(res.force);
+        if res.converged(settings) {
+            self.stop = StopReason::Converged;
+            return Start::Converged(self.report(model, state, ws, &res, iterations));
+        }
+        if iterations >= settings.max_iterations {
+            self.stop = StopReason::at_cap(&self.history);
+            if self.stop != StopReason::IterationLimit
+                || iterations >= CAP_EXTENSION * settings.max_iterations
+            {
+                return Start::Stop;
+            }
+        }
+        Start::Go(res)
     }
 
     /// Why the last `equilibrate` stopped.
@@ -476,9 +527,8 @@ impl StaticSolver {
     ) -> Result<EquilibriumReport, (usize, f64)> {
         self.history.clear();
         self.stop = StopReason::Converged;
-        let stiff = stiff_cables(model, ws, self.size);
-        if !stiff.is_empty() {
-            return self.equilibrate_mixed(model, state, ws, settings, stiff);
+        if !self.stiff.is_empty() {
+            return self.equilibrate_mixed(model, state, ws, settings, self.stiff.clone());
         }
         let n = model.dof_count;
         let nc = model.constraint_count;
@@ -498,29 +548,11 @@ impl StaticSolver {
         let mut check_convexity = fresh || model.constraint_count == 0;
         let mut previous_merit = f64::INFINITY;
         loop {
-            evaluate(model, state, ws, Tangents::Stiffness);
-            let res = residual_of(model, state, ws, &mut self.rhs, self.size);
-            self.history.push(res.force);
-            if !res.force.is_finite() || !res.constraint.is_finite() {
-                self.stop = StopReason::Diverged;
-                break;
-            }
-            best = best.min(res.force);
-            // the round-off floor may relax the tolerance, but never to a residual that is a
-            // sizeable part of the forces themselves (ill-conditioned input: no claim is made)
-            if res.converged(settings) {
-                self.stop = StopReason::Converged;
-                return Ok(self.report(model, state, ws, &res, iterations));
-            }
-            if iterations >= settings.max_iterations {
-                // the cap ends a solve that stagnates, not one that is still converging
-                self.stop = StopReason::at_cap(&self.history);
-                if self.stop != StopReason::IterationLimit
-                    || iterations >= CAP_EXTENSION * settings.max_iterations
-                {
-                    break;
-                }
-            }
+            let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
+                Start::Go(res) => res,
+                Start::Converged(report) => return Ok(report),
+                Start::Stop => break,
+            };
             iterations += 1;
 
             self.assemble_kkt(model, state, ws);
@@ -557,19 +589,7 @@ impl StaticSolver {
                 break;
             };
             self.dq.copy_from(&step.rows(0, n));
-            // limit rotations to 0.5 rad and translations to STEP_CAP length scales per iteration
-            let mut limit: f64 = 1.0;
-            for b in &model.bodies {
-                for c in 0..b.dof_count {
-                    let col = b.basis.column(c);
-                    let x = self.dq[b.dof_offset + c].abs();
-                    let cap =
-                        if col.fixed_rows::<3>(3).norm() > 0.0 { 0.5 } else { STEP_CAP * res.length_scale };
-                    if x > cap {
-                        limit = limit.min(cap / x);
-                    }
-                }
-            }
+            let limit = self.step_limit(model, res.length_scale);
             let dlambda = step.rows(n, nc).into_owned();
 
             // backtracking line search: a Newton step is accepted when it lowers the residual norm
@@ -721,22 +741,25 @@ pub const PRESTRESSED_START: f64 = 1e-6;
 /// cable slack is an equilibrium of a free structure too), where the displacement form comes back
 /// to it (`tests/free_structures.rs`, `tests/perturbed_starts.rs`). A sketch drawn with its
 /// cables overstretched is not in equilibrium and keeps its stiff cables. `size` is
-/// `body_size(model)`; `ws` is left evaluated at the initial state.
+/// `body_size(model)`; `ws` (a `Workspace::for_forces` will do) is overwritten.
 pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> {
     if model.cables.is_empty() {
         return Vec::new();
     }
-    let mut initial = State::initial(model);
-    least_squares_multipliers(model, &mut initial, ws);
-    evaluate(model, &initial, ws, Tangents::None);
     let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
+    if weight == 0.0 {
+        return Vec::new();
+    }
+    let mut initial = State::initial(model);
+    evaluate(model, &initial, ws, Tangents::None);
+    fit_multipliers(model, &mut initial.multipliers, ws);
     let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
     let mut residual = ws.force.clone_owned();
     if model.constraint_count > 0 {
         residual -= ws.constraint_jacobian.transpose() * &initial.multipliers;
     }
     let balanced = residual.amax() <= PRESTRESSED_START * tension.max(weight);
-    if weight == 0.0 || (tension > weight && balanced) {
+    if tension > weight && balanced {
         return Vec::new();
     }
     // the tensions of a sketch out of equilibrium say nothing of the loads: the weights do
@@ -951,27 +974,11 @@ impl StaticSolver {
         let mut previous_merit = f64::INFINITY;
         loop {
             // converged in the displacement form, as `equilibrate` tests it
-            evaluate(model, state, ws, Tangents::Stiffness);
-            let res = residual_of(model, state, ws, &mut self.rhs, self.size);
-            self.history.push(res.force);
-            if !res.force.is_finite() || !res.constraint.is_finite() {
-                self.stop = StopReason::Diverged;
-                break;
-            }
-            best = best.min(res.force);
-            if res.converged(settings) {
-                self.stop = StopReason::Converged;
-                return Ok(self.report(model, state, ws, &res, iterations));
-            }
-            if iterations >= settings.max_iterations {
-                // the cap ends a solve that stagnates, not one that is still converging
-                self.stop = StopReason::at_cap(&self.history);
-                if self.stop != StopReason::IterationLimit
-                    || iterations >= CAP_EXTENSION * settings.max_iterations
-                {
-                    break;
-                }
-            }
+            let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
+                Start::Go(res) => res,
+                Start::Converged(report) => return Ok(report),
+                Start::Stop => break,
+            };
             iterations += 1;
 
             // the active set: taut where the cable carries tension or is stretched
@@ -1122,7 +1129,7 @@ impl StaticSolver {
                 work.multipliers.copy_from(&state.multipliers);
                 Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
                 project_onto_mixed(model, &mut work, ws, &mut stiff, &rest, l_scale);
-                least_squares_reactions(model, &mut work, ws);
+                fit_multipliers(model, &mut work.multipliers, ws);
                 state.poses.copy_from_slice(&work.poses);
                 state.multipliers.copy_from(&work.multipliers);
             }
@@ -1147,23 +1154,6 @@ impl StaticSolver {
             }
         }
         limit
-    }
-}
-
-/// The joint reactions that best balance the forces of a mixed evaluation (`ws` from
-/// `mixed_evaluate` at `work`, the stiff cables' tensions held):
-/// `lambda = argmin |Q - sum T g - Phi_q^T lambda|`, as `least_squares_multipliers` for the
-/// displacement form. The tensions are not fitted: a prestressed structure's self-stress is not
-/// decided by its loads, and a fit would drop it.
-fn least_squares_reactions(model: &Model, work: &mut State, ws: &Workspace) {
-    if model.constraint_count == 0 {
-        return;
-    }
-    let j = &ws.constraint_jacobian;
-    if let Some(lambda) = (j * j.transpose()).lu().solve(&(j * &ws.force)) {
-        if lambda.iter().all(|x| x.is_finite()) {
-            work.multipliers = lambda;
-        }
     }
 }
 
@@ -1276,10 +1266,22 @@ fn least_squares_multipliers(model: &Model, state: &mut State, ws: &mut Workspac
         return;
     }
     evaluate(model, state, ws, Tangents::None);
+    fit_multipliers(model, &mut state.multipliers, ws);
+}
+
+/// `multipliers = argmin |Q - Phi_q^T lambda|` for the force `Q` and joint Jacobian evaluated
+/// into `ws` (the displacement form's, or a mixed evaluation's with the stiff cables' tensions
+/// held: those are not fitted, since a prestressed structure's self-stress is not decided by its
+/// loads and a fit would drop it). Left unchanged without joints or when `Phi_q` is rank
+/// deficient.
+fn fit_multipliers(model: &Model, multipliers: &mut DVector<f64>, ws: &Workspace) {
+    if model.constraint_count == 0 {
+        return;
+    }
     let j = &ws.constraint_jacobian;
     if let Some(lambda) = (j * j.transpose()).lu().solve(&(j * &ws.force)) {
         if lambda.iter().all(|x| x.is_finite()) {
-            state.multipliers = lambda;
+            *multipliers = lambda;
         }
     }
 }
