@@ -2,17 +2,19 @@
 //! neither stops nor stalls the steps, and the topics it does not read keep flowing; a
 //! StepSimulation request of 10^12 steps leaves get-state, reset and SIGTERM working, and SIGTERM
 //! still answers the caller and exits 0; a request in another service mapping's layout is refused,
-//! not obeyed; subscribers resume after the node restarts; a controller killed while flooding
+//! not obeyed; a paused node answers a burst of requests larger than one turn's share and then
+//! takes no CPU; subscribers resume after the node restarts; a controller killed while flooding
 //! commands leaves the node running with counts that add up; 300 subscribers joining and leaving
 //! leave it serving the others.
 //!
 //! Network rule: each test re-executes itself inside a private loopback-only network namespace
-//! (tests/common/netns.rs) and uses its own domain id (65-69, 74). The tests of this file take a lock
+//! (tests/common/netns.rs) and uses its own domain id (65-70, 74). The tests of this file take a lock
 //! so that they do not compete for the two cores.
 
 #![cfg(feature = "ros2")]
 
 mod common;
+use common::cpu::cpu_ticks;
 use common::{bundled, netns, peer, roles, running_node};
 
 use std::sync::Mutex;
@@ -151,6 +153,50 @@ fn a_trillion_step_request_leaves_reset_and_sigterm_working() {
     let answer = answer
         .unwrap_or_else(|| panic!("the request under way is answered on shutdown; node said: {stderr}"));
     assert!(answer.result.error_message.contains("shutting down"), "{}", answer.result.error_message);
+}
+
+#[test]
+fn a_paused_node_answers_a_burst_of_requests_and_stays_quiet() {
+    const TEST: &str = "a_paused_node_answers_a_burst_of_requests_and_stays_quiet";
+    let domain = 70;
+    if !isolated_or_rerun(TEST) {
+        return;
+    }
+    let node = NodeProcess::start(domain, &["start_paused:=true"]);
+    let mut me = Peer::new(domain, "controller");
+    let get_state: ros2_client::Client<msg::Empty, msg::GetSimulationStateResponse> = me.client(
+        ServiceMapping::Enhanced,
+        "get_simulation_state",
+        "simulation_interfaces",
+        "GetSimulationState",
+    );
+    wait_for(10 * SEC, || call(&get_state, msg::Empty::default(), SEC / 5)).expect("the node answers");
+
+    // more requests at once than the node takes from one server in a turn (16): the rest are not
+    // announced again, and must not wait for the next idle turn
+    let ids: Vec<_> = (0..40).map(|_| get_state.send_request(msg::Empty::default()).unwrap()).collect();
+    let mut answered = Vec::new();
+    wait_for(10 * SEC, || {
+        while let Ok(Some((id, r))) = get_state.receive_response() {
+            assert_eq!(r.state.state, 2, "paused");
+            answered.push(id);
+        }
+        (answered.len() >= ids.len()).then_some(())
+    })
+    .unwrap_or_else(|| panic!("{} of {} requests answered", answered.len(), ids.len()));
+    assert!(ids.iter().all(|id| answered.contains(id)));
+
+    // paused and unasked, it blocks in its readiness poll: no busy loop
+    std::thread::sleep(SEC / 2);
+    let before = cpu_ticks(node.pid());
+    std::thread::sleep(3 * SEC);
+    let used = cpu_ticks(node.pid()) - before;
+    // clock ticks are 10 ms: the diagnostics turn (1 Hz) and DDS's own timers may take one or two
+    assert!(used <= 5, "a paused DDS node used {used} ticks of CPU in 3 s");
+
+    // SIGINT wakes the blocked loop: a clean exit
+    let (status, stderr) = node.stop("INT");
+    assert!(status.success(), "exit status {status:?}: {stderr}");
 }
 
 #[test]

@@ -17,6 +17,7 @@
 #![cfg(feature = "shm")]
 
 mod common;
+use common::cpu::cpu_ticks;
 use common::{bundled, python, running_node};
 #[cfg(feature = "ros2")]
 use common::{netns, peer};
@@ -362,15 +363,6 @@ fn node_process(namespace: &str, extra: &[&str]) -> Child {
         cmd.args(["-p", p]);
     }
     cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap()
-}
-
-/// The process's CPU time so far, clock ticks (utime + stime from /proc/PID/stat).
-fn cpu_ticks(pid: u32) -> u64 {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
-    let after = &stat[stat.rfind(')').unwrap() + 2..];
-    let fields: Vec<&str> = after.split_whitespace().collect();
-    // fields 14 and 15 of stat(5), counted from the state (field 3) here
-    fields[11].parse::<u64>().unwrap() + fields[12].parse::<u64>().unwrap()
 }
 
 /// Inodes of the UDP sockets (IPv4 and IPv6) of this network namespace.

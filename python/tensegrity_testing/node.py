@@ -138,6 +138,7 @@ class TensegrityNode:
         self._participant = None
         self._writers = {}
         self._topics = {}
+        self._waitsets = {}
         self.shm = None
         self.lease = None
         self.executable = executable or find_executable()
@@ -256,15 +257,28 @@ class TensegrityNode:
         return DataWriter(self.participant, self._topic(topic), qos=self._qos(topic, depth))
 
     def next(self, reader, timeout=None):
-        """The next sample `reader` receives (or has), or None after `timeout` seconds."""
+        """The next sample `reader` receives (or has), or None after `timeout` seconds. Blocks on
+        a Cyclone DDS wait set, so a sample is returned as soon as it arrives."""
+        from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+        from cyclonedds.util import duration
+
+        waitset = self._waitsets.get(id(reader))
+        if waitset is None:
+            waitset = WaitSet(self.participant)
+            waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+            # keyed by the reader's id, so the reader is kept with it
+            self._waitsets[id(reader)] = (waitset, reader)
+        else:
+            waitset = waitset[0]
         deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
         while True:
             got = reader.take(N=1)
             if got:
                 return got[0]
-            if time.monotonic() > deadline:
+            left = deadline - time.monotonic()
+            if left <= 0:
                 return None
-            time.sleep(0.0005)
+            waitset.wait(duration(microseconds=max(1, int(left * 1e6))))
 
     def send(self, actuator, rest_length=None, rate=None):
         """One command over DDS (`~/actuator_commands`): actuator by name or index."""

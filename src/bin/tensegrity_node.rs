@@ -203,8 +203,15 @@ fn run() -> Result<(), Failure> {
     #[cfg(any(feature = "ros2", feature = "shm"))]
     {
         let flag = stop.clone();
-        ctrlc::set_handler(move || flag.store(true, std::sync::atomic::Ordering::Relaxed))
-            .map_err(|e| Failure(Exit::Middleware, format!("signal handler: {e}")))?;
+        // the waker makes a paused node stop at once, not at its next due turn
+        let waker = node.waker();
+        ctrlc::set_handler(move || {
+            flag.store(true, std::sync::atomic::Ordering::Relaxed);
+            if let Some(w) = &waker {
+                let _ = w.wake();
+            }
+        })
+        .map_err(|e| Failure(Exit::Middleware, format!("signal handler: {e}")))?;
     }
     if let Some(path) = &ready_file {
         write_ready_file(path, &params)?;

@@ -91,6 +91,8 @@ pub struct DdsTransport {
     joint_commands: Subscription<msg::JointState>,
     /// StepSimulation requests under way: the core's ticket and the DDS request id.
     tickets: Vec<(u64, RmwRequestId)>,
+    /// The last `serve` left requests unread (a server gave `MAX_REQUESTS_PER_TURN`).
+    more_requests: bool,
     // keep the DDS entities alive as long as the transport
     _node: Node,
     _context: Context,
@@ -132,19 +134,22 @@ impl NodeSink for DdsTransport {
     }
 }
 
-/// Takes up to `MAX_REQUESTS_PER_TURN` requests from `server`, counting unreadable ones.
+/// Takes up to `MAX_REQUESTS_PER_TURN` requests from `server`, counting unreadable ones; sets
+/// `more` when it stopped at that limit (more may wait, and no new arrival will announce them).
 fn requests<Req: Message + 'static, Resp: Message + 'static>(
     server: &Server<Req, Resp>,
     core: &mut NodeCore,
+    more: &mut bool,
 ) -> Vec<(RmwRequestId, Req)> {
     let mut out = Vec::new();
     for _ in 0..MAX_REQUESTS_PER_TURN {
         match server.receive_request() {
             Ok(Some(r)) => out.push(r),
-            Ok(None) => break,
+            Ok(None) => return out,
             Err(_) => core.incoming_malformed(),
         }
     }
+    *more = true;
     out
 }
 
@@ -271,6 +276,7 @@ impl DdsTransport {
             commands,
             joint_commands,
             tickets: Vec::new(),
+            more_requests: false,
             _node: node,
             _context: context,
         })
@@ -279,14 +285,16 @@ impl DdsTransport {
     /// Answers pending service requests (at most `MAX_REQUESTS_PER_TURN` per service).
     fn serve(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
         let sv = &self.services;
-        let steps = requests(&sv.step, core);
-        let resets = requests(&sv.reset, core);
-        let gets = requests(&sv.get_state, core);
-        let sets = requests(&sv.set_state, core);
-        let feats = requests(&sv.features, core);
-        let pauses = requests(&sv.pause, core);
-        let unpauses = requests(&sv.unpause, core);
-        let empties = requests(&sv.reset_empty, core);
+        let more = &mut self.more_requests;
+        *more = false;
+        let steps = requests(&sv.step, core, more);
+        let resets = requests(&sv.reset, core, more);
+        let gets = requests(&sv.get_state, core, more);
+        let sets = requests(&sv.set_state, core, more);
+        let feats = requests(&sv.features, core, more);
+        let pauses = requests(&sv.pause, core, more);
+        let unpauses = requests(&sv.unpause, core, more);
+        let empties = requests(&sv.reset_empty, core, more);
         macro_rules! sink {
             () => {
                 &mut With { own: &mut *self, others: &mut *others }
@@ -369,6 +377,29 @@ impl Transport for DdsTransport {
             }
         }
         self.serve(core, others);
+    }
+
+    /// Registers both subscriptions and every service server: each signals an arriving sample or
+    /// request through a socket that reading it empties (`take`, `receive_request`).
+    fn register_wake(&mut self, registry: &mio::Registry, token: mio::Token) -> std::io::Result<bool> {
+        let readable = mio::Interest::READABLE;
+        registry.register(&mut self.commands, token, readable)?;
+        registry.register(&mut self.joint_commands, token, readable)?;
+        let sv = &mut self.services;
+        registry.register(&mut sv.step, token, readable)?;
+        registry.register(&mut sv.reset, token, readable)?;
+        registry.register(&mut sv.get_state, token, readable)?;
+        registry.register(&mut sv.set_state, token, readable)?;
+        registry.register(&mut sv.features, token, readable)?;
+        registry.register(&mut sv.pause, token, readable)?;
+        registry.register(&mut sv.unpause, token, readable)?;
+        registry.register(&mut sv.reset_empty, token, readable)?;
+        Ok(true)
+    }
+
+    /// Requests left over from a full turn are not announced again: do not block on them.
+    fn before_wait(&mut self, _deadline: std::time::Instant) -> bool {
+        self.more_requests
     }
 
     fn answering(&self) -> bool {

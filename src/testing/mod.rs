@@ -39,7 +39,7 @@
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Sender};
-use std::sync::{Arc, Condvar, Mutex};
+use std::sync::{Arc, Condvar, Mutex, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -47,6 +47,7 @@ use crate::io::node::params::{NodeParams, TransportKind};
 use crate::io::node::{CoreError, NodeCore};
 use crate::io::sink::NodeStats;
 use crate::model::Model;
+use mio::Waker;
 
 mod error;
 mod isolation;
@@ -198,14 +199,8 @@ impl SimBuilder {
             changed: Condvar::new(),
         });
         let (requests, inbox) = mpsc::channel();
-        let kit = KitTransport {
-            requests: inbox,
-            early: None,
-            shared: shared.clone(),
-            stepping: None,
-            names: names.clone(),
-            woken_through_shm: cfg!(feature = "shm") && params.transports.contains(&TransportKind::Shm),
-        };
+        let kit =
+            KitTransport { requests: inbox, shared: shared.clone(), stepping: None, names: names.clone() };
         let stop = Arc::new(AtomicBool::new(false));
         let (started, start_result) = mpsc::channel();
         let thread = {
@@ -215,8 +210,7 @@ impl SimBuilder {
                 .spawn(move || run_node(model, params, kit, &stop, &shared, started))
                 .map_err(|e| KitError::Transport(format!("node thread: {e}")))?
         };
-        #[cfg_attr(not(feature = "shm"), allow(unused_mut))]
-        let mut sim = SimUnderTest {
+        let sim = SimUnderTest {
             requests,
             shared,
             stop,
@@ -224,22 +218,19 @@ impl SimBuilder {
             params,
             names,
             timeout: self.timeout,
-            #[cfg(feature = "shm")]
-            waker: None,
+            waker: Arc::new(OnceLock::new()),
             _lease: lease,
         };
         match start_result.recv_timeout(self.timeout) {
-            Ok(Ok(())) => {}
+            Ok(Ok(waker)) => {
+                if let Some(w) = waker {
+                    let _ = sim.waker.set(w);
+                }
+            }
             Ok(Err(e)) => return Err(e),
             Err(_) => return Err(KitError::Timeout(self.timeout, "the node to start".into())),
         }
         sim.wait_discoverable()?;
-        #[cfg(feature = "shm")]
-        if let Some(prefix) = sim.shm_prefix() {
-            let waker = crate::io::shm::NodeWaker::open(&prefix)
-                .map_err(|e| KitError::Transport(format!("shared memory: {e}")))?;
-            sim.waker = Some(waker);
-        }
         Ok(sim)
     }
 }
@@ -252,7 +243,7 @@ fn run_node(
     kit: KitTransport,
     stop: &AtomicBool,
     shared: &Shared,
-    started: Sender<Result<(), KitError>>,
+    started: Sender<Result<Option<Arc<Waker>>, KitError>>,
 ) {
     let core = match NodeCore::new(model, params) {
         Ok(core) => core,
@@ -272,7 +263,7 @@ fn run_node(
             return;
         }
     };
-    let _ = started.send(Ok(()));
+    let _ = started.send(Ok(node.waker()));
     node.run(stop);
     let mut l = shared.lock();
     l.stats = node.stats();
@@ -300,9 +291,9 @@ pub struct SimUnderTest {
     params: NodeParams,
     names: Arc<Names>,
     timeout: Duration,
-    /// Wakes the node after each request when it blocks on shared memory's event.
-    #[cfg(feature = "shm")]
-    waker: Option<crate::io::shm::NodeWaker>,
+    /// Wakes the node's loop after each request (`SimNode::waker`; empty if it has none, and
+    /// then it looks every `POLL_SLICE`).
+    waker: Arc<OnceLock<Arc<Waker>>>,
     _lease: Option<DomainLease>,
 }
 
@@ -336,10 +327,7 @@ impl SimUnderTest {
     ) -> Result<T, KitError> {
         let (tx, rx) = mpsc::channel();
         self.requests.send(make(tx)).map_err(|_| KitError::Stopped)?;
-        #[cfg(feature = "shm")]
-        if let Some(waker) = &self.waker {
-            waker.wake();
-        }
+        self.wake();
         match rx.recv_timeout(self.timeout) {
             Ok(answer) => answer,
             Err(mpsc::RecvTimeoutError::Timeout) => Err(KitError::Timeout(self.timeout, what.to_string())),
@@ -456,8 +444,17 @@ impl SimUnderTest {
         Finished { stats: l.stats, fault: l.fault.clone() }
     }
 
+    /// Wakes the node's loop (after a request, or to stop).
+    fn wake(&self) {
+        if let Some(w) = self.waker.get() {
+            // a failed wake leaves the loop to look at its next due turn
+            let _ = w.wake();
+        }
+    }
+
     fn halt(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
+        self.wake();
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }

@@ -3,7 +3,6 @@
 
 use std::sync::mpsc::{Receiver, Sender};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
-use std::time::Duration;
 
 use super::error::KitError;
 use super::snapshot::{Names, Snapshot};
@@ -46,16 +45,10 @@ impl Shared {
 /// The kit's in-process transport: requests in through a channel, state out into `Shared`.
 pub(super) struct KitTransport {
     pub(super) requests: Receiver<Request>,
-    /// A request `wait` received before `take_inputs` ran.
-    pub(super) early: Option<Request>,
     pub(super) shared: Arc<Shared>,
     /// The StepSimulation ticket under way and where to answer it.
     pub(super) stepping: Option<(u64, Sender<Result<Snapshot, KitError>>)>,
     pub(super) names: Arc<Names>,
-    /// True when shared memory is served too: the loop blocks on its event (so that
-    /// controllers' requests wake it at once) and the kit, which wakes it through that event
-    /// (`NodeWaker`), is polled.
-    pub(super) woken_through_shm: bool,
 }
 
 impl NodeSink for KitTransport {
@@ -135,9 +128,6 @@ impl Transport for KitTransport {
     }
 
     fn take_inputs(&mut self, core: &mut NodeCore, others: &mut dyn NodeSink) {
-        if let Some(r) = self.early.take() {
-            self.serve(r, core, others);
-        }
         while let Ok(r) = self.requests.try_recv() {
             self.serve(r, core, others);
         }
@@ -150,14 +140,10 @@ impl Transport for KitTransport {
         }
     }
 
-    fn event_driven(&self) -> bool {
-        !self.woken_through_shm
-    }
-
-    fn wait(&mut self, timeout: Duration) {
-        if self.early.is_none() {
-            self.early = self.requests.recv_timeout(timeout).ok();
-        }
+    /// Nothing to register: the handle wakes the loop through `SimNode::waker` after each
+    /// request it sends.
+    fn register_wake(&mut self, _registry: &mio::Registry, _token: mio::Token) -> std::io::Result<bool> {
+        Ok(true)
     }
 
     fn answering(&self) -> bool {

@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 pub mod bags;
+pub mod cpu;
 pub mod netns;
 #[cfg(feature = "ros2")]
 pub mod peer;

@@ -2,20 +2,23 @@
 //! memory, ...) as `Transport` adapters, gives `SimNode`, which moves inputs from every transport
 //! into the core, turns the core when it is due and publishes its outputs on every transport.
 //!
-//! No transport crate is named here: an adapter implements `Transport` in its own module. While
-//! the core is idle (paused, no step requested), the loop waits on the last transport that can
-//! block until input arrives (`Transport::event_driven`: shared memory's event listener, the test
-//! kit's channel), so an idle node takes no CPU and a request on it wakes the node at once; the
-//! other transports (DDS, which can only be polled, and any other event-driven one) are polled
-//! every `POLL_SLICE`. Between paced real-time steps it sleeps to the
-//! step's due time instead (`std::thread::sleep`, precise to tens of microseconds): what
-//! arrives meanwhile applies at that step boundary anyway, and event waits with a timeout
-//! (iceoryx2's socket `SO_RCVTIMEO`) round up to the kernel tick, up to 4 ms late. After taking inputs, a core that slept because it was idle is turned at once
-//! when the inputs gave it work (`NodeCore::idle_turn_due`), so a lockstep or StepSimulation
-//! request starts without waiting for the idle period.
+//! No transport crate is named here: an adapter implements `Transport` in its own module. Between
+//! turns the loop blocks in one readiness poll (`mio`, epoll on Linux) on which every transport
+//! registered what signals its input (`Transport::register_wake`: DDS readers and service
+//! servers, shared memory's event listener, the test kit's waker), so a request or command wakes
+//! the node at once, paused or playing, and a paused node takes no CPU. A transport that cannot
+//! register is polled every `POLL_SLICE` instead. The poll's timeout is whole milliseconds
+//! (rounded up), so the last millisecond before a paced step's due time is slept precisely
+//! (`std::thread::sleep`, tens of microseconds late at most); what arrives meanwhile applies at
+//! that step boundary anyway. After taking inputs, a core that slept because it was idle is turned
+//! at once when the inputs gave it work (`NodeCore::idle_turn_due`), so a lockstep or
+//! StepSimulation request starts without waiting for the idle period.
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+use mio::{Events, Poll, Registry, Token, Waker};
 
 use crate::control::ActuatorCommand;
 use crate::io::msg::SimResult;
@@ -27,6 +30,9 @@ use crate::sim::Simulator;
 
 /// Longest sleep between polls of transports that cannot wake the loop themselves.
 pub const POLL_SLICE: Duration = Duration::from_millis(5);
+
+/// Waits shorter than this are slept, not polled: the readiness poll counts whole milliseconds.
+const PRECISE_SLEEP: Duration = Duration::from_millis(2);
 
 /// One transport's adapter around the core: its outgoing side is a `NodeSink`; its incoming
 /// side hands samples and requests to the core.
@@ -41,15 +47,20 @@ pub trait Transport: NodeSink {
     fn takes_inputs(&self) -> bool {
         true
     }
-    /// True when `wait` blocks until input may have arrived (an event), false when it cannot
-    /// tell and the loop must poll.
-    fn event_driven(&self) -> bool {
-        false
+    /// Registers on `registry`, under `token`, whatever becomes readable when input arrives on this
+    /// transport, so that the loop's poll returns at once. Returns false when the transport cannot
+    /// (the loop then polls it every `POLL_SLICE`). The default registers nothing.
+    fn register_wake(&mut self, registry: &Registry, token: Token) -> std::io::Result<bool> {
+        let _ = (registry, token);
+        Ok(false)
     }
-    /// Blocks for at most `timeout`, returning early when input may have arrived. The default
-    /// sleeps the whole time.
-    fn wait(&mut self, timeout: Duration) {
-        std::thread::sleep(timeout);
+    /// Called just before the loop blocks until `deadline`: consumes stale wake-ups (what the
+    /// poll reported last time, so it can report the next arrival) and returns true when input is
+    /// already waiting, in which case the loop does not block. A transport that promised a peer a
+    /// fast answer may busy-poll here for a short while. The default does nothing.
+    fn before_wait(&mut self, deadline: Instant) -> bool {
+        let _ = deadline;
+        false
     }
     /// True while the transport owes a peer an answer that the core has not given yet (a
     /// StepSimulation or lockstep request under way); at shutdown the loop gives such answers a
@@ -111,14 +122,38 @@ pub struct SimNode {
     transports: Vec<Box<dyn Transport>>,
     /// The core's last turn found it idle (so the loop may sleep long).
     idle: bool,
+    /// The readiness poll the loop blocks in (`None` if the system gave none: then it sleeps in
+    /// slices of `POLL_SLICE`).
+    poll: Option<Poll>,
+    /// Wakes the poll from any thread (`SimNode::waker`).
+    waker: Option<Arc<Waker>>,
+    /// Whether every transport with inputs registered on the poll (known once `run` started).
+    all_wake: Option<bool>,
 }
+
+/// The poll token of `SimNode::waker`; transports use their index.
+const WAKER_TOKEN: Token = Token(usize::MAX);
 
 impl SimNode {
     /// A node around `core` serving `transports`; publishes what a late joiner needs (structure,
     /// static transforms), the initial state and the start-up diagnostics on all of them.
     pub fn new(mut core: NodeCore, mut transports: Vec<Box<dyn Transport>>) -> Self {
         core.start(&mut TransportSinks::all(&mut transports));
-        Self { idle: core.idle(), core, transports }
+        let poll = Poll::new()
+            .inspect_err(|e| {
+                eprintln!("warning: no readiness poll ({e}); the loop polls every {POLL_SLICE:?}")
+            })
+            .ok();
+        let waker = poll.as_ref().and_then(|p| Waker::new(p.registry(), WAKER_TOKEN).ok()).map(Arc::new);
+        Self { idle: core.idle(), core, transports, poll, waker, all_wake: None }
+    }
+
+    /// Wakes the loop from another thread: call `wake()` after setting `run`'s stop flag (so the
+    /// node stops at once, not at its next due turn) or after handing a transport input that no
+    /// readiness source announces (the test kit's requests). `None` without a readiness poll
+    /// (the loop then looks every `POLL_SLICE` anyway).
+    pub fn waker(&self) -> Option<Arc<Waker>> {
+        self.waker.clone()
     }
 
     /// The node's core (read-only).
@@ -163,9 +198,26 @@ impl SimNode {
     pub fn run(&mut self, stop: &AtomicBool) {
         let epoch = Instant::now();
         let mut wake_at = Duration::ZERO;
-        // the last event-driven transport is waited on; every other one with inputs is polled
-        let waiter = self.transports.iter().rposition(|t| t.event_driven());
-        let polled = self.transports.iter().enumerate().any(|(k, t)| t.takes_inputs() && Some(k) != waiter);
+        // the poll leaves `self` while the loop borrows it, and comes back at the end
+        let mut poll = self.poll.take();
+        let mut events = Events::with_capacity(64);
+        let all_wake = *self.all_wake.get_or_insert_with(|| {
+            // true when every transport with inputs wakes the poll itself
+            let mut all = poll.is_some();
+            for (k, t) in self.transports.iter_mut().enumerate().filter(|(_, t)| t.takes_inputs()) {
+                all &= match &poll {
+                    Some(p) => t.register_wake(p.registry(), Token(k)).unwrap_or_else(|e| {
+                        eprintln!(
+                            "warning: transport {}: cannot wake the loop ({e}); polled instead",
+                            t.name()
+                        );
+                        false
+                    }),
+                    None => false,
+                };
+            }
+            all
+        });
         while !stop.load(Ordering::Relaxed) && !self.core.quit_requested() {
             self.take_inputs();
             let now = epoch.elapsed();
@@ -177,14 +229,30 @@ impl SimNode {
                 continue;
             }
             let mut wait = wake_at - now;
-            if polled || waiter.is_none() {
+            if !all_wake {
                 wait = wait.min(POLL_SLICE);
             }
-            match waiter {
-                Some(k) if self.idle => self.transports[k].wait(wait),
-                _ => std::thread::sleep(wait),
+            let deadline = Instant::now() + wait;
+            let mut ready = false;
+            for t in self.transports.iter_mut().filter(|t| t.takes_inputs()) {
+                ready |= t.before_wait(deadline);
+            }
+            if ready {
+                continue;
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            match poll.as_mut() {
+                // the poll's timeout is whole milliseconds, rounded up: stop it a millisecond
+                // early and sleep the rest precisely
+                Some(p) if left >= PRECISE_SLEEP => {
+                    let coarse = Duration::from_millis(left.as_millis() as u64 - 1);
+                    // an interrupted poll (EINTR) just turns the loop once more
+                    let _ = p.poll(&mut events, Some(coarse));
+                }
+                _ => std::thread::sleep(left),
             }
         }
+        self.poll = poll;
         let answering = self.transports.iter().any(|t| t.answering());
         self.core.shutdown(&mut TransportSinks::all(&mut self.transports));
         if answering {

@@ -1,6 +1,6 @@
 //! A controller's side of shared memory, in Rust: `ShmClient` reads the structure and states,
-//! sends commands and lockstep requests, and waits for the node's answers (`NodeWaker` wakes a
-//! waiting node).
+//! sends commands and lockstep requests (notifying the node's event, which wakes its loop), and
+//! waits for the node's answers.
 
 use std::time::{Duration, Instant};
 
@@ -33,41 +33,6 @@ pub struct Structure {
     pub actuator_names: Vec<String>,
     /// The cable each actuator drives.
     pub actuator_cable: Vec<usize>,
-}
-
-/// Wakes a node that blocks on its `to_node` event, for inputs that arrive by another way: an
-/// in-process transport served beside shared memory (the test kit's), which the node then polls
-/// on the turn the event starts. Its ports are iceoryx2's thread-safe variant, so the waker can
-/// be moved between threads; it notifies the same event service as `ShmClient` does.
-pub struct NodeWaker {
-    // fields drop in order: the port before its node
-    notifier: Notifier<ipc_threadsafe::Service>,
-    _node: iceoryx2::node::Node<ipc_threadsafe::Service>,
-}
-
-impl NodeWaker {
-    /// Opens the `to_node` event of the node serving `prefix` (which must be running).
-    pub fn open(prefix: &str) -> Result<Self, ShmError> {
-        let names = ServiceNames::new(prefix);
-        let node = NodeBuilder::new()
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<ipc_threadsafe::Service>()
-            .map_err(ipc("node"))?;
-        let notifier = node
-            .service_builder(&service_name(&names.to_node)?)
-            .event()
-            .open()
-            .map_err(ipc("to_node event"))?
-            .notifier_builder()
-            .create()
-            .map_err(ipc("to_node notifier"))?;
-        Ok(Self { notifier, _node: node })
-    }
-
-    /// Wakes the node's loop (it reads its inputs from every transport on the next turn).
-    pub fn wake(&self) {
-        let _ = self.notifier.notify_with_custom_event_id(EventId::new(EVENT_COMMAND));
-    }
 }
 
 /// A controller's connection to a node over shared memory: state, structure, commands and

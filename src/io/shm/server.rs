@@ -75,6 +75,10 @@ pub struct ShmTransport {
     incoming: Option<(Lockstep, u64)>,
     spin: Duration,
     spin_until: Option<Instant>,
+    /// The core took commands at the end of the last `take_inputs` (else they wait for its turn).
+    takes_commands: bool,
+    /// No lockstep request was under way at the end of the last `take_inputs`.
+    takes_lockstep: bool,
     last_cleanup: Instant,
     commands_applied_ns: u64,
 }
@@ -164,6 +168,8 @@ impl ShmTransport {
             incoming: None,
             spin: Duration::from_micros(params.shm_spin_us),
             spin_until: None,
+            takes_commands: true,
+            takes_lockstep: true,
             last_cleanup: Instant::now(),
             commands_applied_ns: 0,
         })
@@ -235,9 +241,11 @@ impl ShmTransport {
         self.spin_until = Some(Instant::now() + self.spin);
     }
 
-    /// True when a command or a lockstep request waits (for the spin before blocking).
+    /// True when a command or a lockstep request waits that the core would take now (as of the
+    /// last `take_inputs`): the spin's and the poll's test before blocking.
     fn input_waiting(&self) -> bool {
-        self.commands.has_samples().unwrap_or(false) || self.lockstep.has_requests().unwrap_or(false)
+        (self.takes_commands && self.commands.has_samples().unwrap_or(false))
+            || (self.takes_lockstep && self.lockstep.has_requests().unwrap_or(false))
     }
 
     /// Takes the next lockstep request if none is under way: its command is checked like any
@@ -324,6 +332,8 @@ impl Transport for ShmTransport {
             }
         }
         self.take_lockstep(core, others);
+        self.takes_commands = core.wants_commands();
+        self.takes_lockstep = self.tickets.is_empty() && core.steps_remaining() == 0;
         // hand the structure (history 1) to controllers that connected since the last turn
         let _ = self.structure.update_connections();
         if self.last_cleanup.elapsed() >= CLEANUP_PERIOD {
@@ -332,22 +342,29 @@ impl Transport for ShmTransport {
         }
     }
 
-    fn event_driven(&self) -> bool {
-        true
+    /// Registers the node's event listener (a datagram socket) for the loop's readiness poll.
+    fn register_wake(&mut self, registry: &mio::Registry, token: mio::Token) -> std::io::Result<bool> {
+        // SAFETY: the descriptor stays open as long as `self.wake`, which outlives the loop's
+        // poll (the poll is dropped when `SimNode::run` returns); a closed descriptor leaves
+        // epoll by itself
+        #[allow(unsafe_code)]
+        let fd = unsafe { self.wake.file_descriptor().native_handle() };
+        registry.register(&mut mio::unix::SourceFd(&fd), token, mio::Interest::READABLE)?;
+        Ok(true)
     }
 
-    fn wait(&mut self, timeout: Duration) {
-        let deadline = Instant::now() + timeout;
+    /// Busy-polls until the spin window after a lockstep answer ends (a controller in lockstep
+    /// asks again within microseconds), then empties the listener so the poll reports the next
+    /// notification, and says whether input arrived meanwhile.
+    fn before_wait(&mut self, deadline: Instant) -> bool {
         if let Some(until) = self.spin_until.take() {
             if poll(until.min(deadline), || self.input_waiting()) {
-                return;
+                return true;
             }
         }
-        let left = deadline.saturating_duration_since(Instant::now());
-        if !left.is_zero() {
-            // the events only wake; what arrived is read from the services
-            let _ = self.wake.timed_wait(|_| {}, left);
-        }
+        // the events only wake; what arrived is read from the services
+        let _ = self.wake.try_wait(|_| {});
+        self.input_waiting()
     }
 
     fn answering(&self) -> bool {
