@@ -1,5 +1,5 @@
 //! ROS 2 service round trips and command-to-effect over DDS, and a paused node's CPU, measured in
-//! one run (run: `cargo bench --features ros2 --bench dds_services`; `-- --quick` for fewer
+//! one run (run: `cargo bench --bench dds_services`; `-- --quick` for fewer
 //! samples). The node is the `tensegrity_node` binary on `prism3`, a separate process serving DDS
 //! only (set `TENSEGRITY_NODE_BIN` to time another build of it).
 //!

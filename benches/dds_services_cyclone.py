@@ -8,7 +8,7 @@ Usage: dds_services_cyclone.py services DOMAIN NAMESPACE N
 `-p service_mapping:=cyclone` (alternating the two); `commands` times N actuator commands on a
 playing node, from the write to the first ~/cable_states sample that carries the new rest
 length. The client waits on a Cyclone WaitSet (it blocks; it does not spin). Prints one line per
-measurement: `name p50_us p99_us n`. Run by `cargo bench --features ros2 --bench dds_services`.
+measurement: `name p50_us p99_us n`. Run by `cargo bench --bench dds_services`.
 """
 
 import os

@@ -1,4 +1,4 @@
-//! What recording a bag costs the node (run: `cargo bench --features ros2,shm --bench
+//! What recording a bag costs the node (run: `cargo bench --bench
 //! record_overhead`; `-- --quick` for 10 s of sim time instead of 60, `--seconds N`, `--runs N`
 //! (default 2; 0 for the interleaved table alone), `--interleaved-seconds N` (default:
 //! `--seconds`; 0 skips that table), `--block-ms A,B,...` (the interleaved table's block

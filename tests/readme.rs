@@ -1,7 +1,8 @@
 //! Invariant: the README and the pages of `docs/` show only scenes that work. Every TOML block in
 //! them is, verbatim, a file in `config/examples/`, and that file loads, passes `check` with no
 //! warning, and has an equilibrium that `statics` finds from the pose as written, without
-//! negative stiffness.
+//! negative stiffness. One default release build serves the CLI, the node and the kits, and no
+//! documented cargo command asks for features.
 
 mod common;
 
@@ -100,4 +101,21 @@ fn the_readmes_kit_examples_are_verbatim_parts_of_tested_files() {
         }
     }
     assert!(checked >= 4, "the docs show the Rust and Python kit examples ({checked} blocks found)");
+}
+
+#[test]
+fn one_default_build_serves_the_cli_the_node_and_the_kits() {
+    // a plain `cargo build --release` (benches/check_scaling.sh, the MuJoCo comparison, a user)
+    // must not replace the node with one that has no transport
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let manifest: toml::Table = std::fs::read_to_string(root.join("Cargo.toml")).unwrap().parse().unwrap();
+    let default = manifest["features"]["default"].as_array().expect("a default feature list");
+    for feature in ["ros2", "shm"] {
+        assert!(default.iter().any(|f| f.as_str() == Some(feature)), "default features lack {feature}");
+    }
+    // the user's documentation builds and runs with the default features only
+    let docs = common::user_docs();
+    for line in docs.lines().filter(|l| l.contains("cargo ") && l.contains("--features")) {
+        panic!("a documented command names features the default build has: {line}");
+    }
 }

@@ -65,7 +65,7 @@ def find_executable():
                 return str(candidate)
     raise FileNotFoundError(
         "tensegrity_node not found: set TENSEGRITY_NODE, put it on PATH, or build it with "
-        "`cargo build --release --features ros2,shm`"
+        "`cargo build --release`"
     )
 
 

@@ -70,7 +70,9 @@ pub fn launch_core_with(core: NodeCore, extra: Vec<Box<dyn Transport>>) -> Resul
     if transports.is_empty() {
         return Err(LaunchError::Transport {
             transport: "none",
-            reason: "no transport to serve (parameter transports, features ros2 and shm)".into(),
+            reason: "no transport to serve: this binary was built without the features ros2 and shm \
+                     (rebuild with the default features: cargo build --release)"
+                .into(),
         });
     }
     if let Some(dir) = &params.record {
@@ -99,7 +101,11 @@ fn build_transport(
         #[allow(unreachable_patterns)]
         other => {
             let _ = params;
-            Err(fail(format!("not built into this binary (rebuild with --features {})", other.feature())))
+            Err(fail(format!(
+                "not built into this binary (rebuild with the default features, cargo build --release, \
+                 or --features {})",
+                other.feature()
+            )))
         }
     }
 }

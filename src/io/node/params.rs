@@ -121,7 +121,8 @@ impl TransportKind {
             };
             if !Self::BUILT.contains(&kind) {
                 return Err(err(format!(
-                    "parameter transports: '{}' is not built into this binary (rebuild with --features {})",
+                    "parameter transports: '{}' is not built into this binary (rebuild with the default \
+                     features, cargo build --release, or --features {})",
                     kind.name(),
                     kind.feature()
                 )));
