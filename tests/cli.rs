@@ -187,7 +187,9 @@ fn check_of_a_999_strut_clustered_prism_finds_its_form() {
 fn output_into_a_closed_pipe_ends_quietly() {
     // `tensegrity ... | head -1`: the reader leaves early; no panic, no backtrace
     use std::io::Read;
-    let mut child = Command::new(env!("CARGO_BIN_EXE_tensegrity"))
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity"));
+    tensegrity::testing::die_with_parent(&mut cmd);
+    let mut child = cmd
         .args(["deploy", "config/scenes/prism3.toml", "--dynamic", "--out", "-"])
         .current_dir(root())
         .stdout(std::process::Stdio::piped())

@@ -4,7 +4,8 @@
 //! DDS, stepped with `step_awaiting_commands`, gives bit for bit the in-process trajectory while a
 //! second simulator on another leased domain runs beside it; over shared memory, lockstep results
 //! are bit-identical across runs and under a CPU hog on every core. These four tests run in
-//! parallel (`cargo test`'s default threads) with the default node and topic names.
+//! parallel (`cargo test`'s default threads) with the default node and topic names. A test
+//! interrupted by Ctrl-C leaves no child behind, not even one it stopped.
 // without the transports only the in-process tests remain
 #![cfg_attr(not(all(feature = "ros2", feature = "shm")), allow(unused_imports, dead_code))]
 
@@ -241,7 +242,12 @@ fn shared_memory_lockstep_is_bit_identical_across_runs_and_under_a_cpu_hog() {
     };
     let quiet = run();
     let hogs: Vec<_> = (0..std::thread::available_parallelism().map_or(2, |n| n.get()))
-        .map(|_| std::process::Command::new("sh").args(["-c", "while :; do :; done"]).spawn().unwrap())
+        .map(|_| {
+            let mut hog = std::process::Command::new("sh");
+            // an interrupted test must not leave the hogs spinning
+            tensegrity::testing::die_with_parent(hog.args(["-c", "while :; do :; done"]));
+            hog.spawn().unwrap()
+        })
         .collect();
     let loaded = run();
     for mut h in hogs {
@@ -307,5 +313,56 @@ fn careless_starts_are_refused_with_the_reason() {
     {
         let sim = SimBuilder::bundled("prism3").param("transports", "shm").start().unwrap();
         assert!(sim.shm_prefix().is_some_and(|p| p.contains("_kit")), "{sim:?}");
+    }
+}
+
+/// Process state letter of `pid` from /proc (`None` once it is gone).
+fn process_state(pid: u32) -> Option<char> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    stat[stat.rfind(')')? + 2..].chars().next()
+}
+
+#[test]
+fn an_interrupted_test_leaves_no_child_behind_not_even_a_stopped_one() {
+    const TEST: &str = "an_interrupted_test_leaves_no_child_behind_not_even_a_stopped_one";
+    if let Ok(pid_file) = std::env::var("TENSEGRITY_ORPHAN_ROLE") {
+        // the role: a test that stopped a child of its own (the frozen-subscriber test does),
+        // then is interrupted
+        let mut sleeper = std::process::Command::new("sleep");
+        testing::die_with_parent(sleeper.arg("1000"));
+        let child = sleeper.spawn().unwrap();
+        let stopped = std::process::Command::new("kill").args(["-STOP", &child.id().to_string()]).status();
+        assert!(stopped.unwrap().success());
+        std::fs::write(&pid_file, child.id().to_string()).unwrap();
+        std::thread::sleep(Duration::from_secs(60));
+        return;
+    }
+    let pid_file = std::env::temp_dir().join(format!("tensegrity-orphan-{}", std::process::id()));
+    let _ = std::fs::remove_file(&pid_file);
+    let mut role = std::process::Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", TEST, "--nocapture", "--test-threads=1"])
+        .env("TENSEGRITY_ORPHAN_ROLE", &pid_file)
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    let child: u32 = loop {
+        if let Some(pid) = std::fs::read_to_string(&pid_file).ok().and_then(|t| t.trim().parse().ok()) {
+            break pid;
+        }
+        assert!(start.elapsed() < Duration::from_secs(20), "the role did not start its child");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let _ = std::fs::remove_file(&pid_file);
+    assert_eq!(process_state(child), Some('T'), "the role's child is stopped");
+    // Ctrl-C reaches the test process; its stopped child cannot act on any signal but SIGKILL
+    let interrupted = std::process::Command::new("kill").args(["-INT", &role.id().to_string()]).status();
+    assert!(interrupted.unwrap().success());
+    role.wait().unwrap();
+    let start = std::time::Instant::now();
+    // gone, or a zombie waiting for a reaper: either way it no longer runs or holds anything
+    while !matches!(process_state(child), None | Some('Z')) {
+        assert!(start.elapsed() < Duration::from_secs(10), "the stopped child outlived the test");
+        std::thread::sleep(Duration::from_millis(10));
     }
 }

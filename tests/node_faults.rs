@@ -373,7 +373,9 @@ fn exit_statuses_say_why_the_node_stopped_and_the_ready_file_says_when_it_is_up(
 
     // the ready file appears whole once the node serves, and goes when it stops
     let ready = scratch.join("ready");
-    let mut child = std::process::Command::new(node)
+    let mut cmd = std::process::Command::new(node);
+    tensegrity::testing::die_with_parent(&mut cmd);
+    let mut child = cmd
         .args(["--ready-file", ready.to_str().unwrap(), "--ros-args", "-p", "transports:=shm"])
         .args(prefix.split_whitespace())
         .stdout(std::process::Stdio::piped())

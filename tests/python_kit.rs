@@ -16,6 +16,7 @@ use std::process::Command;
 fn pytest(python: &str, args: &[&str], env: &[(&str, String)]) -> std::process::Output {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let mut cmd = Command::new(python);
+    tensegrity::testing::die_with_parent(&mut cmd);
     cmd.args(["-m", "pytest", "-p", "no:cacheprovider"]);
     // installed (`pip install ./python`), the plugin loads by its entry point; else name it
     let installed = Command::new(python)

@@ -294,7 +294,9 @@ fn applied_commands_and_resets_are_recorded_and_decode_in_rosbags() {
 fn a_killed_recording_keeps_what_it_flushed() {
     let dir = bag_dir("killed");
     let tower = scene_path("tower.toml");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_tensegrity"))
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity"));
+    tensegrity::testing::die_with_parent(&mut cmd);
+    let mut child = cmd
         .args([
             "deploy",
             tower.to_str().unwrap(),

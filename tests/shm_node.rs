@@ -304,8 +304,9 @@ fn role_controller_until_killed() {
 }
 
 fn spawn_controller(prefix: &str) -> Child {
-    Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "role_controller_until_killed", "--nocapture", "--test-threads=1"])
+    let mut cmd = Command::new(std::env::current_exe().unwrap());
+    tensegrity::testing::die_with_parent(&mut cmd);
+    cmd.args(["--exact", "role_controller_until_killed", "--nocapture", "--test-threads=1"])
         .env(ROLE, prefix)
         .stdout(Stdio::null())
         .stderr(Stdio::null())
@@ -358,6 +359,7 @@ fn controllers_killed_mid_run_leave_the_node_serving_the_next() {
 /// A `tensegrity_node` process serving shared memory only.
 fn node_process(namespace: &str, extra: &[&str]) -> Child {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity_node"));
+    tensegrity::testing::die_with_parent(&mut cmd);
     cmd.args(["--ros-args", "-p", "transports:=shm", "-r", &format!("__ns:=/{namespace}")]);
     for p in extra {
         cmd.args(["-p", p]);

@@ -144,7 +144,9 @@ class TensegrityNode:
         self.executable = executable or find_executable()
         self.lease = leases.DomainLease() if "dds" in self.transports else None
         self.domain = self.lease.id if self.lease else None
-        scratch = Path(tempfile.mkdtemp(prefix="tensegrity-node-"))
+        # the ready file and the node's stderr; removed by stop(), which keeps the text
+        self._scratch = scratch = Path(tempfile.mkdtemp(prefix="tensegrity-node-"))
+        self._stderr_text = None
         self.ready_file = scratch / "ready"
         self.log_path = scratch / "stderr.log"
         args = [self.executable, "--ready-file", str(self.ready_file)]
@@ -176,6 +178,8 @@ class TensegrityNode:
 
     def stderr(self):
         """Everything the node wrote to stderr so far."""
+        if self._stderr_text is not None:
+            return self._stderr_text
         try:
             return self.log_path.read_text()
         except OSError:
@@ -328,6 +332,10 @@ class TensegrityNode:
                     self.process.wait()
             status = self.process.returncode
             self._log.close()
+        if self._stderr_text is None:
+            self._stderr_text = self.stderr()
+            shutil.rmtree(self._scratch, ignore_errors=True)
+        self._waitsets.clear()
         if self.lease is not None:
             self.lease.release()
         return status

@@ -67,6 +67,7 @@ pub fn rerun_isolated(args: &[&str]) -> bool {
     if !is_root() {
         cmd.arg("--map-root-user");
     }
+    die_with_parent(&mut cmd);
     let status = cmd
         .args(["--", "sh", "-c", LOOPBACK_SETUP, "loopback-net"])
         .arg(exe)
@@ -161,5 +162,31 @@ impl Drop for DomainLease {
         if ours {
             let _ = std::fs::remove_file(&self.file);
         }
+    }
+}
+
+/// Makes the process `cmd` spawns receive SIGKILL when the thread that spawned it ends (Linux
+/// `PR_SET_PDEATHSIG`; kept across `exec`). A test that is interrupted (Ctrl-C, a timeout's
+/// kill) or panics then leaves no child behind, not even one it stopped with SIGSTOP, which no
+/// other signal ends. Spawn from the thread that outlives the child (the test's own). When the
+/// parent is already gone by the time the child starts, the spawn fails.
+pub fn die_with_parent(cmd: &mut std::process::Command) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: getpid is async-signal-safe
+    #[allow(unsafe_code)]
+    let parent = unsafe { libc::getpid() };
+    // SAFETY: the closure runs in the child between fork and exec and calls only the
+    // async-signal-safe prctl and getppid; it allocates nothing
+    #[allow(unsafe_code)]
+    unsafe {
+        cmd.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() != parent {
+                return Err(std::io::Error::other("the parent ended before the child started"));
+            }
+            Ok(())
+        });
     }
 }

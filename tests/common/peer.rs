@@ -59,6 +59,7 @@ impl NodeProcess {
     pub fn start(domain: u16, params: &[&str]) -> Self {
         let log = std::env::temp_dir().join(format!("tensegrity-node-{}-{domain}.log", std::process::id()));
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity_node"));
+        tensegrity::testing::die_with_parent(&mut cmd);
         cmd.arg("--ros-args");
         if !params.iter().any(|p| p.starts_with("transports:=")) {
             cmd.args(["-p", "transports:=dds"]);
@@ -100,7 +101,9 @@ impl NodeProcess {
                 let _ = self.child.kill();
                 panic!("the node did not exit within 10 s")
             });
-        (status, std::fs::read_to_string(&self.log).unwrap_or_default())
+        let stderr = std::fs::read_to_string(&self.log).unwrap_or_default();
+        let _ = std::fs::remove_file(&self.log);
+        (status, stderr)
     }
 }
 
@@ -198,6 +201,7 @@ where
 pub fn spawn_role(test: &str, role: &str, env: &[(&str, String)]) -> Child {
     let mut cmd = Command::new(std::env::current_exe().unwrap());
     cmd.args(["--exact", test, "--nocapture", "--test-threads=1"]).env("TENSEGRITY_ROLE", role);
+    tensegrity::testing::die_with_parent(&mut cmd);
     for (k, v) in env {
         cmd.env(k, v);
     }
