@@ -3,6 +3,16 @@
 
 use std::fmt;
 
+/// A number as a person writes it in a message: `0`, `0.1`, `1500`, and exponent form outside
+/// 1e-3 to 1e4 (`1e-6`, `2.5e9`), so a limit reads `1e-6 to 0.1`, never `1e-1` or `0e0`.
+pub fn readable_number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-3..1e4).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
+}
+
 /// A scene that cannot be read or is not a valid structure.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneError {

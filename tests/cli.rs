@@ -121,6 +121,34 @@ fn malformed_scene_fails_with_file_line_and_field() {
 }
 
 #[test]
+fn out_of_range_steps_and_durations_are_refused_in_the_numbers_a_person_writes() {
+    let deploy = |flag: &str, value: &str| {
+        let out =
+            tensegrity(&["deploy", "config/scenes/prism3.toml", "--dynamic", flag, value, "--out", "-"]);
+        assert!(!out.status.success(), "{flag} {value} accepted");
+        assert!(out.stdout.is_empty());
+        String::from_utf8(out.stderr).unwrap()
+    };
+    // negative numbers reach the check (no clap tip about `-- -0.001`), and the step range is
+    // the one of scenes and the node
+    for (flag, value, says) in [
+        (
+            "--dt",
+            "-0.001",
+            "--dt must be in [1e-6, 0.1] s (the physics step range of scenes and the node), got -0.001",
+        ),
+        ("--dt", "1", "--dt must be in [1e-6, 0.1] s"),
+        ("--dt", "0", "got 0"),
+        ("--duration", "-1", "--duration must be positive, got -1"),
+        ("--rho-inf", "-0.5", "--rho-inf must be in [0, 1], got -0.5"),
+        ("--tol", "-1e-6", "--tol must be positive"),
+    ] {
+        let err = deploy(flag, value);
+        assert!(err.contains(says) && !err.contains("tip:"), "{flag} {value}: {err}");
+    }
+}
+
+#[test]
 fn generators_refuse_arguments_that_make_invalid_scenes() {
     for (args, says) in [
         (vec!["generate", "prism", "--prestress=-5"], "cables[0].prestress: a cable can only pull"),

@@ -3,12 +3,12 @@
 //! StepSimulation request of 10^12 steps leaves get-state, reset and SIGTERM working, and SIGTERM
 //! still answers the caller and exits 0; a request in another service mapping's layout is refused,
 //! not obeyed; a paused node answers a burst of requests larger than one turn's share and then
-//! takes no CPU; subscribers resume after the node restarts; a controller killed while flooding
+//! takes no CPU; a second node of the same name on the same domain is warned of; subscribers resume after the node restarts; a controller killed while flooding
 //! commands leaves the node running with counts that add up; 300 subscribers joining and leaving
 //! leave it serving the others.
 //!
 //! Network rule: each test re-executes itself inside a private loopback-only network namespace
-//! (tests/common/netns.rs) and uses its own domain id (65-70, 74). The tests of this file take a lock
+//! (tests/common/netns.rs) and uses its own domain id (65-71, 74). The tests of this file take a lock
 //! so that they do not compete for the two cores.
 
 #![cfg(feature = "ros2")]
@@ -200,6 +200,30 @@ fn a_paused_node_answers_a_burst_of_requests_and_stays_quiet() {
 }
 
 #[test]
+fn a_second_node_of_the_same_name_on_the_same_domain_is_warned_of() {
+    const TEST: &str = "a_second_node_of_the_same_name_on_the_same_domain_is_warned_of";
+    let domain = 71;
+    if !isolated_or_rerun(TEST) {
+        return;
+    }
+    const WARNING: &str = "another node named /tensegrity_sim is on DDS domain 71";
+    // alone: no warning (it hears its own ~/structure)
+    let alone = NodeProcess::start(domain, &["start_paused:=true"]);
+    std::thread::sleep(3 * SEC);
+    let (status, stderr) = alone.stop("INT");
+    assert!(status.success() && !stderr.contains(WARNING), "{stderr}");
+    // two of one name: both keep running, and each says so
+    let first = NodeProcess::start(domain, &["start_paused:=true"]);
+    let second = NodeProcess::start(domain, &["start_paused:=true"]);
+    std::thread::sleep(4 * SEC);
+    let (s1, e1) = first.stop("INT");
+    let (s2, e2) = second.stop("INT");
+    assert!(s1.success() && s2.success());
+    assert!(e1.contains(WARNING) && e2.contains(WARNING), "no warning:\n{e1}\n{e2}");
+    assert!(e2.contains("-r __node:=NAME"), "the warning says how to rename: {e2}");
+}
+
+#[test]
 fn a_request_in_another_mappings_layout_is_refused_not_obeyed() {
     const TEST: &str = "a_request_in_another_mappings_layout_is_refused_not_obeyed";
     let domain = 67;
@@ -327,6 +351,10 @@ fn the_node_binary_answers_help_and_version_and_refuses_unknown_options() {
         assert!(text.contains(name), "--help lists {name}");
     }
     assert!(text.contains("ROS_DOMAIN_ID") && text.contains("SIGTERM"));
+    // the ready file's lines, all of them (write_ready_file)
+    for key in ["pid=", "domain_id=", "namespace=", "node=", "shm_prefix=", "transports="] {
+        assert!(text.contains(key), "--help names the ready file's {key} line");
+    }
     let version = run(&["--version"]);
     assert!(
         version.status.success()
@@ -335,6 +363,13 @@ fn the_node_binary_answers_help_and_version_and_refuses_unknown_options() {
     let unknown = run(&["--frobnicate"]);
     assert_eq!(unknown.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&unknown.stderr).contains("unknown option '--frobnicate'"));
+    // ROS arguments before --ros-args, and a node name ROS refuses: argument errors that say why
+    let early = run(&["-p", "physics_dt:=0.002"]);
+    assert_eq!(early.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&early.stderr).contains("put it after --ros-args"));
+    let bad_name = run(&["--ros-args", "-r", "__node:=bad-name"]);
+    assert_eq!(bad_name.status.code(), Some(2), "an argument error, not a transport error");
+    assert!(String::from_utf8_lossy(&bad_name.stderr).contains("letters, digits and underscores"));
 }
 
 #[test]

@@ -77,7 +77,11 @@ fn environment_sets_domain_and_localhost_only() {
 fn bad_parameters_are_refused_with_a_reason() {
     for (line, needle) in [
         ("--ros-args -p physics_dt:=-1", "physics_dt"),
-        ("--ros-args -p physics_dt:=10", "physics_dt must be in [1e-6, 1e-1], got 1e1"),
+        ("--ros-args -p physics_dt:=10", "physics_dt must be in [1e-6, 0.1], got 10"),
+        ("--ros-args -p physics_dt:=0", "physics_dt must be in [1e-6, 0.1], got 0"),
+        ("--ros-args -r __node:=bad-name", "not a ROS node name (letters, digits and underscores"),
+        ("--ros-args -r __node:=", "not a ROS node name"),
+        ("--ros-args -r __ns:=/lab/2x", "namespace part '2x' is not a ROS name"),
         ("--ros-args -p physics_dt:=1e-12", "physics_dt must be in"),
         ("--ros-args -p real_time_factor:=1e9", "real_time_factor must be in"),
         ("--ros-args -p markers_rate:=1e9", "markers_rate must be in"),

@@ -56,9 +56,9 @@ fn help() -> String {
          \x20                      --params-file FILE -r __ns:=/NAMESPACE -r __node:=NAME]\n\
          \x20      tensegrity_node --help | --version\n\n\
          Options:\n  --ready-file PATH                once every publisher and service is up, writes PATH\n\
-         \x20                                  (pid=, domain_id=, namespace=, shm_prefix=, transports=\n\
-         \x20                                  lines; written whole, removed at exit) and prints `ready`\n\
-         \x20                                  on stdout\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
+         \x20                                  (pid=, domain_id=, namespace=, node=, shm_prefix=,\n\
+         \x20                                  transports= lines; written whole, removed at exit) and\n\
+         \x20                                  prints `ready` on stdout\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
     );
     for (name, default, meaning) in PARAMETERS {
         h += &format!("  {name:<24} {default:<22} {meaning}\n");
@@ -142,6 +142,12 @@ fn run() -> Result<(), Failure> {
             "-V" | "--version" => {
                 println!("tensegrity_node {}", env!("CARGO_PKG_VERSION"));
                 return Ok(());
+            }
+            "-p" | "--param" | "-r" | "--remap" | "--params-file" => {
+                return Err(bad_args(format!(
+                    "'{a}' is a ROS argument: put it after --ros-args (tensegrity_node [SCENE.toml] \
+                     --ros-args {a} ...)"
+                )));
             }
             other if other.starts_with('-') => {
                 return Err(bad_args(format!("unknown option '{other}'; see tensegrity_node --help")));

@@ -82,6 +82,10 @@ struct Services {
 /// Most requests taken from one service server per turn of the loop.
 const MAX_REQUESTS_PER_TURN: usize = 16;
 
+/// How long after start the node looks for another node of its name (DDS discovery on loopback
+/// takes well under a second; on a network, a few seconds).
+const TWIN_WATCH: Duration = Duration::from_secs(30);
+
 /// The node's DDS face: its publishers, services and subscriptions (ros2-client), as a
 /// `Transport` of the node's loop (`io::runner::SimNode`).
 pub struct DdsTransport {
@@ -93,6 +97,14 @@ pub struct DdsTransport {
     tickets: Vec<(u64, RmwRequestId)>,
     /// The last `serve` left requests unread (a server gave `MAX_REQUESTS_PER_TURN`).
     more_requests: bool,
+    /// Looks for another node of the same name on the domain (its ~/structure) for
+    /// `TWIN_WATCH` after start: ROS tools warn of such twins, whose topics mix with ours.
+    twin_watch: Option<(Subscription<msg::Structure>, std::time::Instant)>,
+    /// Our own ~/structure writer, which the watch also hears.
+    own_structure: ros2_client::Gid,
+    /// The node's full name and domain, for the warning.
+    full_name: String,
+    domain_id: u16,
     // keep the DDS entities alive as long as the transport
     _node: Node,
     _context: Context,
@@ -268,9 +280,17 @@ impl DdsTransport {
             unpause: server!("unpause", "std_srvs", "Empty"),
             reset_empty: server!("reset", "std_srvs", "Empty"),
         };
+        let structure_topic =
+            &outputs.iter().find(|(t, _, _)| *t == Topic::Structure).expect("structure is declared").1;
+        let twin_watch = node.create_subscription::<msg::Structure>(structure_topic, Some(qos(1, true))).ok();
         let commands = node.create_subscription(&t_cmd, None).map_err(ros)?;
         let joint_commands = node.create_subscription(&t_joint_cmd, None).map_err(ros)?;
+        let own_structure = publishers.structure.gid();
         Ok(Self {
+            twin_watch: twin_watch.map(|s| (s, std::time::Instant::now())),
+            own_structure,
+            full_name: params.private_namespace(),
+            domain_id: params.domain_id,
             publishers,
             services,
             commands,
@@ -354,6 +374,29 @@ impl DdsTransport {
     }
 }
 
+impl DdsTransport {
+    /// Warns once, on stderr, when another writer publishes this node's ~/structure: a second node
+    /// with the same name on the same domain, whose topics and services mix with ours.
+    fn watch_for_twin(&mut self) {
+        let Some((reader, since)) = &self.twin_watch else { return };
+        let mut twin = false;
+        while let Ok(Some((_, info))) = reader.take() {
+            twin |= info.publisher_gid() != self.own_structure;
+        }
+        if twin {
+            eprintln!(
+                "warning: another node named {} is on DDS domain {} (it publishes {}/structure too): \
+                 the two mix their topics and services. Give one another name (-r __node:=NAME or \
+                 -r __ns:=/NAMESPACE) or another domain (ROS_DOMAIN_ID)",
+                self.full_name, self.domain_id, self.full_name
+            );
+        }
+        if twin || since.elapsed() > TWIN_WATCH {
+            self.twin_watch = None;
+        }
+    }
+}
+
 impl Transport for DdsTransport {
     fn name(&self) -> &'static str {
         "dds"
@@ -377,6 +420,7 @@ impl Transport for DdsTransport {
             }
         }
         self.serve(core, others);
+        self.watch_for_twin();
     }
 
     /// Registers both subscriptions and every service server: each signals an arriving sample or

@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 
 use super::{limits, BodyKindSpec, JointKindSpec, PointSpec, SceneSpec};
-use crate::error::SceneError;
+use crate::error::{readable_number, SceneError};
 use crate::model::{
     ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, JointModel, JointTarget, Model, PointId,
     PointModel, Pose, Ramp, Schedule, SolverSettings,
@@ -42,30 +42,21 @@ impl Ctx<'_> {
     }
 }
 
-/// A number as a person writes it: plain between 1e-3 and 1e4, else in exponent form.
-fn num(x: f64) -> String {
-    if x == 0.0 || (1e-3..1e4).contains(&x.abs()) {
-        format!("{x}")
-    } else {
-        format!("{x:e}")
-    }
-}
-
 /// `x` when it lies in `[lo, hi]`, else the reason (with the unit `unit`).
 fn in_range(x: f64, (lo, hi): (f64, f64), unit: &str) -> Result<f64, String> {
     if !x.is_finite() {
         Err(format!("must be finite, got {x}"))
     } else if lo > 0.0 && x <= 0.0 {
-        Err(format!("must be positive, got {}", num(x)))
+        Err(format!("must be positive, got {}", readable_number(x)))
     } else if lo == 0.0 && x < 0.0 {
-        Err(format!("must be >= 0, got {}", num(x)))
+        Err(format!("must be >= 0, got {}", readable_number(x)))
     } else if x < lo || x > hi {
         Err(format!(
             "must be in [{}, {}]{}, got {}",
-            num(lo),
-            num(hi),
+            readable_number(lo),
+            readable_number(hi),
             if unit.is_empty() { String::new() } else { format!(" {unit}") },
-            num(x)
+            readable_number(x)
         ))
     } else {
         Ok(x)
@@ -77,7 +68,11 @@ fn bounded3(v: &[f64; 3], max: f64, unit: &str) -> Result<(), String> {
     match v.iter().find(|x| !(x.is_finite() && x.abs() <= max)) {
         None => Ok(()),
         Some(x) if !x.is_finite() => Err(format!("must be finite, got {v:?}")),
-        Some(x) => Err(format!("entries must be within +-{} {unit}, got {}", num(max), num(*x))),
+        Some(x) => Err(format!(
+            "entries must be within +-{} {unit}, got {}",
+            readable_number(max),
+            readable_number(*x)
+        )),
     }
 }
 

@@ -5,6 +5,7 @@
 //! names are exactly the ones the scene parser accepts.
 
 use super::limits;
+use crate::error::readable_number;
 
 /// One field of a scene table.
 #[derive(Debug, Clone, PartialEq)]
@@ -35,17 +36,8 @@ pub const TABLES: [(&str, &str); 8] = [
     ("[[deployment.ramps]]", "deployment.ramps"),
 ];
 
-/// `0`, `0.1`, `1500`, `1e-9`, `1e12`: plain between 1e-3 and 1e4, scientific outside.
-fn num(v: f64) -> String {
-    if v == 0.0 || (1e-3..1e4).contains(&v.abs()) {
-        format!("{v}")
-    } else {
-        format!("{v:e}")
-    }
-}
-
 fn range((lo, hi): (f64, f64)) -> String {
-    format!("{} to {}", num(lo), num(hi))
+    format!("{} to {}", readable_number(lo), readable_number(hi))
 }
 
 /// Every field of every table, in file order.
@@ -58,7 +50,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         default: default.to_string(),
         range,
     };
-    let coord = format!("each within +-{}", num(limits::MAX_COORDINATE));
+    let coord = format!("each within +-{}", readable_number(limits::MAX_COORDINATE));
     let top = TABLES[0].0;
     let (bodies, joints, cables, actuators) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
     let (solver, deployment, ramps) = (TABLES[5].0, TABLES[6].0, TABLES[7].0);
@@ -71,7 +63,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "[x, y, z]",
             "m/s^2",
             "[0, 0, 0]",
-            format!("world frame (z up; planar: y up), each within +-{}", num(limits::MAX_GRAVITY)),
+            format!("world frame (z up; planar: y up), each within +-{}", readable_number(limits::MAX_GRAVITY)),
         ),
         f(top, "planar", "boolean", "-", "false", "true: everything moves in the world xy plane".into()),
         f(
@@ -99,7 +91,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "[x, y, z]",
             "rad",
             "[0, 0, 0]",
-            format!("rotation vector body -> world (rigid, fixed), each within +-{}", num(limits::MAX_ROTATION)),
+            format!("rotation vector body -> world (rigid, fixed), each within +-{}", readable_number(limits::MAX_ROTATION)),
         ),
         f(bodies, "ends", "[[x, y, z], [x, y, z]]", "m", "required (bar)", format!("bar ends `a`, `b`; {coord}")),
         f(
@@ -196,7 +188,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         f(deployment, "ramps", "array of tables", "-", "none", "linear rest-length ramps, below".into()),
         f(ramps, "actuator", "string", "-", "required", "actuator name".into()),
         f(ramps, "start", "number", "s", "0", range(limits::TIME)),
-        f(ramps, "duration", "number", "s", "required", format!("> 0, up to {}; within the actuator's max_rate", num(limits::TIME.1))),
+        f(ramps, "duration", "number", "s", "required", format!("> 0, up to {}; within the actuator's max_rate", readable_number(limits::TIME.1))),
         f(ramps, "rest_length", "number", "m", "required", "reached at start + duration, within the actuator's limits".into()),
     ]
 }

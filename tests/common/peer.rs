@@ -57,7 +57,10 @@ impl NodeProcess {
     /// serving DDS only unless `params` names `transports` (parallel DDS tests would otherwise
     /// share the default shared-memory service names).
     pub fn start(domain: u16, params: &[&str]) -> Self {
-        let log = std::env::temp_dir().join(format!("tensegrity-node-{}-{domain}.log", std::process::id()));
+        static SEQUENCE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = SEQUENCE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let log =
+            std::env::temp_dir().join(format!("tensegrity-node-{}-{domain}-{n}.log", std::process::id()));
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity_node"));
         tensegrity::testing::die_with_parent(&mut cmd);
         cmd.arg("--ros-args");

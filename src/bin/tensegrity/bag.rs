@@ -89,6 +89,18 @@ pub fn replay(bag: &Path, scene: Option<&Path>, out: Option<&Path>) -> Result<()
     }
 }
 
+/// A bag time stamp (ns) as `ros2 bag info` shows it: a UTC date and time, then the seconds,
+/// `Nov 25 2026 19:02:03.125 UTC (1795633323.125000000 s)`; a simulation-time stamp (an offline
+/// run's, before 2001) as seconds only.
+fn bag_time(ns: u64) -> String {
+    let seconds = format!("{:.9} s", ns as f64 * 1e-9);
+    let wall_clock = ns >= 1_000_000_000 * 1_000_000_000;
+    match chrono::DateTime::from_timestamp((ns / 1_000_000_000) as i64, (ns % 1_000_000_000) as u32) {
+        Some(t) if wall_clock => format!("{} UTC ({seconds})", t.format("%b %e %Y %H:%M:%S%.3f")),
+        _ => seconds,
+    }
+}
+
 /// The table of `tensegrity bag info`.
 fn format_bag_info(info: &bag::BagInfo) -> String {
     use std::fmt::Write as _;
@@ -99,8 +111,8 @@ fn format_bag_info(info: &bag::BagInfo) -> String {
     let _ = writeln!(s, "Bag size:          {} bytes", info.file_bytes);
     let _ = writeln!(s, "Storage id:        mcap");
     let _ = writeln!(s, "Duration:          {:.9} s", (end - start) as f64 * 1e-9);
-    let _ = writeln!(s, "Start:             {:.9} s", start as f64 * 1e-9);
-    let _ = writeln!(s, "End:               {:.9} s", end as f64 * 1e-9);
+    let _ = writeln!(s, "Start:             {}", bag_time(start));
+    let _ = writeln!(s, "End:               {}", bag_time(end));
     let _ = writeln!(s, "Messages:          {total}");
     if let Some(cut) = &info.cut_short {
         let _ = writeln!(s, "Cut short:         {cut} (`tensegrity bag reindex` repairs it)");
@@ -127,4 +139,18 @@ fn format_bag_info(info: &bag::BagInfo) -> String {
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::bag_time;
+
+    #[test]
+    fn wall_clock_stamps_show_a_date_and_simulation_stamps_seconds() {
+        assert_eq!(
+            bag_time(1_795_633_323_125_000_000),
+            "Nov 25 2026 19:02:03.125 UTC (1795633323.125000000 s)"
+        );
+        assert_eq!(bag_time(50_000_000), "0.050000000 s");
+    }
 }

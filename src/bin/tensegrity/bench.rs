@@ -23,7 +23,7 @@ pub enum BenchKind {
         #[arg(long, default_value = "generalized-alpha")]
         integrator: IntegratorName,
         /// Physics step, s.
-        #[arg(long, default_value_t = 1e-3)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
         dt: f64,
         /// Steps timed (after 10 untimed ones).
         #[arg(long, default_value_t = 5000)]
@@ -35,10 +35,10 @@ pub enum BenchKind {
     /// `taskset` and `chrt`).
     Machine {
         /// Period, s (the node's physics_dt over its real-time factor).
-        #[arg(long, default_value_t = 1e-3)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
         period: f64,
         /// Seconds for each of the two measurements.
-        #[arg(long, default_value_t = 10.0)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
         seconds: f64,
     },
     /// Step time against structure size (towers of stacked prisms), dense vs sparse LU.
@@ -59,16 +59,16 @@ pub enum BenchKind {
         /// Scene file (TOML).
         scene: PathBuf,
         /// Step of the reference run (dormand-prince, fixed), s.
-        #[arg(long, default_value_t = 1e-5)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 1e-5)]
         reference_dt: f64,
         /// Timed repeats per run (the median is reported).
         #[arg(long, default_value_t = 3)]
         repeats: usize,
         /// Simulated time, s (default: the schedule's end + 0.5 s).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         duration: Option<f64>,
         /// Sample interval of the error, s (also the output interval of error-controlled runs).
-        #[arg(long, default_value_t = 0.01)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 0.01)]
         sample: f64,
         /// Threads for the error runs (default: one per core); the timed runs go one at a time.
         #[arg(long, default_value_t = 0)]
@@ -108,8 +108,9 @@ fn steps_bench(target: &str, integrator: IntegratorName, dt: f64, steps: usize) 
         }
         None => load(Path::new(&target))?,
     };
-    if !(dt.is_finite() && dt > 0.0) || steps == 0 {
-        return Err("--dt must be positive and --steps >= 1".into());
+    crate::output::check_dt("--dt", dt)?;
+    if steps == 0 {
+        return Err("--steps must be at least 1".into());
     }
     let integrator = integrator.integrator(0.8);
     let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;

@@ -5,6 +5,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use tensegrity::error::readable_number;
 use tensegrity::evaluate::Workspace;
 use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::record;
@@ -160,7 +161,7 @@ fn deploy_dynamic(
 ) -> Result<(), String> {
     let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
     if !(duration.is_finite() && duration > 0.0) {
-        return Err(format!("--duration must be positive, got {duration}"));
+        return Err(format!("--duration must be positive, got {}", readable_number(duration)));
     }
     let label = scene.display().to_string();
     let mut run = record::offline::OfflineRun::start(model, &label, settings, record)?;

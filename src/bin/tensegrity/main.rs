@@ -81,7 +81,7 @@ enum Command {
         #[command(flatten)]
         dynamics: DynamicArgs,
         /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         duration: Option<f64>,
         /// Output CSV file (`-`: standard output).
         #[arg(long, required_unless_present = "record")]
@@ -123,7 +123,7 @@ enum Command {
         #[arg(long)]
         point: Option<String>,
         /// Time simulated after the schedule ends, s.
-        #[arg(long, default_value_t = 1.0)]
+        #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
         settle: f64,
         #[command(flatten)]
         dynamics: DynamicArgs,

@@ -5,6 +5,7 @@
 use std::io::Write;
 use std::path::Path;
 
+use tensegrity::error::readable_number;
 use tensegrity::report;
 use tensegrity::scene::{self};
 use tensegrity::sim::SimSettings;
@@ -108,14 +109,14 @@ pub(crate) struct DynamicArgs {
     integrator: IntegratorName,
     /// Physics step, s (default: the scene's physics_dt, else 0.001); with --tol the output
     /// interval, the sub-steps inside it chosen by the error estimate.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     dt: Option<f64>,
     /// Spectral radius at infinity of generalized-alpha, in [0, 1].
-    #[arg(long, default_value_t = 0.8)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.8)]
     rho_inf: f64,
     /// Local error tolerance per step, m: error-controlled steps (generalized-alpha,
     /// dormand-prince).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     tol: Option<f64>,
 }
 
@@ -142,15 +143,29 @@ impl IntegratorName {
     }
 }
 
+/// `dt` when it lies in the physics step range every part accepts (scene `physics_dt`, the node's
+/// parameter, the CLI: `scene::limits::PHYSICS_DT`), else the reason naming `flag`.
+pub(crate) fn check_dt(flag: &str, dt: f64) -> Result<f64, String> {
+    let (lo, hi) = tensegrity::scene::limits::PHYSICS_DT;
+    if dt.is_finite() && (lo..=hi).contains(&dt) {
+        Ok(dt)
+    } else {
+        Err(format!(
+            "{flag} must be in [{}, {}] s (the physics step range of scenes and the node), got {}",
+            readable_number(lo),
+            readable_number(hi),
+            readable_number(dt)
+        ))
+    }
+}
+
 impl DynamicArgs {
     pub(crate) fn settings(&self, model: &Model) -> Result<SimSettings, String> {
         let dt = self.dt.or(model.physics_dt).unwrap_or(1e-3);
         if !(self.rho_inf.is_finite() && (0.0..=1.0).contains(&self.rho_inf)) {
-            return Err(format!("--rho-inf must be in [0, 1], got {}", self.rho_inf));
+            return Err(format!("--rho-inf must be in [0, 1], got {}", readable_number(self.rho_inf)));
         }
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(format!("--dt must be positive, got {dt}"));
-        }
+        check_dt("--dt", dt)?;
         if let Some(tol) = self.tol {
             if !(tol.is_finite() && tol > 0.0) {
                 return Err(format!("--tol must be positive, got {tol}"));

@@ -10,6 +10,18 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::error::readable_number;
+
+/// What a ROS node name or namespace part may be, for messages.
+const ROS_NAME_RULE: &str = "letters, digits and underscores, not starting with a digit, not empty";
+
+/// True for a valid ROS node name or namespace part: `[A-Za-z_][A-Za-z0-9_]*`.
+fn ros_name_ok(name: &str) -> bool {
+    let mut chars = name.chars();
+    chars.next().is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
 /// Everything the node is configured by. Defaults in `Default`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NodeParams {
@@ -257,7 +269,12 @@ impl NodeParams {
             if (lo..=hi).contains(&x) {
                 Ok(x)
             } else {
-                Err(err(format!("parameter {name} must be in [{lo:e}, {hi:e}], got {x:e}")))
+                Err(err(format!(
+                    "parameter {name} must be in [{}, {}], got {}",
+                    readable_number(lo),
+                    readable_number(hi),
+                    readable_number(x)
+                )))
             }
         };
         let boolean = |v: &str| match v.trim().to_ascii_lowercase().as_str() {
@@ -440,9 +457,23 @@ impl NodeParams {
                     let v = value(i)?;
                     match v.split_once(":=") {
                         Some(("__ns", ns)) => {
+                            let bad = ns.trim_start_matches('/').split('/').find(|s| !ros_name_ok(s));
+                            if let (Some(segment), false) = (bad, ns == "/") {
+                                return Err(err(format!(
+                                    "-r __ns:={ns}: namespace part '{segment}' is not a ROS name \
+                                     ({ROS_NAME_RULE})"
+                                )));
+                            }
                             p.namespace = if ns.starts_with('/') { ns.to_string() } else { format!("/{ns}") };
                         }
-                        Some(("__node", n)) | Some(("__name", n)) => p.node_name = n.to_string(),
+                        Some(("__node", n)) | Some(("__name", n)) => {
+                            if !ros_name_ok(n) {
+                                return Err(err(format!(
+                                    "-r __node:={n}: not a ROS node name ({ROS_NAME_RULE})"
+                                )));
+                            }
+                            p.node_name = n.to_string();
+                        }
                         _ => return Err(err(format!("unsupported remapping '{v}' (only __ns and __node)"))),
                     }
                     i += 1;
