@@ -330,16 +330,21 @@ fn an_interrupted_test_leaves_no_child_behind_not_even_a_stopped_one() {
         // then is interrupted
         let mut sleeper = std::process::Command::new("sleep");
         testing::die_with_parent(sleeper.arg("1000"));
-        let child = sleeper.spawn().unwrap();
+        let mut child = sleeper.spawn().unwrap();
         let stopped = std::process::Command::new("kill").args(["-STOP", &child.id().to_string()]).status();
         assert!(stopped.unwrap().success());
         std::fs::write(&pid_file, child.id().to_string()).unwrap();
         std::thread::sleep(Duration::from_secs(60));
+        // not reached when the test interrupts this role, as it does
+        let _ = child.kill();
+        let _ = child.wait();
         return;
     }
     let pid_file = std::env::temp_dir().join(format!("tensegrity-orphan-{}", std::process::id()));
     let _ = std::fs::remove_file(&pid_file);
-    let mut role = std::process::Command::new(std::env::current_exe().unwrap())
+    let mut role = std::process::Command::new(std::env::current_exe().unwrap());
+    testing::die_with_parent(&mut role);
+    let mut role = role
         .args(["--exact", TEST, "--nocapture", "--test-threads=1"])
         .env("TENSEGRITY_ORPHAN_ROLE", &pid_file)
         .stdout(std::process::Stdio::null())
