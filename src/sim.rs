@@ -125,6 +125,17 @@ pub enum StepError {
         /// The run's energy scale (`divergence_scale`), J.
         scale: f64,
     },
+    /// A run asked to start from the static equilibrium (`Simulator::at_equilibrium`), and
+    /// statics found none from the scene's pose.
+    #[error(
+        "no static equilibrium to start from: the residual is {residual:.3e} N after {iterations} Newton iterations from the scene's pose (start from the scene's pose instead, or see `tensegrity statics`)"
+    )]
+    NoEquilibrium {
+        /// Newton iterations taken.
+        iterations: usize,
+        /// Residual at the end, N.
+        residual: f64,
+    },
     /// An error tolerance was given to an integrator that cannot estimate its error.
     #[error("{integrator} has no error estimate, so it cannot take a tolerance; use generalized-alpha or dormand-prince, or a fixed step")]
     ToleranceNotSupported {
@@ -217,6 +228,31 @@ impl Simulator {
     pub fn new(model: Model, settings: SimSettings) -> Result<Self, StepError> {
         let state = State::initial(&model);
         Self::from_state(model, state, settings)
+    }
+
+    /// A simulator at rest in the static equilibrium of the model at t = 0: statics
+    /// (`StaticSolver::equilibrate` with the scene's `[solver]` settings) from the scene's pose,
+    /// the rest lengths of the schedule at t = 0. A run started here stays put until an actuator
+    /// moves, where one started from the scene's pose (`new`) first swings toward it. `reset`
+    /// comes back here.
+    pub fn at_equilibrium(model: Model, settings: SimSettings) -> Result<Self, StepError> {
+        let mut state = State::initial(&model);
+        model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
+        let mut ws = Workspace::new(&model);
+        let mut solver = crate::solve::statics::StaticSolver::new(&model);
+        solver
+            .equilibrate(&model, &mut state, &mut ws, &model.solver)
+            .map_err(|(iterations, residual)| StepError::NoEquilibrium { iterations, residual })?;
+        Self::from_state(model, state, settings)
+    }
+
+    /// Like `new`, or `at_equilibrium` when `from_equilibrium`.
+    pub fn start(model: Model, settings: SimSettings, from_equilibrium: bool) -> Result<Self, StepError> {
+        if from_equilibrium {
+            Self::at_equilibrium(model, settings)
+        } else {
+            Self::new(model, settings)
+        }
     }
 
     /// A simulator starting at `state` (e.g. a quasi-static equilibrium).

@@ -5,7 +5,9 @@
 //! - generalized-alpha converges at order 2 (within 0.2) on a smooth deployment;
 //! - a free rigid body spinning about a non-principal axis keeps its angular momentum;
 //! - very slow dynamic deployment approaches the quasi-static path, fast deployment overshoots it;
-//! - the explicit integrator's stability limit is real and enforced.
+//! - the explicit integrator's stability limit is real and enforced;
+//! - a run started at the static equilibrium stays at rest (and resets there), one started from
+//!   the scene's sketch swings.
 
 mod common;
 
@@ -280,4 +282,45 @@ fn long_runs_stay_on_the_constraint_manifold() {
             settings.integrator
         );
     }
+}
+
+#[test]
+fn a_run_started_at_equilibrium_stays_at_rest_where_one_from_the_sketch_swings() {
+    // the README's scene: a pole and a box slung over a pulley, sketched away from equilibrium;
+    // no actuation, so only the start differs
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/examples/readme.toml");
+    let mut model = tensegrity::scene::load(&path).unwrap();
+    model.schedule.ramps.clear();
+    let settings = SimSettings { dt: 1e-3, ..Default::default() };
+    let drift = |mut sim: Simulator| {
+        let start = sim.state().poses.clone();
+        let tensions = |s: &Simulator| s.workspace().cables.iter().map(|c| c.tension).collect::<Vec<f64>>();
+        let first = tensions(&sim);
+        let mut worst = 0.0f64;
+        for _ in 0..200 {
+            sim.step().unwrap();
+            let moved = sim
+                .state()
+                .poses
+                .iter()
+                .zip(&start)
+                .map(|(a, b)| (a.position - b.position).amax().max(a.rotation.angle_to(&b.rotation)))
+                .fold(0.0, f64::max);
+            worst = worst.max(moved);
+        }
+        let change = tensions(&sim).iter().zip(&first).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        (worst, change, sim)
+    };
+    let (still, tension_change, sim) = drift(Simulator::at_equilibrium(model.clone(), settings).unwrap());
+    assert!(still < 1e-6, "from equilibrium the poses moved {still:.3e}");
+    assert!(tension_change < 1e-3, "from equilibrium a tension changed {tension_change:.3e} N");
+    assert!(sim.state().velocities.amax() < 1e-5);
+    let (swing, _, _) = drift(Simulator::new(model.clone(), settings).unwrap());
+    assert!(swing > 1e-2, "from the sketch the structure swings ({swing:.3e})");
+    // reset comes back to the equilibrium, and `start` picks by its flag
+    let mut sim = Simulator::start(model.clone(), settings, true).unwrap();
+    let at_rest = sim.state().poses.clone();
+    sim.step().unwrap();
+    sim.reset();
+    assert_eq!(sim.state().poses, at_rest);
 }

@@ -126,6 +126,12 @@ fn a_dynamic_deployment_bag_reads_back_in_rosbags_equal_to_the_simulator() {
 }
 
 #[test]
+fn a_run_from_the_static_equilibrium_is_recorded_as_such_and_replays_bit_for_bit() {
+    let dir = deploy_recorded("from-equilibrium", &["--dynamic", "--from-equilibrium", "--duration", "0.05"]);
+    assert_replays_identically(&dir);
+}
+
+#[test]
 fn a_changed_scene_is_caught_at_its_first_differing_field() {
     let dir = deploy_recorded("changed", &["--dynamic", "--duration", "0.05"]);
     // one cable's EA changed (the ring's: the last `ea` of the file)

@@ -23,7 +23,7 @@ pub enum BenchKind {
         #[arg(long, default_value = "generalized-alpha")]
         integrator: IntegratorName,
         /// Physics step, s.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1e-3)]
         dt: f64,
         /// Steps timed (after 10 untimed ones).
         #[arg(long, default_value_t = 5000)]
@@ -35,10 +35,10 @@ pub enum BenchKind {
     /// `taskset` and `chrt`).
     Machine {
         /// Period, s (the node's physics_dt over its real-time factor).
-        #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1e-3)]
         period: f64,
         /// Seconds for each of the two measurements.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 10.0)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 10.0)]
         seconds: f64,
     },
     /// Step time against structure size (towers of stacked prisms), dense vs sparse LU.
@@ -59,16 +59,16 @@ pub enum BenchKind {
         /// Scene file (TOML).
         scene: PathBuf,
         /// Step of the reference run (dormand-prince, fixed), s.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 1e-5)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1e-5)]
         reference_dt: f64,
         /// Timed repeats per run (the median is reported).
         #[arg(long, default_value_t = 3)]
         repeats: usize,
         /// Simulated time, s (default: the schedule's end + 0.5 s).
-        #[arg(long, allow_negative_numbers = true)]
+        #[arg(long, allow_hyphen_values = true)]
         duration: Option<f64>,
         /// Sample interval of the error, s (also the output interval of error-controlled runs).
-        #[arg(long, allow_negative_numbers = true, default_value_t = 0.01)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.01)]
         sample: f64,
         /// Threads for the error runs (default: one per core); the timed runs go one at a time.
         #[arg(long, default_value_t = 0)]

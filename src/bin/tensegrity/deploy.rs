@@ -29,6 +29,8 @@ pub struct DeployArgs {
     pub dynamics: DynamicArgs,
     /// `--duration`.
     pub duration: Option<f64>,
+    /// `--from-equilibrium`.
+    pub from_equilibrium: bool,
     /// `--out`.
     pub out: Option<PathBuf>,
     /// `--record`.
@@ -37,7 +39,8 @@ pub struct DeployArgs {
 
 /// Runs `deploy`.
 pub fn run(args: DeployArgs) -> Result<(), String> {
-    let DeployArgs { scene, dynamic, steps, dynamics, duration, out, record: bag_dir } = args;
+    let DeployArgs { scene, dynamic, steps, dynamics, duration, from_equilibrium, out, record: bag_dir } =
+        args;
     let mut model = load(&scene)?;
     let out = out.unwrap_or_default();
     if dynamic {
@@ -46,6 +49,7 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
             &scene,
             dynamics.settings(&model)?,
             duration,
+            from_equilibrium,
             &out,
             bag_dir.as_deref(),
         );
@@ -156,6 +160,7 @@ fn deploy_dynamic(
     scene: &Path,
     settings: SimSettings,
     duration: Option<f64>,
+    from_equilibrium: bool,
     out: &Path,
     record: Option<&Path>,
 ) -> Result<(), String> {
@@ -164,7 +169,7 @@ fn deploy_dynamic(
         return Err(format!("--duration must be positive, got {}", readable_number(duration)));
     }
     let label = scene.display().to_string();
-    let mut run = record::offline::OfflineRun::start(model, &label, settings, record)?;
+    let mut run = record::offline::OfflineRun::start(model, &label, settings, from_equilibrium, record)?;
     let mut file = csv_output(out)?;
     writeln!(file, "{}", study::dynamic_csv_header(model)).map_err(|e| e.to_string())?;
     // the row of t = 0: the start, before any step
@@ -194,11 +199,12 @@ fn deploy_dynamic(
     say_closing(
         out,
         format!(
-            "{}: {} steps of {} s with {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){bag}",
+            "{}: {} steps of {} s with {} from {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){bag}",
             model.name,
             totals.steps,
             settings.dt,
             settings.integrator.name(),
+            if from_equilibrium { "the static equilibrium" } else { "the scene's pose (--from-equilibrium: from rest in equilibrium)" },
             if out.as_os_str().is_empty() { String::new() } else { format!(" written to {}", out.display()) },
             totals.newton_iterations,
             totals.rejected,

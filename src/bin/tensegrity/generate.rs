@@ -20,7 +20,7 @@ pub enum GenerateKind {
         #[arg(long)]
         cluster: bool,
         /// Side-string prestress, N.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 100.0)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 100.0)]
         prestress: f64,
     },
     /// Tower of stacked prisms with clustered side cables.
@@ -37,10 +37,10 @@ pub enum GenerateKind {
     /// Elastic Atwood machine.
     Atwood {
         /// First mass, kg.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 2.0)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 2.0)]
         m1: f64,
         /// Second mass, kg.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1.0)]
         m2: f64,
     },
 }

@@ -81,8 +81,13 @@ enum Command {
         #[command(flatten)]
         dynamics: DynamicArgs,
         /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
-        #[arg(long, allow_negative_numbers = true)]
+        #[arg(long, allow_hyphen_values = true)]
         duration: Option<f64>,
+        /// Dynamic: start at rest in the static equilibrium at t = 0 (where a quasi-static
+        /// deployment starts). Without it the run starts from the scene's pose as written, at
+        /// rest, and first swings toward the equilibrium.
+        #[arg(long, requires = "dynamic")]
+        from_equilibrium: bool,
         /// Output CSV file (`-`: standard output).
         #[arg(long, required_unless_present = "record")]
         out: Option<PathBuf>,
@@ -123,7 +128,7 @@ enum Command {
         #[arg(long)]
         point: Option<String>,
         /// Time simulated after the schedule ends, s.
-        #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+        #[arg(long, allow_hyphen_values = true, default_value_t = 1.0)]
         settle: f64,
         #[command(flatten)]
         dynamics: DynamicArgs,
@@ -168,9 +173,26 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Check { scene } => check::run(&scene),
         Command::Statics { scene, json } => statics::run(&scene, json),
         Command::Modes { scene, json, count, plot } => modes::run(&scene, json, count, plot),
-        Command::Deploy { scene, quasi_static: _, dynamic, steps, dynamics, duration, out, record } => {
-            deploy::run(deploy::DeployArgs { scene, dynamic, steps, dynamics, duration, out, record })
-        }
+        Command::Deploy {
+            scene,
+            quasi_static: _,
+            dynamic,
+            steps,
+            dynamics,
+            duration,
+            from_equilibrium,
+            out,
+            record,
+        } => deploy::run(deploy::DeployArgs {
+            scene,
+            dynamic,
+            steps,
+            dynamics,
+            duration,
+            from_equilibrium,
+            out,
+            record,
+        }),
         Command::Replay { bag, scene, out } => bag::replay(&bag, scene.as_deref(), out.as_deref()),
         Command::Bag { kind } => bag::run(kind),
         Command::Study { scene, ramp_times, point, settle, dynamics, jobs, out } => {

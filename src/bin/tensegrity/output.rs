@@ -109,14 +109,14 @@ pub(crate) struct DynamicArgs {
     integrator: IntegratorName,
     /// Physics step, s (default: the scene's physics_dt, else 0.001); with --tol the output
     /// interval, the sub-steps inside it chosen by the error estimate.
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     dt: Option<f64>,
     /// Spectral radius at infinity of generalized-alpha, in [0, 1].
-    #[arg(long, allow_negative_numbers = true, default_value_t = 0.8)]
+    #[arg(long, allow_hyphen_values = true, default_value_t = 0.8)]
     rho_inf: f64,
     /// Local error tolerance per step, m: error-controlled steps (generalized-alpha,
     /// dormand-prince).
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     tol: Option<f64>,
 }
 

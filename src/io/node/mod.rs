@@ -117,7 +117,8 @@ impl NodeCore {
             .ok_or_else(|| CoreError::Params(format!("unknown integrator '{}'", params.integrator)))?;
         let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
         let tolerance = (params.tolerance > 0.0).then_some(params.tolerance);
-        let sim = Simulator::new(model, SimSettings { dt, integrator, tolerance, ..Default::default() })?;
+        let settings = SimSettings { dt, integrator, tolerance, ..Default::default() };
+        let sim = Simulator::start(model, settings, params.start_from_equilibrium)?;
         Ok(Self::with_simulator(sim, params))
     }
 

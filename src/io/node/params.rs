@@ -37,6 +37,9 @@ pub struct NodeParams {
     pub real_time_factor: f64,
     /// Start paused; advance with StepSimulation or unpause (`start_paused`).
     pub start_paused: bool,
+    /// Start (and reset to) the static equilibrium at t = 0 rather than the scene's pose
+    /// (`start_from_equilibrium`; `Simulator::at_equilibrium`).
+    pub start_from_equilibrium: bool,
     /// State publishing rate in sim-time Hz, 0 = every step (`state_publish_rate`, default 100).
     pub state_publish_rate: f64,
     /// Fixed frame of poses and transforms (`frame_id`, default `world`).
@@ -160,6 +163,7 @@ impl Default for NodeParams {
             physics_dt: None,
             real_time_factor: 1.0,
             start_paused: false,
+            start_from_equilibrium: false,
             state_publish_rate: 100.0,
             frame_id: "world".into(),
             integrator: "generalized-alpha".into(),
@@ -203,6 +207,11 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("physics_dt", "(scene's, else 0.001)", "physics step, s, 1e-6 to 0.1"),
     ("real_time_factor", "1.0", "1 = real time, 0 = as fast as possible, at most 1000"),
     ("start_paused", "false", "start paused; advance with StepSimulation or unpause"),
+    (
+        "start_from_equilibrium",
+        "false",
+        "start and reset at rest in the static equilibrium, not the scene's pose",
+    ),
     ("state_publish_rate", "100.0", "state messages per second of sim time, 0 = every step"),
     ("follow_schedule", "false", "follow the scene's deployment schedule instead of holding"),
     ("frame_id", "world", "fixed frame of poses and transforms"),
@@ -288,6 +297,7 @@ impl NodeParams {
             "physics_dt" => self.physics_dt = Some(within(num(value)?, PHYSICS_DT_RANGE)?),
             "real_time_factor" => self.real_time_factor = within(num(value)?, REAL_TIME_FACTOR_RANGE)?,
             "start_paused" => self.start_paused = boolean(value)?,
+            "start_from_equilibrium" => self.start_from_equilibrium = boolean(value)?,
             "follow_schedule" => self.follow_schedule = boolean(value)?,
             "state_publish_rate" => self.state_publish_rate = within(num(value)?, PUBLISH_RATE_RANGE)?,
             "frame_id" => {

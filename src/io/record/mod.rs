@@ -114,6 +114,7 @@ pub fn run_info(
     put("newton_max_iterations", settings.newton.max_iterations.to_string());
     put("newton_reuse_factorization", settings.newton.reuse_factorization.to_string());
     put("follow_schedule", params.follow_schedule.to_string());
+    put("start_from_equilibrium", params.start_from_equilibrium.to_string());
     put("state_publish_rate", f64_text(params.state_publish_rate));
     put("markers_rate", f64_text(params.markers_rate));
     put("command_timeout", f64_text(params.command_timeout));
@@ -171,6 +172,10 @@ pub fn settings_of(run: &RunInfo) -> Result<(SimSettings, NodeParams), String> {
         "frame_id",
     ] {
         params.set(k, get(k)?).map_err(|e| record_err(k, e))?;
+    }
+    // bags recorded before the option started from the scene's pose
+    if let Some(v) = run.get("start_from_equilibrium") {
+        params.set("start_from_equilibrium", v).map_err(|e| record_err("start_from_equilibrium", e))?;
     }
     Ok((settings, params))
 }

@@ -27,22 +27,26 @@ pub struct OfflineRun {
 }
 
 impl OfflineRun {
-    /// Starts the run of `model` with `settings`; `scene_label` names the scene in the run record
-    /// and in errors; with `record`, a new bag is created in that directory. Publishes the
+    /// Starts the run of `model` with `settings`, from the scene's pose or (`from_equilibrium`)
+    /// at rest in its static equilibrium (`Simulator::start`); `scene_label` names the scene in
+    /// the run record and in errors; with `record`, a new bag is created in that directory. Publishes the
     /// start-up outputs (structure, static transforms, the state at t = 0) to the bag.
     pub fn start(
         model: &Model,
         scene_label: &str,
         settings: SimSettings,
+        from_equilibrium: bool,
         record: Option<&Path>,
     ) -> Result<Self, String> {
-        let sim = Simulator::new(model.clone(), settings).map_err(|e| format!("{scene_label}: {e}"))?;
         let params = NodeParams {
             follow_schedule: true,
             real_time_factor: 0.0,
             state_publish_rate: 0.0,
+            start_from_equilibrium: from_equilibrium,
             ..NodeParams::default()
         };
+        let sim = Simulator::start(model.clone(), settings, from_equilibrium)
+            .map_err(|e| format!("{scene_label}: {e}"))?;
         let recorder = match record {
             Some(dir) => {
                 let run = run_info(KIND_DYNAMIC, model, scene_label, &settings, &params);

@@ -219,8 +219,8 @@ pub fn replay(
         }
         rerun = Rerun::Path;
     } else {
-        let sim =
-            Simulator::new(model, settings).map_err(|e| run_err(format!("the re-run cannot start: {e}")))?;
+        let sim = Simulator::start(model, settings, params.start_from_equilibrium)
+            .map_err(|e| run_err(format!("the re-run cannot start: {e}")))?;
         let recorder = out_recorder(sim.model())?;
         let mut core = NodeCore::with_simulator(sim, params.clone());
         sink = RerunSink { names, produced: VecDeque::new(), applied: 0, out: recorder };
