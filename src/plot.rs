@@ -1,14 +1,19 @@
 //! Line plots for studies and benchmarks: takes named series of (x, y) points, gives the same
-//! chart as PNG and SVG (plotters). Logarithmic axes are real log scales with ticks at decades
-//! labelled in data units (`1e-3`); series take the Okabe-Ito colour-blind-safe palette (its
-//! yellow left out: too faint on white; dashed once it repeats) with alternating marker shapes, and
-//! reference curves are drawn last, black and dashed, so that nothing hides them.
+//! chart as PNG and SVG (plotters), sized to stay readable in a paper column (text of 20-28 px on
+//! a 1000 x 600 image: about 7 pt at 3.5 in wide). Logarithmic axes are real log scales with
+//! ticks at decades labelled as numbers are written (`0.1`, `1`, `10`; `1e-6` outside 1e-3 to
+//! 1e4); series take the Okabe-Ito colour-blind-safe palette (its yellow left out: too faint on
+//! white; dashed once it repeats) with alternating marker shapes, or, when they are ordered
+//! values of one parameter, a sequential map (viridis) with one colour each. Reference curves
+//! are drawn first as a wide grey band, so that series that follow them stay visible on top.
+//! The legend sits beside the plot, never over the data, and draws each entry as the plot does.
 
 use std::path::Path;
 
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::model::{CableId, Model};
 use crate::solve::modes::Mode;
@@ -50,8 +55,11 @@ pub struct Chart {
     pub log_y: bool,
     /// Data.
     pub series: Vec<Series>,
-    /// Optional horizontal reference line (y in data units) with its label.
+    /// Optional horizontal reference line (y in data units) with its label (drawn dashed).
     pub reference: Option<(f64, String)>,
+    /// The series are ordered values of one parameter (e.g. actuation times, in order): each
+    /// gets its own colour from a sequential map instead of the categorical palette.
+    pub ordered: bool,
 }
 
 /// Okabe & Ito (2008) colours without the yellow: blue, vermillion, bluish green, reddish
@@ -65,7 +73,44 @@ pub const PALETTE: [RGBColor; 6] = [
     RGBColor(86, 180, 233),
 ];
 
-/// A tick label: `1e-3`, `2.5e4` on log axes; up to 6 significant digits on linear ones.
+/// Viridis (van der Walt and Smith) at nine evenly spaced points, for ordered series.
+const VIRIDIS: [(f64, f64, f64); 9] = [
+    (68.0, 1.0, 84.0),
+    (71.0, 44.0, 122.0),
+    (59.0, 81.0, 139.0),
+    (44.0, 113.0, 142.0),
+    (33.0, 144.0, 141.0),
+    (39.0, 173.0, 129.0),
+    (92.0, 200.0, 99.0),
+    (170.0, 220.0, 50.0),
+    (253.0, 231.0, 37.0),
+];
+
+/// Colour `i` of `n` ordered series: viridis from dark purple to green, its pale yellow end left
+/// out (too faint on white).
+fn sequential_colour(i: usize, n: usize) -> RGBColor {
+    let t = if n <= 1 { 0.0 } else { 0.85 * i as f64 / (n - 1) as f64 };
+    let x = t * (VIRIDIS.len() - 1) as f64;
+    let k = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let f = x - k as f64;
+    let (a, b) = (VIRIDIS[k], VIRIDIS[k + 1]);
+    let mix = |p: f64, q: f64| (p + f * (q - p)).round() as u8;
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// Text sizes, px: title, axis names, tick labels, legend.
+const TITLE_FONT: u32 = 28;
+const AXIS_FONT: u32 = 24;
+const TICK_FONT: u32 = 22;
+const LEGEND_FONT: u32 = 21;
+/// Size of a line chart, px (the legend takes its right part).
+const CHART_SIZE: (u32, u32) = (1000, 600);
+/// Grey of reference bands and of the reference configuration in structure drawings.
+const REFERENCE_GREY: RGBColor = RGBColor(175, 175, 175);
+
+/// A tick label: on log axes the decade as a number is written (`0.001` to `1000` plainly,
+/// `1e-6`, `2.5e4` outside: `crate::error::readable_number`); up to 6 significant digits on
+/// linear ones.
 fn tick_label(v: f64, log: bool) -> String {
     if log {
         if !(v > 0.0 && v.is_finite()) {
@@ -78,7 +123,14 @@ fn tick_label(v: f64, log: bool) -> String {
             m /= 10.0;
             e += 1.0;
         }
-        if m == 1.0 {
+        if (-3.0..4.0).contains(&e) {
+            // the value as written, without the rounding noise of m 10^e
+            let digits = (3.0 - e).max(0.0) as usize;
+            let text = format!("{:.*}", digits, m * 10f64.powf(e));
+            let text =
+                if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.') } else { &text };
+            text.to_string()
+        } else if m == 1.0 {
             format!("1e{e}")
         } else {
             format!("{m}e{e}")
@@ -107,8 +159,61 @@ fn bounds(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     }
 }
 
+/// How a legend entry is drawn: as its series is in the plot.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Glyph {
+    /// A solid line of this colour (with a marker: circle when the flag is set, else triangle).
+    Line(RGBColor, Option<bool>),
+    /// A dashed line of this colour (same markers).
+    Dashed(RGBColor, Option<bool>),
+    /// A reference series: a wide grey band.
+    Band,
+    /// The horizontal reference line: thin, black, dashed.
+    ReferenceLine,
+}
+
+/// The colour of non-reference series `i` of `n`, and whether it is dashed (the categorical
+/// palette repeating).
+fn series_style(chart: &Chart, i: usize, n: usize) -> (RGBColor, bool) {
+    if chart.ordered {
+        (sequential_colour(i, n), false)
+    } else {
+        (PALETTE[i % PALETTE.len()], (i / PALETTE.len()) % 2 == 1)
+    }
+}
+
+/// The legend, in drawing order: references, series, the horizontal reference line.
+fn legend_entries(chart: &Chart) -> Vec<(String, Glyph)> {
+    let mut out: Vec<(String, Glyph)> =
+        chart.series.iter().filter(|s| s.reference).map(|s| (s.name.clone(), Glyph::Band)).collect();
+    let n = chart.series.iter().filter(|s| !s.reference).count();
+    for (i, s) in chart.series.iter().filter(|s| !s.reference).enumerate() {
+        let (color, dashed) = series_style(chart, i, n);
+        let marker = s.markers.then_some(i % 2 == 0);
+        out.push((
+            s.name.clone(),
+            if dashed { Glyph::Dashed(color, marker) } else { Glyph::Line(color, marker) },
+        ));
+    }
+    if let Some((_, name)) = &chart.reference {
+        out.push((name.clone(), Glyph::ReferenceLine));
+    }
+    out
+}
+
+/// Width of the legend column, px: room for the longest entry.
+fn legend_width(entries: &[(String, Glyph)]) -> u32 {
+    let chars = entries.iter().map(|(n, _)| n.chars().count()).max().unwrap_or(0) as f64;
+    (chars * 0.47 * LEGEND_FONT as f64 + 75.0).clamp(150.0, 400.0) as u32
+}
+
 fn render<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, chart: &Chart) -> Result<(), String> {
-    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
+    root.fill(&WHITE).map_err(err)?;
+    let root = root.titled(&chart.title, ("sans-serif", TITLE_FONT)).map_err(err)?;
+    let entries = legend_entries(chart);
+    let (width, _) = root.dim_in_pixel();
+    let (plot_area, legend_area) = root.split_horizontally(width.saturating_sub(legend_width(&entries)));
     let xs = chart.series.iter().flat_map(|s| s.points.iter().map(|p| p.0));
     let ys = chart
         .series
@@ -118,14 +223,57 @@ fn render<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, chart: &Chart) -> Re
     let (x0, x1) = bounds(xs, chart.log_x);
     let (y0, y1) = bounds(ys, chart.log_y);
     match (chart.log_x, chart.log_y) {
-        (false, false) => draw(root, chart, x0..x1, y0..y1),
-        (true, false) => draw(root, chart, (x0..x1).log_scale(), y0..y1),
-        (false, true) => draw(root, chart, x0..x1, (y0..y1).log_scale()),
-        (true, true) => draw(root, chart, (x0..x1).log_scale(), (y0..y1).log_scale()),
+        (false, false) => draw(&plot_area, chart, x0..x1, y0..y1)?,
+        (true, false) => draw(&plot_area, chart, (x0..x1).log_scale(), y0..y1)?,
+        (false, true) => draw(&plot_area, chart, x0..x1, (y0..y1).log_scale())?,
+        (true, true) => draw(&plot_area, chart, (x0..x1).log_scale(), (y0..y1).log_scale())?,
     }
+    draw_legend(&legend_area, &entries).map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(())
 }
 
-fn draw<DB, X, Y>(root: DrawingArea<DB, Shift>, chart: &Chart, x: X, y: Y) -> Result<(), String>
+/// The legend column: one row per entry, its glyph then its name.
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    entries: &[(String, Glyph)],
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let row = LEGEND_FONT as i32 + 14;
+    for (k, (name, glyph)) in entries.iter().enumerate() {
+        let y = 60 + k as i32 * row;
+        let (x0, x1) = (8, 52);
+        match *glyph {
+            Glyph::Line(color, marker) | Glyph::Dashed(color, marker) => {
+                let style = color.stroke_width(3);
+                if matches!(glyph, Glyph::Line(..)) {
+                    area.draw(&PathElement::new(vec![(x0, y), (x1, y)], style))?;
+                } else {
+                    area.draw(&PathElement::new(vec![(x0, y), (x0 + 16, y)], style))?;
+                    area.draw(&PathElement::new(vec![(x0 + 26, y), (x1, y)], style))?;
+                }
+                match marker {
+                    Some(true) => area.draw(&Circle::new((30, y), 5, color.filled()))?,
+                    Some(false) => area.draw(&TriangleMarker::new((30, y), 6, color.filled()))?,
+                    None => {}
+                }
+            }
+            Glyph::Band => {
+                area.draw(&PathElement::new(vec![(x0, y), (x1, y)], REFERENCE_GREY.stroke_width(8)))?
+            }
+            Glyph::ReferenceLine => {
+                for x in (x0..x1).step_by(12) {
+                    area.draw(&PathElement::new(vec![(x, y), ((x + 7).min(x1), y)], BLACK.stroke_width(2)))?;
+                }
+            }
+        }
+        let style =
+            ("sans-serif", LEGEND_FONT).into_font().color(&BLACK).pos(Pos::new(HPos::Left, VPos::Center));
+        area.draw(&Text::new(name.clone(), (x1 + 10, y), style))?;
+    }
+    Ok(())
+}
+
+fn draw<DB, X, Y>(root: &DrawingArea<DB, Shift>, chart: &Chart, x: X, y: Y) -> Result<(), String>
 where
     DB: DrawingBackend,
     X: AsRangedCoord<Value = f64>,
@@ -137,79 +285,63 @@ where
     let (log_x, log_y) = (chart.log_x, chart.log_y);
     let drawable =
         |p: &(f64, f64)| p.0.is_finite() && p.1.is_finite() && (!log_x || p.0 > 0.0) && (!log_y || p.1 > 0.0);
-    let mut c = ChartBuilder::on(&root)
-        .caption(&chart.title, ("sans-serif", 22))
+    let mut c = ChartBuilder::on(root)
         .margin(15)
-        .x_label_area_size(45)
-        .y_label_area_size(75)
+        .margin_right(25)
+        .x_label_area_size(75)
+        .y_label_area_size(105)
         .build_cartesian_2d(x, y)
         .map_err(err)?;
     let x_range = c.x_range();
     c.configure_mesh()
         .x_desc(chart.x_label.as_str())
         .y_desc(chart.y_label.as_str())
+        .axis_desc_style(("sans-serif", AXIS_FONT))
+        .label_style(("sans-serif", TICK_FONT))
         .x_label_formatter(&|v| tick_label(*v, log_x))
         .y_label_formatter(&|v| tick_label(*v, log_y))
         .draw()
         .map_err(err)?;
-    for (i, s) in chart.series.iter().filter(|s| !s.reference).enumerate() {
-        let color = PALETTE[i % PALETTE.len()];
+    // references first, as a wide grey band under the series that follow them
+    for s in chart.series.iter().filter(|s| s.reference) {
         let data: Vec<(f64, f64)> = s.points.iter().copied().filter(drawable).collect();
-        // past the palette's length the colours repeat with dashed lines
-        if (i / PALETTE.len()) % 2 == 0 {
-            c.draw_series(LineSeries::new(data.clone(), color.stroke_width(2)))
-                .map_err(err)?
-                .label(s.name.clone())
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], color.stroke_width(2)));
+        c.draw_series(LineSeries::new(data.clone(), REFERENCE_GREY.stroke_width(8))).map_err(err)?;
+        if s.markers {
+            c.draw_series(data.iter().map(|&p| Circle::new(p, 6, REFERENCE_GREY.filled()))).map_err(err)?;
+        }
+    }
+    let n = chart.series.iter().filter(|s| !s.reference).count();
+    for (i, s) in chart.series.iter().filter(|s| !s.reference).enumerate() {
+        let (color, dashed) = series_style(chart, i, n);
+        let data: Vec<(f64, f64)> = s.points.iter().copied().filter(drawable).collect();
+        if dashed {
+            c.draw_series(DashedLineSeries::new(data.clone(), 8, 6, color.stroke_width(3))).map_err(err)?;
         } else {
-            c.draw_series(DashedLineSeries::new(data.clone(), 6, 4, color.stroke_width(2)))
-                .map_err(err)?
-                .label(s.name.clone())
-                .legend(move |(x, y)| {
-                    EmptyElement::at((x, y))
-                        + PathElement::new([(0, 0), (7, 0)], color.stroke_width(2))
-                        + PathElement::new([(12, 0), (20, 0)], color.stroke_width(2))
-                });
+            c.draw_series(LineSeries::new(data.clone(), color.stroke_width(3))).map_err(err)?;
         }
         if s.markers {
             if i % 2 == 0 {
-                c.draw_series(data.iter().map(|&p| Circle::new(p, 4, color.filled()))).map_err(err)?;
+                c.draw_series(data.iter().map(|&p| Circle::new(p, 5, color.filled()))).map_err(err)?;
             } else {
-                c.draw_series(data.iter().map(|&p| TriangleMarker::new(p, 5, color.filled())))
+                c.draw_series(data.iter().map(|&p| TriangleMarker::new(p, 6, color.filled())))
                     .map_err(err)?;
             }
         }
     }
-    // references on top
-    for s in chart.series.iter().filter(|s| s.reference) {
-        let data: Vec<(f64, f64)> = s.points.iter().copied().filter(drawable).collect();
-        c.draw_series(DashedLineSeries::new(data.clone(), 8, 5, BLACK.stroke_width(3)))
-            .map_err(err)?
-            .label(s.name.clone())
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(3)));
-        if s.markers {
-            c.draw_series(data.iter().map(|&p| Circle::new(p, 4, BLACK.filled()))).map_err(err)?;
-        }
-    }
-    if let Some((y, name)) = &chart.reference {
+    if let Some((y, _)) = &chart.reference {
         let line = [(x_range.start, *y), (x_range.end, *y)];
-        c.draw_series(DashedLineSeries::new(line, 6, 6, BLACK.stroke_width(1)))
-            .map_err(err)?
-            .label(name.clone())
-            .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK));
+        c.draw_series(DashedLineSeries::new(line, 7, 5, BLACK.stroke_width(2))).map_err(err)?;
     }
-    c.configure_series_labels().background_style(WHITE.mix(0.85)).border_style(BLACK).draw().map_err(err)?;
-    root.present().map_err(err)?;
     Ok(())
 }
 
-/// Writes `chart` to `base.png` and `base.svg` (900 x 600 px).
+/// Writes `chart` to `base.png` and `base.svg` (1000 x 600 px, the legend at the right).
 pub fn write(chart: &Chart, base: &Path) -> Result<(), String> {
     let png = base.with_extension("png");
     let svg = base.with_extension("svg");
-    render(BitMapBackend::new(&png, (900, 600)).into_drawing_area(), chart)
+    render(BitMapBackend::new(&png, CHART_SIZE).into_drawing_area(), chart)
         .map_err(|e| format!("{}: {e}", png.display()))?;
-    render(SVGBackend::new(&svg, (900, 600)).into_drawing_area(), chart)
+    render(SVGBackend::new(&svg, CHART_SIZE).into_drawing_area(), chart)
         .map_err(|e| format!("{}: {e}", svg.display()))?;
     Ok(())
 }
@@ -225,8 +357,18 @@ pub struct Segment {
     pub strut: bool,
 }
 
+/// A point drawn on a structure: a point mass (filled dot) or a pulley (open circle), in plot
+/// coordinates (m).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Mark {
+    /// A point-mass body.
+    Mass((f64, f64)),
+    /// A pulley: an interior point of a cable's route.
+    Pulley((f64, f64)),
+}
+
 /// One panel of a structure drawing: a reference configuration drawn grey and a displaced one
-/// drawn in colour on top.
+/// drawn in colour on top, with axes in metres.
 #[derive(Debug, Clone, PartialEq)]
 pub struct StructurePanel {
     /// Panel title.
@@ -235,14 +377,25 @@ pub struct StructurePanel {
     pub reference: Vec<Segment>,
     /// The displaced configuration (e.g. a mode shape at a visible amplitude).
     pub displaced: Vec<Segment>,
+    /// Point masses and pulleys of the reference configuration.
+    pub reference_marks: Vec<Mark>,
+    /// The same of the displaced configuration.
+    pub displaced_marks: Vec<Mark>,
+    /// Names of the horizontal and vertical axes (units included).
+    pub axes: (String, String),
+    /// The largest displacement of a point drawn, m (the drawing's exaggeration).
+    pub largest_displacement: f64,
 }
 
+/// Side of one panel of a structure drawing, px.
+const PANEL_SIZE: usize = 520;
+
 /// Writes `panels` side by side (at most 3 per row, equal scales on both axes and in every
-/// panel) to `base.png` and `base.svg`, with `title` above them.
+/// panel, axes in metres) to `base.png` and `base.svg`, with `title` above them.
 pub fn write_structure_panels(title: &str, panels: &[StructurePanel], base: &Path) -> Result<(), String> {
     let cols = panels.len().clamp(1, 3);
     let rows = panels.len().div_ceil(cols).max(1);
-    let size = ((400 * cols) as u32, (400 * rows + 40) as u32);
+    let size = ((PANEL_SIZE * cols) as u32, (PANEL_SIZE * rows + 50) as u32);
     let png = base.with_extension("png");
     let svg = base.with_extension("svg");
     render_panels(BitMapBackend::new(&png, size).into_drawing_area(), title, panels, (rows, cols))
@@ -260,9 +413,18 @@ fn render_panels<DB: DrawingBackend>(
 ) -> Result<(), String> {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
     root.fill(&WHITE).map_err(err)?;
-    let root = root.titled(title, ("sans-serif", 22)).map_err(err)?;
+    let root = root.titled(title, ("sans-serif", 24)).map_err(err)?;
     // one square window for all panels, so that shapes compare
-    let all = panels.iter().flat_map(|p| p.reference.iter().chain(&p.displaced)).flat_map(|s| [s.from, s.to]);
+    let marks = |m: &Mark| match *m {
+        Mark::Mass(p) | Mark::Pulley(p) => p,
+    };
+    let all = panels.iter().flat_map(|p| {
+        p.reference
+            .iter()
+            .chain(&p.displaced)
+            .flat_map(|s| [s.from, s.to])
+            .chain(p.reference_marks.iter().chain(&p.displaced_marks).map(marks))
+    });
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for (x, y) in all.filter(|p| p.0.is_finite() && p.1.is_finite()) {
         (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(y), y1.max(y));
@@ -275,14 +437,36 @@ fn render_panels<DB: DrawingBackend>(
     let areas = root.split_evenly((rows, cols));
     for (area, panel) in areas.iter().zip(panels) {
         let mut c = ChartBuilder::on(area)
-            .caption(&panel.title, ("sans-serif", 16))
-            .margin(8)
+            .caption(&panel.title, ("sans-serif", 20))
+            .margin(10)
+            .x_label_area_size(50)
+            .y_label_area_size(65)
             .build_cartesian_2d(cx - half..cx + half, cy - half..cy + half)
             .map_err(err)?;
-        let grey = RGBColor(170, 170, 170);
-        for (segments, color) in [(&panel.reference, grey), (&panel.displaced, PALETTE[0])] {
+        c.configure_mesh()
+            .x_desc(panel.axes.0.as_str())
+            .y_desc(panel.axes.1.as_str())
+            .axis_desc_style(("sans-serif", 16))
+            .label_style(("sans-serif", 15))
+            .x_labels(5)
+            .y_labels(5)
+            .x_label_formatter(&|v| tick_label(*v, false))
+            .y_label_formatter(&|v| tick_label(*v, false))
+            .light_line_style(WHITE)
+            .draw()
+            .map_err(err)?;
+        let configurations = [
+            (&panel.reference, &panel.reference_marks, REFERENCE_GREY),
+            (&panel.displaced, &panel.displaced_marks, PALETTE[0]),
+        ];
+        for (segments, points, color) in configurations {
             c.draw_series(segments.iter().map(|s| {
                 PathElement::new(vec![s.from, s.to], color.stroke_width(if s.strut { 4 } else { 1 }))
+            }))
+            .map_err(err)?;
+            c.draw_series(points.iter().map(|m| match *m {
+                Mark::Mass(p) => Circle::new(p, 6, color.filled()),
+                Mark::Pulley(p) => Circle::new(p, 5, color.stroke_width(2)),
             }))
             .map_err(err)?;
         }
@@ -293,10 +477,11 @@ fn render_panels<DB: DrawingBackend>(
 
 /// Drawing panels of the first `count` vibrating (non-zero) modes of `modes` at `state`: the
 /// equilibrium in grey and the structure displaced along the mode in colour, at the amplitude
-/// that moves its farthest point by `MODE_DRAWING_AMPLITUDE` of the structure's size. Bars are
-/// drawn between their ends, rigid bodies from their centre to each point, cables along their
-/// routes; a planar scene is drawn in its xy plane, a spatial one in isometric projection
-/// (`x' = (x - y) cos 30deg`, `y' = z + (x + y) sin 30deg`).
+/// that moves its farthest point by `MODE_DRAWING_AMPLITUDE` of the structure's size (recorded
+/// in `StructurePanel::largest_displacement`). Bars are drawn between their ends, rigid bodies
+/// from their centre to each point, cables along their routes, point masses as dots and pulleys
+/// (interior route points) as circles; a planar scene is drawn in its xy plane, a spatial one in
+/// isometric projection (`x' = (x - y) cos 30deg`, `y' = z + (x + y) sin 30deg`), axes in metres.
 pub fn mode_panels(model: &Model, state: &State, modes: &[Mode], count: usize) -> Vec<StructurePanel> {
     use crate::model::BodyKind;
     let project = |p: nalgebra::Vector3<f64>| {
@@ -339,7 +524,27 @@ pub fn mode_panels(model: &Model, state: &State, modes: &[Mode], count: usize) -
         }
         out
     };
+    let marks = |poses: &[crate::model::Pose]| -> Vec<Mark> {
+        let at = positions(poses);
+        let mut out: Vec<Mark> = (0..model.points.len())
+            .filter(|&p| model.bodies[model.points[p].body.0].kind == BodyKind::Node)
+            .map(|p| Mark::Mass(project(at[p])))
+            .collect();
+        for c in 0..model.cables.len() {
+            let route = model.route(CableId(c));
+            for p in &route[1..route.len().saturating_sub(1)] {
+                out.push(Mark::Pulley(project(at[p.0])));
+            }
+        }
+        out
+    };
+    let axes = if model.planar {
+        ("x (m)".to_string(), "y (m)".to_string())
+    } else {
+        ("(x - y) cos 30° (m)".to_string(), "z + (x + y) sin 30° (m)".to_string())
+    };
     let reference = segments(&state.poses);
+    let reference_marks = marks(&state.poses);
     let rest = positions(&state.poses);
     let size = crate::solve::statics::body_size(model)
         .max(rest.iter().flat_map(|a| rest.iter().map(move |b| (a - b).norm())).fold(0.0, f64::max));
@@ -364,6 +569,10 @@ pub fn mode_panels(model: &Model, state: &State, modes: &[Mode], count: usize) -
                 },
                 reference: reference.clone(),
                 displaced: segments(&moved),
+                reference_marks: reference_marks.clone(),
+                displaced_marks: marks(&moved),
+                axes: axes.clone(),
+                largest_displacement: MODE_DRAWING_AMPLITUDE * size,
             }
         })
         .collect()
@@ -374,12 +583,98 @@ pub const MODE_DRAWING_AMPLITUDE: f64 = 0.1;
 
 #[cfg(test)]
 mod tests {
-    use super::tick_label;
+    use super::*;
+
+    #[test]
+    fn ordered_series_get_distinct_colours_and_the_legend_draws_each_entry_as_the_plot() {
+        let mut series: Vec<Series> = (0..8)
+            .map(|k| Series::new(format!("T = {k} s"), vec![(0.0, k as f64), (1.0, 1.0)], false))
+            .collect();
+        series.insert(
+            0,
+            Series { reference: true, ..Series::new("quasi-static", vec![(0.0, 0.0), (1.0, 1.0)], false) },
+        );
+        let chart = Chart {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            log_x: false,
+            log_y: false,
+            series,
+            reference: Some((1.0, "1 %".into())),
+            ordered: true,
+        };
+        let legend = legend_entries(&chart);
+        assert_eq!(legend.len(), 10);
+        assert_eq!(
+            legend[0],
+            ("quasi-static".to_string(), Glyph::Band),
+            "the reference as the grey band it is drawn as"
+        );
+        assert_eq!(legend[9], ("1 %".to_string(), Glyph::ReferenceLine), "the 1 % line dashed, as drawn");
+        let colours: Vec<RGBColor> = legend[1..9]
+            .iter()
+            .map(|(_, g)| match g {
+                Glyph::Line(c, None) => *c,
+                other => panic!("ordered series are solid lines: {other:?}"),
+            })
+            .collect();
+        for (i, a) in colours.iter().enumerate() {
+            assert!(colours[i + 1..].iter().all(|b| b != a), "8 ordered series, 8 colours: {colours:?}");
+        }
+        // the categorical palette repeats dashed past its length
+        let chart = Chart { ordered: false, ..chart };
+        let legend = legend_entries(&chart);
+        assert!(matches!(legend[7].1, Glyph::Dashed(c, None) if c == PALETTE[0]));
+    }
+
+    #[test]
+    fn charts_are_written_with_text_a_paper_column_can_read() {
+        let dir = std::env::temp_dir().join(format!("tensegrity-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let chart = Chart {
+            title: "work-precision".into(),
+            x_label: "wall time (s)".into(),
+            y_label: "max point error (m)".into(),
+            log_x: true,
+            log_y: true,
+            series: vec![Series::new("generalized-alpha", vec![(1e-3, 1e-2), (1e-1, 1e-6)], true)],
+            reference: None,
+            ordered: false,
+        };
+        write(&chart, &dir.join("chart")).unwrap();
+        let svg = std::fs::read_to_string(dir.join("chart.svg")).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
+        let sizes: Vec<f64> = svg
+            .split("font-size=\"")
+            .skip(1)
+            .filter_map(|rest| rest.split('"').next()?.parse().ok())
+            .collect();
+        assert!(!sizes.is_empty());
+        // plotters writes px * 0.8 (points); 20 px and more everywhere
+        assert!(sizes.iter().all(|&s| s >= 16.0), "font sizes {sizes:?}");
+        // decades read as numbers
+        let texts: Vec<&str> = svg
+            .split("<text")
+            .skip(1)
+            .filter_map(|t| t.split('>').nth(1)?.split('<').next())
+            .map(str::trim)
+            .collect();
+        assert!(
+            texts.contains(&"0.01") && texts.contains(&"0.1") && texts.contains(&"1e-6"),
+            "tick labels {texts:?}"
+        );
+    }
 
     #[test]
     fn tick_labels_read_as_numbers() {
-        assert_eq!(tick_label(1e-3, true), "1e-3");
-        assert_eq!(tick_label(1.0000000000000002e-3, true), "1e-3");
+        assert_eq!(tick_label(1e-3, true), "0.001");
+        assert_eq!(tick_label(1.0000000000000002e-3, true), "0.001");
+        assert_eq!(tick_label(0.1, true), "0.1");
+        assert_eq!(tick_label(1.0, true), "1");
+        assert_eq!(tick_label(10.0, true), "10");
+        assert_eq!(tick_label(0.25, true), "0.25");
+        assert_eq!(tick_label(1000.0, true), "1000");
         assert_eq!(tick_label(2.5e4, true), "2.5e4");
         assert_eq!(tick_label(9.999999999999999e-5, true), "1e-4");
         assert_eq!(tick_label(1e-6, true), "1e-6");

@@ -140,6 +140,12 @@ fn mode_shapes_are_drawn_at_a_tenth_of_the_structures_size() {
     let struts = panels[0].reference.iter().filter(|s| s.strut).count();
     assert_eq!(struts, 3, "three bars");
     assert_eq!(panels[0].reference.len(), panels[0].displaced.len());
+    // the clustered ring's pulleys drawn, axes named in metres, the exaggeration known
+    use tensegrity::plot::Mark;
+    let pulleys = panels[0].reference_marks.iter().filter(|m| matches!(m, Mark::Pulley(_))).count();
+    assert_eq!(pulleys, model.route(tensegrity::model::CableId(3)).len() - 2, "the ring's pulleys");
+    assert!(panels[0].axes.0.ends_with("(m)") && panels[0].axes.1.ends_with("(m)"));
+    assert!(panels[0].largest_displacement > 0.0);
     let ends = |p: &tensegrity::plot::StructurePanel| -> Vec<(f64, f64)> {
         p.displaced.iter().flat_map(|s| [s.from, s.to]).collect()
     };
@@ -172,5 +178,6 @@ fn mode_shapes_are_drawn_at_a_tenth_of_the_structures_size() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let svg = std::fs::read_to_string(base.with_extension("svg")).unwrap();
     assert!(svg.contains("mode 1: 1.1603 Hz") && svg.contains("mode 3:"), "panel titles");
+    assert!(svg.contains("farthest point moved") && svg.contains("(m)"), "exaggeration and axes in metres");
     assert!(std::fs::metadata(base.with_extension("png")).unwrap().len() > 1000);
 }

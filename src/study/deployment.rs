@@ -316,18 +316,20 @@ pub fn deployment_study(
                 dev_series(&format!("peak displacement of {point}"), &|r| r.displacement_deviation),
             ],
             reference: Some((1.0, "1 %".into())),
+            ordered: false,
         },
         &out_dir.join("deviation"),
     )?;
     plot::write(
         &Chart {
-            title: format!("{}: largest cable tension during deployment (to 2.5 T)", model.name),
-            x_label: "time / actuation time".into(),
+            title: format!("{}: largest cable tension, one run per actuation time T", model.name),
+            x_label: "time / actuation time T (shown to 2.5)".into(),
             y_label: "largest tension (N)".into(),
             log_x: false,
             log_y: false,
             series: histories,
             reference: None,
+            ordered: true,
         },
         &out_dir.join("histories"),
     )?;

@@ -326,6 +326,7 @@ fn write_work_precision(
             log_y: true,
             series,
             reference: None,
+            ordered: false,
         },
         &out_dir.join("work_precision"),
     )?;

@@ -33,7 +33,11 @@ pub fn run(scene: &Path, json: bool, count: usize, plot: Option<PathBuf>) -> Res
         if panels.is_empty() {
             return Err(format!("{}: no vibrating mode to draw", scene.display()));
         }
-        let title = format!("{}: mode shapes (grey: equilibrium)", model.name);
+        let title = format!(
+            "{}: mode shapes over the equilibrium (grey), exaggerated: farthest point moved {} m",
+            model.name,
+            tensegrity::error::readable_number((panels[0].largest_displacement * 1e4).round() / 1e4)
+        );
         tensegrity::plot::write_structure_panels(&title, &panels, &base)?;
         say!(
             "mode shapes drawn to {} and {}",
