@@ -14,6 +14,8 @@
 //!
 //! Like the DDS tests it first moves itself into a private loopback-only network namespace.
 
+#[path = "../tests/common/cleanup.rs"]
+mod cleanup;
 #[path = "../tests/common/cpu.rs"]
 mod cpu;
 #[path = "../tests/common/netns.rs"]

@@ -20,6 +20,8 @@
 //!
 //! Like the DDS tests it first moves itself into a private loopback-only network namespace.
 
+#[path = "../tests/common/cleanup.rs"]
+mod cleanup;
 #[path = "../tests/common/netns.rs"]
 mod netns;
 #[path = "../tests/common/peer.rs"]

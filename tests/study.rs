@@ -131,12 +131,22 @@ fn study_writes_tables_histories_and_plots() {
     // real log axes: decade ticks labelled in data units, no "log10" in an axis title
     let svg = std::fs::read_to_string(dir.join("deviation.svg")).unwrap();
     assert!(svg.contains("<svg") && !svg.contains("log10"), "axis titles in log10 units");
-    assert!(svg.contains("\n1e-1\n") && svg.contains("\n1e0\n"), "no decade tick labels");
-    // colour-blind-safe palette; the quasi-static reference drawn after (on top of) the runs
+    assert!(svg.contains("\n0.1\n") && svg.contains("\n1\n"), "decade tick labels as numbers");
+    // colour-blind-safe palette for the two deviations
+    assert!(svg.contains("#0072B2") && svg.contains("#D55E00"), "Okabe-Ito palette");
+    // the runs, ordered by actuation time, one colour each (viridis from #440154); the
+    // quasi-static reference is the grey band drawn first, under them
     let svg = std::fs::read_to_string(dir.join("histories.svg")).unwrap();
-    let (blue, black) =
-        (svg.find("#0072B2").expect("Okabe-Ito blue"), svg.rfind("stroke=\"#000000\"").unwrap());
-    assert!(svg.contains("#D55E00") && black > blue, "palette or drawing order");
+    let grey = svg.find("#AFAFAF").expect("the quasi-static band");
+    let first_run = svg.find("#440154").expect("the first run in viridis");
+    assert!(grey < first_run, "the band under the runs");
+    let colours: std::collections::BTreeSet<&str> = svg
+        .split("stroke=\"#")
+        .skip(1)
+        .map(|t| &t[..6])
+        .filter(|c| *c != "000000" && *c != "AFAFAF")
+        .collect();
+    assert!(colours.len() >= 3, "one colour per run: {colours:?}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

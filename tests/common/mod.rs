@@ -5,6 +5,7 @@
 #![allow(dead_code)]
 
 pub mod bags;
+pub mod cleanup;
 pub mod cpu;
 pub mod netns;
 #[cfg(feature = "ros2")]
@@ -149,6 +150,7 @@ ea = {ea}
 pub fn scratch(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("tensegrity-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
+    cleanup::remove_at_exit(&d);
     d
 }
 

@@ -213,5 +213,7 @@ pub fn spawn_role(test: &str, role: &str, env: &[(&str, String)]) -> Child {
 
 /// A file path unique to this process and `what`.
 pub fn scratch_file(what: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("tensegrity-{what}-{}", std::process::id()))
+    let path = std::env::temp_dir().join(format!("tensegrity-{what}-{}", std::process::id()));
+    super::cleanup::remove_at_exit(&path);
+    path
 }
