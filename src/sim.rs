@@ -221,6 +221,12 @@ pub struct Simulator {
     /// the step diverges (`StepError::Diverged`), and the energy scale that tells it
     /// (`divergence_scale`). `None` for every other integrator and setting, which pay nothing.
     guard: Option<(State, EnergyAccount, f64)>,
+    /// Generalized-alpha at a fixed step: the state before the sub-step under way and the energy
+    /// scale; a sub-step that makes up more than `DIVERGENCE_FACTOR` times the scale is undone
+    /// and retried in halves (a tension-only cable snapping taut and slack faster than the step
+    /// can pump energy into the run, where the linear analysis promises stability). `None`
+    /// otherwise.
+    implicit_guard: Option<(State, EnergyAccount, f64)>,
 }
 
 impl Simulator {
@@ -313,6 +319,7 @@ impl Simulator {
             next_h: settings.dt * INITIAL_STEP_FRACTION,
             mean_h: settings.dt,
             guard: None,
+            implicit_guard: None,
         }
         .with_divergence_guard())
     }
@@ -423,6 +430,10 @@ impl Simulator {
             } else {
                 h
             };
+            if let Some((before, energy, _)) = &mut self.implicit_guard {
+                before.copy_from(&self.state);
+                *energy = self.energy;
+            }
             self.rest_now.copy_from_slice(&self.state.rest_lengths);
             self.control.advance(&self.model, self.state.time, h_try, &self.rest_now, &mut self.rest_next);
             Control::rates(&self.model, &self.rest_now, &self.rest_next, h_try, &mut self.rest_rate);
@@ -473,6 +484,42 @@ impl Simulator {
                     let (p_act1, p_loss1) = cable_powers(&self.model, &self.ws, &self.rest_rate);
                     self.energy.actuator_work += 0.5 * h_try * (p_act0 + p_act1);
                     self.energy.damping_loss += 0.5 * h_try * (p_loss0 + p_loss1);
+                    if let Some((before, energy_before, scale)) = &self.implicit_guard {
+                        let e = self.ws.energies;
+                        let now = EnergyAccount {
+                            kinetic: e.kinetic,
+                            elastic: e.elastic,
+                            gravitational: e.gravitational,
+                            ..self.energy
+                        };
+                        // what the run holds beyond its start and all the actuators' work: the
+                        // dampers' loss is left out, as a diverging run's dampers book a loss
+                        // as wild as its motion and would hide the gain
+                        let gain = now.total() - now.initial_total - now.actuator_work.abs();
+                        let scale = scale + now.actuator_work.abs();
+                        if gain.is_nan() || gain > IMPLICIT_GAIN_FACTOR * scale {
+                            // undo the sub-step and retry it in halves, from consistent
+                            // accelerations at the restored state
+                            self.state.copy_from(before);
+                            self.energy = *energy_before;
+                            evaluate_forces(&self.model, &self.state, &mut self.ws);
+                            if !self.dynamics.initialize(&self.model, &mut self.state) {
+                                return Err(StepError::Initialization);
+                            }
+                            stats.rejected += 1;
+                            stats.newton_iterations += a.iterations;
+                            h = 0.5 * h_try;
+                            if h < self.settings.min_dt {
+                                return Err(StepError::Diverged {
+                                    integrator: self.settings.integrator.name(),
+                                    time: self.state.time,
+                                    gain,
+                                    scale,
+                                });
+                            }
+                            continue;
+                        }
+                    }
                     stats.newton_iterations += a.iterations;
                     stats.factorizations += a.factorizations;
                     stats.evaluations += a.evaluations;
@@ -558,21 +605,34 @@ impl Simulator {
         Ok(stats)
     }
 
-    /// Arms the divergence guard of an explicit integrator at a fixed step (`guard`): the energy
+    /// Arms the divergence guard of an integrator at a fixed step (`guard` for an explicit one,
+    /// which stops the run; `implicit_guard` for generalized-alpha, which retries the sub-step in
+    /// halves): the energy
     /// scale is the kinetic and elastic energy at the start plus the potential energy the
     /// structure's weight releases over its own size (`sum_b m_b |g| L`, `L` the largest body
     /// size or cable length), J.
     fn with_divergence_guard(mut self) -> Self {
-        if self.settings.integrator.is_explicit() && self.settings.tolerance.is_none() {
+        if self.settings.tolerance.is_none() {
             let size = crate::solve::statics::body_size(&self.model)
                 .max(self.ws.cables.iter().map(|c| c.length).fold(0.0, f64::max));
             let weight: f64 = self.model.bodies.iter().map(|b| b.mass * self.model.gravity.norm()).sum();
             let scale = self.energy.kinetic + self.energy.elastic + weight * size;
-            self.guard = Some((self.state.clone(), self.energy, scale.max(1e-9)));
+            let armed = Some((self.state.clone(), self.energy, scale.max(1e-9)));
+            if self.settings.integrator.is_explicit() {
+                self.guard = armed;
+            } else {
+                self.implicit_guard = armed;
+            }
         }
         self
     }
 }
+
+/// A generalized-alpha sub-step at a fixed step is undone and retried in halves when the energy
+/// the run holds exceeds its start and the actuators' work by this many times its energy scale
+/// (`Simulator::with_divergence_guard`): the method dissipates, so a run that gains that much is
+/// being pumped by cables snapping taut and slack within a step, not moving.
+pub const IMPLICIT_GAIN_FACTOR: f64 = 1.0;
 
 /// An explicit run stops (`StepError::Diverged`) when the energy it made up exceeds this many
 /// times its energy scale (`Simulator::with_divergence_guard`, plus the actuator work and damping
