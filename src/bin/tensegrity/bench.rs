@@ -206,7 +206,8 @@ fn work_precision(
         [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
             .map(|t| study::RunConfig::controlled(Integrator::DormandPrince, t)),
     );
-    configs.extend([1e-3, 1e-4, 1e-5, 1e-6].map(|t| study::RunConfig::controlled(ga, t)));
+    // requested against delivered from 1e-3 down to 1e-9 m, for both error-controlled integrators
+    configs.extend([1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9].map(|t| study::RunConfig::controlled(ga, t)));
     let settings = study::WorkPrecisionSettings { reference_dt, duration, sample, repeats, jobs };
     let rows = study::work_precision(&model, &configs, settings, out)?;
     emit(&std::fs::read_to_string(out.join("work_precision.md")).map_err(|e| e.to_string())?);
