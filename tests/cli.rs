@@ -146,6 +146,17 @@ fn out_of_range_steps_and_durations_are_refused_in_the_numbers_a_person_writes()
         let err = deploy(flag, value);
         assert!(err.contains(says) && !err.contains("tip:"), "{flag} {value}: {err}");
     }
+    // the equilibrium start is a dynamic run's option (a quasi-static path starts there anyway)
+    let out = tensegrity(&[
+        "deploy",
+        "config/scenes/prism3.toml",
+        "--quasi-static",
+        "--from-equilibrium",
+        "--out",
+        "-",
+    ]);
+    assert!(!out.status.success() && out.stdout.is_empty());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cannot be used with '--from-equilibrium'"));
 }
 
 #[test]

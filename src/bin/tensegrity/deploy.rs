@@ -17,30 +17,54 @@ use tensegrity::{Model, State};
 
 use crate::output::*;
 
-/// The options of `deploy` (see `Command::Deploy`).
+/// The options of `deploy` (`Command::Deploy`).
+#[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("mode").required(true).args(["quasi_static", "dynamic"])))]
 pub struct DeployArgs {
-    /// Scene file.
-    pub scene: PathBuf,
-    /// `--dynamic` (else quasi-static).
-    pub dynamic: bool,
-    /// `--steps`.
-    pub steps: Option<usize>,
-    /// The integrator options.
-    pub dynamics: DynamicArgs,
-    /// `--duration`.
-    pub duration: Option<f64>,
-    /// `--from-equilibrium`.
-    pub from_equilibrium: bool,
-    /// `--out`.
-    pub out: Option<PathBuf>,
-    /// `--record`.
-    pub record: Option<PathBuf>,
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Quasi-static deployment: a path of equilibria (load stepping).
+    #[arg(long)]
+    quasi_static: bool,
+    /// Dynamic deployment: implicit or explicit time integration.
+    #[arg(long)]
+    dynamic: bool,
+    /// Number of load steps (quasi-static; default: the scene's `deployment.steps`).
+    #[arg(long)]
+    steps: Option<usize>,
+    #[command(flatten)]
+    dynamics: DynamicArgs,
+    /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
+    #[arg(long, allow_hyphen_values = true)]
+    duration: Option<f64>,
+    /// Dynamic: start at rest in the static equilibrium at t = 0 (where a quasi-static
+    /// deployment starts). Without it the run starts from the scene's pose as written, at
+    /// rest, and first swings toward the equilibrium.
+    #[arg(long, conflicts_with = "quasi_static")]
+    from_equilibrium: bool,
+    /// Output CSV file (`-`: standard output).
+    #[arg(long, required_unless_present = "record")]
+    out: Option<PathBuf>,
+    /// Also record a rosbag2 bag (MCAP) into this new directory: the topics the node
+    /// publishes, the run record for `tensegrity replay`.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
 }
 
 /// Runs `deploy`.
 pub fn run(args: DeployArgs) -> Result<(), String> {
-    let DeployArgs { scene, dynamic, steps, dynamics, duration, from_equilibrium, out, record: bag_dir } =
-        args;
+    // --quasi-static is the mode without --dynamic (the group requires one of them)
+    let DeployArgs {
+        scene,
+        quasi_static: _,
+        dynamic,
+        steps,
+        dynamics,
+        duration,
+        from_equilibrium,
+        out,
+        record: bag_dir,
+    } = args;
     let mut model = load(&scene)?;
     let out = out.unwrap_or_default();
     if dynamic {

@@ -65,37 +65,7 @@ enum Command {
     },
     /// Follow the scene's deployment schedule: a path of equilibria (--quasi-static, one CSV row per
     /// load step) or a time history (--dynamic, one CSV row per step).
-    #[command(group(clap::ArgGroup::new("mode").required(true).args(["quasi_static", "dynamic"])))]
-    Deploy {
-        /// Scene file (TOML).
-        scene: PathBuf,
-        /// Quasi-static deployment: a path of equilibria (load stepping).
-        #[arg(long)]
-        quasi_static: bool,
-        /// Dynamic deployment: implicit or explicit time integration.
-        #[arg(long)]
-        dynamic: bool,
-        /// Number of load steps (quasi-static; default: the scene's `deployment.steps`).
-        #[arg(long)]
-        steps: Option<usize>,
-        #[command(flatten)]
-        dynamics: DynamicArgs,
-        /// Simulated time, s (dynamic; default: the schedule's end + 1 s).
-        #[arg(long, allow_hyphen_values = true)]
-        duration: Option<f64>,
-        /// Dynamic: start at rest in the static equilibrium at t = 0 (where a quasi-static
-        /// deployment starts). Without it the run starts from the scene's pose as written, at
-        /// rest, and first swings toward the equilibrium.
-        #[arg(long, requires = "dynamic")]
-        from_equilibrium: bool,
-        /// Output CSV file (`-`: standard output).
-        #[arg(long, required_unless_present = "record")]
-        out: Option<PathBuf>,
-        /// Also record a rosbag2 bag (MCAP) into this new directory: the topics the node
-        /// publishes, the run record for `tensegrity replay`.
-        #[arg(long, value_name = "DIR")]
-        record: Option<PathBuf>,
-    },
+    Deploy(deploy::DeployArgs),
     /// Run a recorded bag again (its scene, settings and applied commands at their recorded
     /// steps) and compare every recorded message bit for bit: prints "identical" or the first
     /// difference (exit status 1).
@@ -173,26 +143,7 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Check { scene } => check::run(&scene),
         Command::Statics { scene, json } => statics::run(&scene, json),
         Command::Modes { scene, json, count, plot } => modes::run(&scene, json, count, plot),
-        Command::Deploy {
-            scene,
-            quasi_static: _,
-            dynamic,
-            steps,
-            dynamics,
-            duration,
-            from_equilibrium,
-            out,
-            record,
-        } => deploy::run(deploy::DeployArgs {
-            scene,
-            dynamic,
-            steps,
-            dynamics,
-            duration,
-            from_equilibrium,
-            out,
-            record,
-        }),
+        Command::Deploy(args) => deploy::run(args),
         Command::Replay { bag, scene, out } => bag::replay(&bag, scene.as_deref(), out.as_deref()),
         Command::Bag { kind } => bag::run(kind),
         Command::Study { scene, ramp_times, point, settle, dynamics, jobs, out } => {
