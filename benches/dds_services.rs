@@ -22,6 +22,8 @@ mod cpu;
 mod netns;
 #[path = "../tests/common/peer.rs"]
 mod peer;
+#[path = "../tests/common/python.rs"]
+mod python;
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -66,42 +68,11 @@ fn stop_node(mut child: Child) {
     }
 }
 
-/// Sends `req` and spins (yielding) until its response: the client adds no wait of its own.
-fn call<Req, Resp>(client: &Client<Req, Resp>, req: Req) -> Resp
-where
-    Req: ros2_client::Message + Clone + 'static,
-    Resp: ros2_client::Message + 'static,
-{
-    let id = client.send_request(req).unwrap();
-    let start = Instant::now();
-    loop {
-        match client.receive_response() {
-            Ok(Some((rid, r))) if rid == id => return r,
-            _ if start.elapsed() > WAIT => panic!("no response within {WAIT:?}"),
-            _ => std::thread::yield_now(),
-        }
-    }
-}
-
-/// A Python with the `cyclonedds` module, if any.
-fn python() -> Option<String> {
-    let candidates = [
-        std::env::var("TENSEGRITY_PYTHON").ok(),
-        Some(format!("{}/target/pyenv/bin/python", env!("CARGO_MANIFEST_DIR"))),
-    ];
-    candidates.into_iter().flatten().find(|p| {
-        Command::new(p)
-            .args(["-c", "import cyclonedds"])
-            .output()
-            .map(|o| o.status.success())
-            .unwrap_or(false)
-    })
-}
-
 /// Runs the Cyclone DDS client (`what`: services or commands) and returns its `name p50 p99 n`
 /// lines, or why not.
 fn cyclone(what: &str, n: usize) -> Result<Vec<(String, f64, f64, usize)>, String> {
-    let py = python().ok_or("no Python with cyclonedds (bash .ci/test makes target/pyenv)")?;
+    let py = python::bench_python_with("cyclonedds")
+        .ok_or("no Python with cyclonedds (bash .ci/test makes target/pyenv)")?;
     let script = format!("{}/benches/dds_services_cyclone.py", env!("CARGO_MANIFEST_DIR"));
     let out = Command::new(py)
         .args([script.as_str(), what, &DOMAIN.to_string(), peer::NS, &n.to_string()])
@@ -154,16 +125,19 @@ fn main() {
     peer::wait_for(WAIT, || peer::call(&get, msg::Empty::default(), Duration::from_millis(200)))
         .expect("the node's services answer");
     for _ in 0..20 {
-        call(&step, msg::StepSimulationRequest { steps: 1 });
-        call(&get, msg::Empty::default());
+        peer::call_spinning(&step, msg::StepSimulationRequest { steps: 1 }, WAIT);
+        peer::call_spinning(&get, msg::Empty::default(), WAIT);
     }
     let (mut t_step, mut t_get) = (Vec::new(), Vec::new());
     for _ in 0..n {
         let s = Instant::now();
-        assert_eq!(call(&step, msg::StepSimulationRequest { steps: 1 }).result.result, 1);
+        assert_eq!(
+            peer::call_spinning(&step, msg::StepSimulationRequest { steps: 1 }, WAIT).result.result,
+            1
+        );
         t_step.push(s.elapsed().as_secs_f64() * 1e6);
         let s = Instant::now();
-        assert_eq!(call(&get, msg::Empty::default()).result.result, 1);
+        assert_eq!(peer::call_spinning(&get, msg::Empty::default(), WAIT).result.result, 1);
         t_get.push(s.elapsed().as_secs_f64() * 1e6);
     }
     row("StepSimulation(1), paused", "ros2-client (RustDDS)", q(&t_step, 0.5), q(&t_step, 0.99), n);

@@ -119,18 +119,20 @@ def services(participant, namespace, n):
         step.call(5, steps=1)
         get.call(5, structure_needs_at_least_one_member=0)
     t_step, t_get = [], []
+
+    def timed(service, times, name, **fields):
+        """One call's round trip into `times`, us; False (after saying so) unless it succeeded."""
+        s = time.perf_counter()
+        r = service.call(5, **fields)
+        times.append((time.perf_counter() - s) * 1e6)
+        if r is None or r.result != 1:
+            print(f"FAIL {name} answered {r}", flush=True)
+            return False
+        return True
+
     for _ in range(n):
-        s = time.perf_counter()
-        r = step.call(5, steps=1)
-        t_step.append((time.perf_counter() - s) * 1e6)
-        if r is None or r.result != 1:
-            print(f"FAIL StepSimulation answered {r}", flush=True)
-            return 1
-        s = time.perf_counter()
-        r = get.call(5, structure_needs_at_least_one_member=0)
-        t_get.append((time.perf_counter() - s) * 1e6)
-        if r is None or r.result != 1:
-            print(f"FAIL GetSimulationState answered {r}", flush=True)
+        if not (timed(step, t_step, "StepSimulation", steps=1)
+                and timed(get, t_get, "GetSimulationState", structure_needs_at_least_one_member=0)):
             return 1
     quantiles("cyclone_step_simulation", t_step)
     quantiles("cyclone_get_simulation_state", t_get)

@@ -26,6 +26,8 @@ mod cleanup;
 mod netns;
 #[path = "../tests/common/peer.rs"]
 mod peer;
+#[path = "../tests/common/python.rs"]
+mod python;
 #[path = "../tests/common/running_node.rs"]
 mod running_node;
 
@@ -273,17 +275,6 @@ fn rust_lockstep(prefix: &str, n: usize) -> (Vec<f64>, f64) {
     (sorted(t), n as f64 / start.elapsed().as_secs_f64())
 }
 
-/// A Python with the iceoryx2 module, if any.
-fn python() -> Option<String> {
-    let candidates = [
-        std::env::var("TENSEGRITY_PYTHON").ok(),
-        Some(format!("{}/target/pyenv/bin/python", env!("CARGO_MANIFEST_DIR"))),
-    ];
-    candidates.into_iter().flatten().find(|p| {
-        Command::new(p).args(["-c", "import iceoryx2"]).output().map(|o| o.status.success()).unwrap_or(false)
-    })
-}
-
 /// Part 2 for one scene: Rust shm (shm only; dds,shm), Python shm, DDS StepSimulation.
 fn lockstep_table(name: &str, n: usize, dds_n: usize, domain: u16) {
     let model = scene(name);
@@ -304,7 +295,7 @@ fn lockstep_table(name: &str, n: usize, dds_n: usize, domain: u16) {
     );
     let (rt, per_s) = rust_lockstep(&prefix, n);
     row(label, "Rust", "shm", &rt, per_s, step);
-    if let Some(py) = python() {
+    if let Some(py) = python::bench_python_with("iceoryx2") {
         let script = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/interop/shm_client.py");
         let out = Command::new(py)
             .arg(script)
@@ -353,18 +344,7 @@ fn lockstep_table(name: &str, n: usize, dds_n: usize, domain: u16) {
         )
         .unwrap();
     std::thread::sleep(Duration::from_millis(1500)); // discovery of the service pair
-                                                     // polls without sleeping (peer::call sleeps 1 ms between polls, which would time the sleep)
-    let call = || {
-        let id = step_client.send_request(msg::StepSimulationRequest { steps: 1 }).unwrap();
-        let start = Instant::now();
-        loop {
-            match step_client.receive_response() {
-                Ok(Some((rid, r))) if rid == id => break r,
-                _ if start.elapsed() > WAIT => panic!("StepSimulation did not answer"),
-                _ => std::thread::yield_now(),
-            }
-        }
-    };
+    let call = || peer::call_spinning(&step_client, msg::StepSimulationRequest { steps: 1 }, WAIT);
     for _ in 0..20 {
         call();
     }

@@ -172,13 +172,15 @@ enum Glyph {
     ReferenceLine,
 }
 
-/// The colour of non-reference series `i` of `n`, and whether it is dashed (the categorical
-/// palette repeating).
-fn series_style(chart: &Chart, i: usize, n: usize) -> (RGBColor, bool) {
+/// The colour of non-reference series `i` of `n`, whether it is dashed (the categorical palette
+/// repeating), and whether its markers are circles (else triangles, alternating): one rule for
+/// the plot and its legend.
+fn series_style(chart: &Chart, i: usize, n: usize) -> (RGBColor, bool, bool) {
+    let round = i % 2 == 0;
     if chart.ordered {
-        (sequential_colour(i, n), false)
+        (sequential_colour(i, n), false, round)
     } else {
-        (PALETTE[i % PALETTE.len()], (i / PALETTE.len()) % 2 == 1)
+        (PALETTE[i % PALETTE.len()], (i / PALETTE.len()) % 2 == 1, round)
     }
 }
 
@@ -188,8 +190,8 @@ fn legend_entries(chart: &Chart) -> Vec<(String, Glyph)> {
         chart.series.iter().filter(|s| s.reference).map(|s| (s.name.clone(), Glyph::Band)).collect();
     let n = chart.series.iter().filter(|s| !s.reference).count();
     for (i, s) in chart.series.iter().filter(|s| !s.reference).enumerate() {
-        let (color, dashed) = series_style(chart, i, n);
-        let marker = s.markers.then_some(i % 2 == 0);
+        let (color, dashed, round) = series_style(chart, i, n);
+        let marker = s.markers.then_some(round);
         out.push((
             s.name.clone(),
             if dashed { Glyph::Dashed(color, marker) } else { Glyph::Line(color, marker) },
@@ -312,7 +314,7 @@ where
     }
     let n = chart.series.iter().filter(|s| !s.reference).count();
     for (i, s) in chart.series.iter().filter(|s| !s.reference).enumerate() {
-        let (color, dashed) = series_style(chart, i, n);
+        let (color, dashed, round) = series_style(chart, i, n);
         let data: Vec<(f64, f64)> = s.points.iter().copied().filter(drawable).collect();
         if dashed {
             c.draw_series(DashedLineSeries::new(data.clone(), 8, 6, color.stroke_width(3))).map_err(err)?;
@@ -320,7 +322,7 @@ where
             c.draw_series(LineSeries::new(data.clone(), color.stroke_width(3))).map_err(err)?;
         }
         if s.markers {
-            if i % 2 == 0 {
+            if round {
                 c.draw_series(data.iter().map(|&p| Circle::new(p, 5, color.filled()))).map_err(err)?;
             } else {
                 c.draw_series(data.iter().map(|&p| TriangleMarker::new(p, 6, color.filled())))

@@ -222,7 +222,7 @@ pub struct Simulator {
     /// (`divergence_scale`). `None` for every other integrator and setting, which pay nothing.
     guard: Option<(State, EnergyAccount, f64)>,
     /// Generalized-alpha at a fixed step: the state before the sub-step under way and the energy
-    /// scale; a sub-step that makes up more than `DIVERGENCE_FACTOR` times the scale is undone
+    /// scale; a sub-step that makes up more than `IMPLICIT_GAIN_FACTOR` times the scale is undone
     /// and retried in halves (a tension-only cable snapping taut and slack faster than the step
     /// can pump energy into the run, where the linear analysis promises stability). `None`
     /// otherwise.

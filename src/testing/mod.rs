@@ -39,7 +39,7 @@
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, Sender};
-use std::sync::{Arc, Condvar, Mutex, OnceLock};
+use std::sync::{Arc, Condvar, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -210,7 +210,7 @@ impl SimBuilder {
                 .spawn(move || run_node(model, params, kit, &stop, &shared, started))
                 .map_err(|e| KitError::Transport(format!("node thread: {e}")))?
         };
-        let sim = SimUnderTest {
+        let mut sim = SimUnderTest {
             requests,
             shared,
             stop,
@@ -218,15 +218,11 @@ impl SimBuilder {
             params,
             names,
             timeout: self.timeout,
-            waker: Arc::new(OnceLock::new()),
+            waker: None,
             _lease: lease,
         };
         match start_result.recv_timeout(self.timeout) {
-            Ok(Ok(waker)) => {
-                if let Some(w) = waker {
-                    let _ = sim.waker.set(w);
-                }
-            }
+            Ok(Ok(waker)) => sim.waker = waker,
             Ok(Err(e)) => return Err(e),
             Err(_) => return Err(KitError::Timeout(self.timeout, "the node to start".into())),
         }
@@ -293,7 +289,7 @@ pub struct SimUnderTest {
     timeout: Duration,
     /// Wakes the node's loop after each request (`SimNode::waker`; empty if it has none, and
     /// then it looks every `POLL_SLICE`).
-    waker: Arc<OnceLock<Arc<Waker>>>,
+    waker: Option<Arc<Waker>>,
     _lease: Option<DomainLease>,
 }
 
@@ -446,7 +442,7 @@ impl SimUnderTest {
 
     /// Wakes the node's loop (after a request, or to stop).
     fn wake(&self) {
-        if let Some(w) = self.waker.get() {
+        if let Some(w) = &self.waker {
             // a failed wake leaves the loop to look at its next due turn
             let _ = w.wake();
         }

@@ -344,9 +344,9 @@ impl Transport for ShmTransport {
 
     /// Registers the node's event listener (a datagram socket) for the loop's readiness poll.
     fn register_wake(&mut self, registry: &mio::Registry, token: mio::Token) -> std::io::Result<bool> {
-        // SAFETY: the descriptor stays open as long as `self.wake`, which outlives the loop's
-        // poll (the poll is dropped when `SimNode::run` returns); a closed descriptor leaves
-        // epoll by itself
+        // SAFETY: the descriptor stays open as long as `self.wake`; the poll it joins belongs to
+        // the same `SimNode` and is only waited on while this transport lives, and a closed
+        // descriptor leaves epoll by itself
         #[allow(unsafe_code)]
         let fd = unsafe { self.wake.file_descriptor().native_handle() };
         registry.register(&mut mio::unix::SourceFd(&fd), token, mio::Interest::READABLE)?;
