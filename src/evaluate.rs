@@ -9,6 +9,7 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
 use crate::constraints;
 use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableResponse, CableScratch};
+use crate::forces::contact::{add_contact_force, add_contact_tangents, ContactResponse};
 use crate::kinematics::{point_kinematics, PointKinematics};
 use crate::model::{BodyId, CableId, Model, PointId};
 use crate::state::State;
@@ -27,7 +28,7 @@ pub enum Tangents {
 /// Energies of a configuration, J.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Energies {
-    /// Elastic energy stored in taut cables.
+    /// Elastic energy stored in taut cables and in contacts pressed into a ground.
     pub elastic: f64,
     /// Gravitational potential `-sum_b m_b g . x_b`.
     pub gravitational: f64,
@@ -52,6 +53,10 @@ pub struct Workspace {
     pub constraint_jacobian: DMatrix<f64>,
     /// Every cable's response, parallel to `Model::cables`.
     pub cables: Vec<CableResponse>,
+    /// Every contact pair's response (`Model::contact_pairs`: pair `s * grounds + g`).
+    pub contacts: Vec<ContactResponse>,
+    /// Power dissipated by all contacts (normal damping and friction), W.
+    pub contact_loss_power: f64,
     /// Segment lengths of all cables, concatenated (cable `c` starts at `route_start - c`).
     pub segment_lengths: Vec<f64>,
     /// Energies of the evaluated state (kinetic included).
@@ -85,6 +90,8 @@ impl Workspace {
             constraint: DVector::zeros(model.constraint_count),
             constraint_jacobian: DMatrix::zeros(if dense { model.constraint_count } else { 0 }, n),
             cables: vec![CableResponse::default(); model.cables.len()],
+            contacts: vec![ContactResponse::default(); model.contact_pairs()],
+            contact_loss_power: 0.0,
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
             scratch: CableScratch::new(max_route),
@@ -131,7 +138,7 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
             stiffness: &mut ws.stiffness,
             damping: if want_c { Some(&mut ws.damping) } else { None },
         };
-        add_tangents(model, state, &ws.points, &ws.cables, &mut ws.scratch, &mut sink);
+        add_tangents(model, state, &ws.points, &ws.cables, &ws.contacts, &mut ws.scratch, &mut sink);
     }
     constraints::evaluate_jacobian(model, &ws.points, &mut ws.constraint_jacobian);
 }
@@ -179,20 +186,50 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
         ws.segment_lengths[start..start + m].copy_from_slice(&ws.scratch.segment_lengths[..m]);
     }
 
+    // contacts: every sphere against every ground
+    let mut loss = 0.0;
+    for (s, sphere) in model.contact_spheres.iter().enumerate() {
+        for (g, ground) in model.grounds.iter().enumerate() {
+            let response =
+                add_contact_force(model, ground, sphere, &ws.points[sphere.point.0], &mut ws.force);
+            elastic += response.energy;
+            loss += response.loss_power;
+            ws.contacts[s * model.grounds.len() + g] = response;
+        }
+    }
+    ws.contact_loss_power = loss;
+
     constraints::evaluate_values(model, &ws.points, &mut ws.constraint);
     ws.energies = Energies { elastic, gravitational, kinetic: kinetic_energy(model, v) };
 }
 
-/// Adds the cables' tangent stiffness and damping at `state` into `sink`, using the point
-/// kinematics `points` and cable responses `cables` that `evaluate_forces` left for this state.
+/// Adds the cables' and contacts' tangent stiffness and damping at `state` into `sink`, using the
+/// point kinematics `points` and cable responses `cables` that `evaluate_forces` left for this
+/// state (and the contact responses `contacts`, one per `Model::contact_pairs`).
 pub fn add_tangents<S: TangentSink + ?Sized>(
     model: &Model,
     state: &State,
     points: &[PointKinematics],
     cables: &[CableResponse],
+    contacts: &[ContactResponse],
     scratch: &mut CableScratch,
     sink: &mut S,
 ) {
+    for (s, sphere) in model.contact_spheres.iter().enumerate() {
+        for (g, ground) in model.grounds.iter().enumerate() {
+            let response = &contacts[s * model.grounds.len() + g];
+            add_contact_tangents(
+                model,
+                &state.poses,
+                &state.velocities,
+                ground,
+                sphere,
+                &points[sphere.point.0],
+                response,
+                sink,
+            );
+        }
+    }
     for (c, cable) in model.cables.iter().enumerate() {
         let t = cables[c].tension;
         if t <= 0.0 {

@@ -1,6 +1,7 @@
 //! Per-cable and per-body outputs of an evaluated state: takes `Model`, `State` and the evaluated
 //! `Workspace`, gives `CableReport` (tension, length, rest length, strain, slack flag, segment
-//! lengths, pulley slip) and body poses, plus the JSON/CSV writers the CLI uses.
+//! lengths, pulley slip), `ContactReport` (per contact sphere and ground: in contact, gap,
+//! forces, slip) and body poses, plus the JSON/CSV writers the CLI uses.
 
 use serde::Serialize;
 
@@ -30,6 +31,74 @@ pub struct CableReport {
     /// `s_i = L0 sum_(k<=i) l_k / L`; slip is the change of `s_i` (the cable is taken as reeled at
     /// its last anchor).
     pub pulley_slip: Vec<f64>,
+}
+
+/// What one contact sphere is doing against one ground, for output.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ContactReport {
+    /// The sphere's centre point (`body.point`, or `body` for a node).
+    pub point: String,
+    /// The ground's name.
+    pub ground: String,
+    /// True while the sphere presses into the ground.
+    pub in_contact: bool,
+    /// Signed distance of the sphere's surface from the ground, m (negative: pressed in).
+    pub gap_m: f64,
+    /// Contact point: the sphere's centre projected on the ground, m.
+    pub position_m: [f64; 3],
+    /// The ground's outward normal.
+    pub normal: [f64; 3],
+    /// Normal force on the body, N (>= 0).
+    pub normal_force_n: f64,
+    /// Friction force on the body, N, world frame.
+    pub friction_n: [f64; 3],
+    /// Slip speed of the sphere's centre along the ground, m/s.
+    pub slip_speed_m_s: f64,
+}
+
+/// Every contact pair of `model` (sphere-major, `Model::contact_pairs`) from the evaluated `ws`.
+pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
+    let mut out = Vec::with_capacity(model.contact_pairs());
+    for (s, sphere) in model.contact_spheres.iter().enumerate() {
+        for (g, ground) in model.grounds.iter().enumerate() {
+            let c = &ws.contacts[s * model.grounds.len() + g];
+            out.push(ContactReport {
+                point: model.points[sphere.point.0].name.clone(),
+                ground: ground.name.clone(),
+                in_contact: c.in_contact(),
+                gap_m: c.gap,
+                position_m: c.position.into(),
+                normal: ground.normal.into(),
+                normal_force_n: c.normal_force,
+                friction_n: c.friction.into(),
+                slip_speed_m_s: c.slip.norm(),
+            });
+        }
+    }
+    out
+}
+
+/// Column names of the contact pairs in a CSV: per pair `{point}@{ground}_normal_force_N`,
+/// `_friction_N` (magnitude) and `_slip_m_s` (slip speed); none without contacts.
+pub fn contact_csv_columns(model: &Model) -> Vec<String> {
+    let mut cols = Vec::new();
+    for sphere in &model.contact_spheres {
+        for ground in &model.grounds {
+            let pair = format!("{}@{}", model.points[sphere.point.0].name, ground.name);
+            for what in ["normal_force_N", "friction_N", "slip_m_s"] {
+                cols.push(format!("{pair}_{what}"));
+            }
+        }
+    }
+    cols
+}
+
+/// Appends the contact columns of `contact_csv_columns` to a CSV row.
+pub fn push_contact_csv(ws: &Workspace, row: &mut String) {
+    use std::fmt::Write;
+    for c in &ws.contacts {
+        let _ = write!(row, ",{:.9e},{:.9e},{:.9e}", c.normal_force, c.friction.norm(), c.slip.norm());
+    }
 }
 
 /// Displays a number as `f64` does (honouring width, alignment, precision and `+`), except that a
@@ -153,6 +222,7 @@ pub fn path_csv_header(model: &Model) -> String {
             cols.push(format!("{}_{ax}_m", p.name));
         }
     }
+    cols.extend(contact_csv_columns(model));
     cols.join(",")
 }
 
@@ -184,6 +254,7 @@ pub fn path_csv_row(
     for k in &ws.points {
         let _ = write!(row, ",{:.12},{:.12},{:.12}", Num(k.position.x), Num(k.position.y), Num(k.position.z));
     }
+    push_contact_csv(ws, &mut row);
     row
 }
 
@@ -210,6 +281,10 @@ pub struct ModelSummary {
     pub ramps: usize,
     /// Planar scene.
     pub planar: bool,
+    /// Half-space grounds.
+    pub grounds: usize,
+    /// Contact spheres on bodies (a bar's capsule counts two).
+    pub contact_spheres: usize,
 }
 
 /// Summary of `model`.
@@ -227,6 +302,8 @@ pub fn summary(model: &Model) -> ModelSummary {
         actuators: model.actuators.len(),
         ramps: model.schedule.ramps.len(),
         planar: model.planar,
+        grounds: model.grounds.len(),
+        contact_spheres: model.contact_spheres.len(),
     }
 }
 

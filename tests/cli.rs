@@ -27,6 +27,7 @@ fn bundled_scenes_match_their_generators() {
         ("tbar.toml", generate::tbar(&Default::default())),
         ("tower.toml", generate::tower(&Default::default())),
         ("atwood.toml", generate::atwood(&Default::default())),
+        ("sixbar.toml", generate::sixbar(&Default::default())),
     ];
     for (file, spec) in cases {
         let text = std::fs::read_to_string(root().join("config/scenes").join(file)).unwrap();

@@ -161,6 +161,48 @@ impl CableModel {
     }
 }
 
+/// The contact law of a ground (`crate::forces::contact`): a compliant normal force with
+/// Hunt-Crossley damping and regularized Coulomb friction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactMaterial {
+    /// Penalty stiffness `k`, N/m: a sphere pressed `delta` into the ground feels `k delta`.
+    pub stiffness: f64,
+    /// Hunt-Crossley dissipation `alpha`, s/m: the normal force is `k delta (1 + alpha
+    /// delta_dot)`, so the loss per impact grows with the impact speed and the force is
+    /// continuous at touchdown (restitution `e ~ 1 - (2/3) alpha v_in` for small `alpha v_in`).
+    pub dissipation: f64,
+    /// Coulomb friction coefficient `mu` (>= 0; 0: frictionless).
+    pub friction: f64,
+    /// Regularization speed `v_s` of the friction law, m/s (> 0): the friction force is
+    /// `-mu F_n u / sqrt(|u|^2 + v_s^2)` for the slip velocity `u`, so a load at a fraction `r`
+    /// of the friction limit creeps at `v_s r / sqrt(1 - r^2)`.
+    pub stiction_speed: f64,
+}
+
+/// A half-space the bodies' contact spheres cannot enter: the free side is `n . x >= offset`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroundModel {
+    /// Name from the scene (default `ground`, `ground1`, ...).
+    pub name: String,
+    /// Unit outward normal `n` (world frame): the free side is where it points.
+    pub normal: Vector3<f64>,
+    /// `n . x` of the plane's points, m.
+    pub offset: f64,
+    /// The contact law against this ground.
+    pub material: ContactMaterial,
+}
+
+/// A contact sphere on a body: its centre is an attachment point (a node, a bar's end, a rigid
+/// body's listed point). Two spheres at a bar's ends are the bar's capsule against a half-space
+/// exactly (the signed distance of the capsule's axis to a plane is linear along it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactSphere {
+    /// The sphere's centre.
+    pub point: PointId,
+    /// Radius, m (>= 0).
+    pub radius: f64,
+}
+
 /// The other side of a ball joint.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum JointTarget {
@@ -293,6 +335,10 @@ pub struct Model {
     pub joints: Vec<JointModel>,
     /// Actuators in scene order.
     pub actuators: Vec<ActuatorModel>,
+    /// Half-space grounds (none: nothing to touch, and contact costs nothing).
+    pub grounds: Vec<GroundModel>,
+    /// Contact spheres on bodies; every sphere meets every ground (`Model::contact_pairs`).
+    pub contact_spheres: Vec<ContactSphere>,
     /// Actuator names, parallel to `actuators`.
     pub actuator_names: Vec<String>,
     /// Deployment schedule.
@@ -337,15 +383,21 @@ impl Model {
                 held[self.points[q.0].body.0] = true;
             }
         }
+        if !self.grounds.is_empty() {
+            for s in &self.contact_spheres {
+                held[self.points[s.point.0].body.0] = true;
+            }
+        }
         (0..self.bodies.len()).filter(|&b| !held[b] && self.bodies[b].dof_count > 0).map(BodyId).collect()
     }
 
     /// True when nothing ties the structure to the ground: no pin, no joint to a fixed body, no
-    /// cable point on a fixed body. Such a structure (in orbit, in a drop test) has 6 free
+    /// cable point on a fixed body, no contact sphere that a ground could stop. Such a structure (in orbit, in a drop test) has 6 free
     /// rigid-body motions (3 planar); its shape, not its position, is what a deployment changes.
     pub fn is_free_floating(&self) -> bool {
         let fixed = |p: PointId| self.bodies[self.points[p.0].body.0].dof_count == 0;
-        !self.route_points.iter().any(|p| fixed(*p))
+        (self.grounds.is_empty() || self.contact_spheres.is_empty())
+            && !self.route_points.iter().any(|p| fixed(*p))
             && self.joints.iter().all(|j| match j.target {
                 JointTarget::World(_) => false,
                 JointTarget::Point(q) => !fixed(q) && !fixed(j.point),
@@ -359,6 +411,12 @@ impl Model {
         } else {
             3
         }
+    }
+
+    /// Number of (sphere, ground) contact pairs: `contact_spheres.len() * grounds.len()`, pair
+    /// `s * grounds.len() + g` for sphere `s` and ground `g`.
+    pub fn contact_pairs(&self) -> usize {
+        self.contact_spheres.len() * self.grounds.len()
     }
 
     /// Index of the body called `name`.

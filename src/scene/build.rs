@@ -8,8 +8,8 @@ use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 use super::{limits, BodyKindSpec, JointKindSpec, PointSpec, SceneSpec};
 use crate::error::{readable_number, SceneError};
 use crate::model::{
-    ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, JointModel, JointTarget, Model, PointId,
-    PointModel, Pose, Ramp, Schedule, SolverSettings,
+    ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, ContactMaterial, ContactSphere, GroundModel,
+    JointModel, JointTarget, Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings,
 };
 use crate::solve::formfind::{find_rest_lengths, RestLengthSpec};
 
@@ -101,6 +101,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         build_cables(spec, &cx, &point_names)?;
     let (actuators, actuator_names) = build_actuators(spec, &cx, &cable_names)?;
     let solver = build_solver(spec, &cx)?;
+    let contact_spheres = build_contact_spheres(spec, &cx, &bodies, &point_names)?;
+    let grounds = build_grounds(spec, &cx, &bodies, &points)?;
     let mut model = Model {
         name: if spec.name.is_empty() { file.to_string() } else { spec.name.clone() },
         bodies,
@@ -111,6 +113,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         joints,
         actuators,
         actuator_names,
+        grounds,
+        contact_spheres,
         schedule: Schedule::default(),
         gravity: Vector3::from(spec.gravity),
         planar: spec.planar,
@@ -129,6 +133,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     };
     check_mass_on_free_coordinates(&model, &cx)?;
     check_redundant_joints(&model, &cx)?;
+    check_contacts(spec, &model, &cx)?;
 
     set_rest_lengths(&mut model, &rest_specs, &damping_ratios, &cx)?;
     model.schedule = build_schedule(spec, &model, &cx)?;
@@ -440,6 +445,190 @@ fn build_joints(
     }
 
     Ok(joints)
+}
+
+/// The contact spheres the bodies declare (`contact_radius`, `contact_points`), in body order.
+fn build_contact_spheres(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    bodies: &[BodyModel],
+    point_names: &BTreeMap<String, PointId>,
+) -> Result<Vec<ContactSphere>, SceneError> {
+    let mut spheres = Vec::new();
+    for (i, b) in spec.bodies.iter().enumerate() {
+        let e = |field: &str, reason: String| cx.err("bodies", i, field, reason);
+        let Some(radius) = b.contact_radius else {
+            if b.contact_points.is_some() {
+                return Err(e("contact_points", "contact points need a contact_radius (m, may be 0)".into()));
+            }
+            continue;
+        };
+        let radius = in_range(radius, limits::CONTACT_RADIUS, "m").map_err(|r| e("contact_radius", r))?;
+        let names: Vec<String> = match (bodies[i].kind, &b.contact_points) {
+            (BodyKind::Fixed, _) => {
+                return Err(e(
+                    "contact_radius",
+                    "a fixed body does not move: model the ground as a [[grounds]] half-space".into(),
+                ))
+            }
+            (BodyKind::Node, Some(_)) => {
+                return Err(e(
+                    "contact_points",
+                    "a node's contact sphere is centred on the node itself".into(),
+                ))
+            }
+            (BodyKind::Node, None) => vec![String::new()],
+            (BodyKind::Bar, None) => vec!["a".into(), "b".into()],
+            (BodyKind::Rigid, None) => {
+                return Err(e(
+                    "contact_points",
+                    "missing: name the rigid body's points that carry contact spheres".into(),
+                ))
+            }
+            (_, Some(list)) if list.is_empty() => {
+                return Err(e("contact_points", "empty: name at least one point".into()))
+            }
+            (_, Some(list)) => list.clone(),
+        };
+        for name in names {
+            let qualified = if name.is_empty() { b.name.clone() } else { format!("{}.{}", b.name, name) };
+            let point = point_names
+                .get(&qualified)
+                .copied()
+                .ok_or_else(|| e("contact_points", format!("body '{}' has no point '{name}'", b.name)))?;
+            if spheres.iter().any(|s: &ContactSphere| s.point == point) {
+                return Err(e("contact_points", format!("point '{name}' is listed twice")));
+            }
+            spheres.push(ContactSphere { point, radius });
+        }
+    }
+    Ok(spheres)
+}
+
+/// The grounds (`[[grounds]]`): unit normals, offsets, contact laws with their defaults.
+fn build_grounds(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    bodies: &[BodyModel],
+    points: &[PointModel],
+) -> Result<Vec<GroundModel>, SceneError> {
+    // default stiffness: the whole weight on one sphere presses it in by a thousandth of the size
+    let weight = bodies.iter().map(|b| b.mass).sum::<f64>() * Vector3::from(spec.gravity).norm();
+    let default_stiffness = (1000.0 * weight / scene_size(bodies, points)).max(1e3);
+    let mut grounds: Vec<GroundModel> = Vec::new();
+    for (i, g) in spec.grounds.iter().enumerate() {
+        let e = |field: &str, reason: String| cx.err("grounds", i, field, reason);
+        let name = match &g.name {
+            Some(n) if n.is_empty() || n.contains(char::is_whitespace) => {
+                return Err(e("name", format!("'{n}' is not a valid name (non-empty, no spaces)")))
+            }
+            Some(n) => n.clone(),
+            None if i == 0 => "ground".into(),
+            None => format!("ground{i}"),
+        };
+        if grounds.iter().any(|o| o.name == name) {
+            return Err(e("name", format!("duplicate ground name '{name}'")));
+        }
+        let gravity = Vector3::from(spec.gravity);
+        let normal = match g.normal {
+            Some(v) => {
+                bounded3(&v, limits::MAX_COORDINATE, "").map_err(|r| e("normal", r))?;
+                let n = Vector3::from(v);
+                if n.norm() < 1e-12 {
+                    return Err(e("normal", "must not be zero: the direction the free side lies in".into()));
+                }
+                n.normalize()
+            }
+            None if gravity.norm() > 0.0 => (-gravity.normalize()).map(|x| x + 0.0),
+            None if spec.planar => Vector3::y(),
+            None => Vector3::z(),
+        };
+        if spec.planar && normal.z.abs() > 1e-12 {
+            return Err(e("normal", "in a planar scene a ground's normal lies in the xy plane".into()));
+        }
+        let point = match g.point {
+            Some(v) => {
+                bounded3(&v, limits::MAX_COORDINATE, "m").map_err(|r| e("point", r))?;
+                Vector3::from(v)
+            }
+            None => Vector3::zeros(),
+        };
+        let number = |x: Option<f64>, default: f64, range, unit, field: &str| match x {
+            None => Ok(default),
+            Some(x) => in_range(x, range, unit).map_err(|r| e(field, r)),
+        };
+        let material = ContactMaterial {
+            stiffness: number(g.stiffness, default_stiffness, limits::CONTACT_STIFFNESS, "N/m", "stiffness")?,
+            dissipation: number(g.dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
+            friction: number(g.mu, 1.0, limits::FRICTION, "", "mu")?,
+            stiction_speed: number(g.stiction_speed, 1e-4, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
+        };
+        grounds.push(GroundModel { name, normal, offset: normal.dot(&point), material });
+    }
+    Ok(grounds)
+}
+
+/// The diagonal of the box around every point at the start, m (at least 1 mm).
+fn scene_size(bodies: &[BodyModel], points: &[PointModel]) -> f64 {
+    let at = |p: &PointModel| bodies[p.body.0].initial_pose.transform_point(&p.local);
+    let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+    for p in points {
+        lo = lo.inf(&at(p));
+        hi = hi.sup(&at(p));
+    }
+    (hi - lo).norm().max(1e-3)
+}
+
+/// Pressed into a ground by more than this fraction of the scene's size beyond its radius, a
+/// contact sphere's start is refused as a misplaced structure.
+pub const START_PENETRATION: f64 = 0.01;
+
+/// Grounds and contact spheres come together, and no sphere starts deep inside a ground (more
+/// than `START_PENETRATION` of the scene's size beyond its radius: a structure placed under the
+/// floor would be thrown out by springs pressed far beyond anything they model).
+fn check_contacts(spec: &SceneSpec, model: &Model, cx: &Ctx) -> Result<(), SceneError> {
+    if !model.grounds.is_empty() && model.contact_spheres.is_empty() {
+        return Err(cx.err(
+            "grounds",
+            0,
+            "",
+            "no body declares contact geometry, so nothing would touch this ground: give the bodies \
+             that should a contact_radius (m)",
+        ));
+    }
+    if model.grounds.is_empty() && !model.contact_spheres.is_empty() {
+        let i = spec.bodies.iter().position(|b| b.contact_radius.is_some()).unwrap_or(0);
+        return Err(cx.err(
+            "bodies",
+            i,
+            "contact_radius",
+            "there is no [[grounds]] table for the contact spheres to meet",
+        ));
+    }
+    let allowance = START_PENETRATION * scene_size(&model.bodies, &model.points);
+    for sphere in &model.contact_spheres {
+        let p = &model.points[sphere.point.0];
+        let at = model.bodies[p.body.0].initial_pose.transform_point(&p.local);
+        for (g, ground) in model.grounds.iter().enumerate() {
+            let height = ground.normal.dot(&at) - ground.offset;
+            if height < -allowance {
+                return Err(cx.err(
+                    "grounds",
+                    g,
+                    "",
+                    format!(
+                        "'{}' starts {} m inside ground '{}' (its contact sphere's centre is below \
+                         the plane by more than a hundredth of the scene's size): place the \
+                         structure on or above the ground",
+                        p.name,
+                        readable_number(-height),
+                        ground.name
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The cables, their routes, and what sets their rest lengths and damping (`build_cables`).

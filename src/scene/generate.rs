@@ -1,6 +1,7 @@
 //! Parametric scene generators: take a few numbers, give a `SceneSpec` (which `tensegrity generate`
 //! writes as TOML): the regular n-strut prism, an N-stage tower of stacked prisms with clustered
-//! side cables, a planar clustered T-bar, and the elastic Atwood machine.
+//! side cables, a planar clustered T-bar, the elastic Atwood machine, and the six-bar robot on the
+//! ground.
 //!
 //! Prism geometry (docs/architecture.md, "What the tests stand on"): bottom node i at angle `2 pi i / n` and height 0, top node i at
 //! `2 pi i / n + alpha` and height `h`, twist `alpha = pi/2 + pi/n`; bars bottom i to top i, side
@@ -12,8 +13,8 @@
 use std::f64::consts::PI;
 
 use super::{
-    ActuatorSpec, BodyKindSpec, BodySpec, CableSpec, DeploymentSpec, JointKindSpec, JointSpec, PointSpec,
-    RampSpec, SceneSpec,
+    ActuatorSpec, BodyKindSpec, BodySpec, CableSpec, DeploymentSpec, GroundSpec, JointKindSpec, JointSpec,
+    PointSpec, RampSpec, SceneSpec,
 };
 
 /// Parameters of the regular n-strut prism.
@@ -459,4 +460,174 @@ pub fn atwood(p: &AtwoodParams) -> SceneSpec {
         }],
         ..Default::default()
     }
+}
+
+/// Parameters of the six-bar robot (`sixbar`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SixbarParams {
+    /// Strut length, m.
+    pub strut_length: f64,
+    /// Mass of each strut, kg.
+    pub bar_mass: f64,
+    /// Axial stiffness of every cable, N.
+    pub ea: f64,
+    /// Tension of every cable in the weightless self-stress, N (sets the rest lengths).
+    pub prestress: f64,
+    /// Damping ratio of every cable.
+    pub damping_ratio: f64,
+    /// Radius of the struts' contact capsules, m.
+    pub contact_radius: f64,
+    /// Friction coefficient of the ground.
+    pub mu: f64,
+    /// Rest length the roll winch hauls its cable in to, as a fraction of its length.
+    pub roll_fraction: f64,
+    /// Duration of that haul, s.
+    pub roll_duration: f64,
+}
+
+impl Default for SixbarParams {
+    fn default() -> Self {
+        Self {
+            strut_length: 1.0,
+            bar_mass: 0.3,
+            ea: 2e4,
+            prestress: 20.0,
+            damping_ratio: 0.05,
+            contact_radius: 0.02,
+            mu: 0.8,
+            roll_fraction: 0.57,
+            roll_duration: 2.0,
+        }
+    }
+}
+
+/// The six-bar tensegrity robot (the expanded octahedron): three pairs of parallel struts of
+/// length `L` along x, y and z, each pair `L / 2` apart (`(+-L/2, 0, +-L/4)` and its cyclic
+/// permutations), and 24 cables of length `sqrt(6) L / 4` joining each strut end to the four
+/// nearest ends of the other pairs. With equal cable tensions `T` this is a self-equilibrium
+/// (strut to cable length `sqrt(8/3)`); the rest lengths are those of tension `T`. The structure
+/// is turned so that the closed cable triangle on the ends towards `(1, 1, 1)` faces down, and
+/// stands on it on a level `[[grounds]]` with friction, its struts capsules of radius
+/// `contact_radius`. One actuator (`roll_winch`) on an edge of that bottom triangle hauls the cable
+/// in: the robot tips over the opposite edge onto the next face, one roll.
+pub fn sixbar(p: &SixbarParams) -> SceneSpec {
+    use nalgebra::{Rotation3, Vector3};
+    let (l, s) = (p.strut_length, p.strut_length / 4.0);
+    // struts by family (the axis they run along) and sign of their offset
+    let mut struts: Vec<(String, Vector3<f64>, Vector3<f64>)> = Vec::new();
+    for (family, axis) in [("x", 0usize), ("y", 1), ("z", 2)] {
+        for (i, sign) in [1.0, -1.0].into_iter().enumerate() {
+            // the offset axis follows the running one cyclically backwards: x pairs sit at +-z, y
+            // pairs at +-x, z pairs at +-y
+            let offset_axis = (axis + 2) % 3;
+            let mut a = Vector3::zeros();
+            let mut b = Vector3::zeros();
+            a[axis] = -l / 2.0;
+            b[axis] = l / 2.0;
+            a[offset_axis] = sign * s;
+            b[offset_axis] = sign * s;
+            struts.push((format!("{family}{i}"), a, b));
+        }
+    }
+    let down =
+        Rotation3::rotation_between(&Vector3::new(1.0, 1.0, 1.0), &-Vector3::z()).expect("not opposite");
+    for (_, a, b) in &mut struts {
+        *a = down * *a;
+        *b = down * *b;
+    }
+    let lowest = struts.iter().flat_map(|(_, a, b)| [a.z, b.z]).fold(f64::INFINITY, f64::min);
+    let lift = Vector3::new(0.0, 0.0, p.contact_radius - lowest);
+    let ends: Vec<(String, Vector3<f64>)> = struts
+        .iter()
+        .flat_map(|(name, a, b)| [(format!("{name}.a"), a + lift), (format!("{name}.b"), b + lift)])
+        .collect();
+    let bodies = struts
+        .iter()
+        .map(|(name, a, b)| {
+            let (a, b) = (a + lift, b + lift);
+            BodySpec {
+                mass: Some(p.bar_mass),
+                ends: Some([round9(a), round9(b)]),
+                contact_radius: Some(p.contact_radius),
+                ..BodySpec::new(name, BodyKindSpec::Bar)
+            }
+        })
+        .collect();
+    let cable_length = 6f64.sqrt() * l / 4.0;
+    let rest_length = round9s(cable_length / (1.0 + p.prestress / p.ea));
+    let mut cables = Vec::new();
+    let mut bottom_edge = None;
+    for i in 0..ends.len() {
+        for j in i + 1..ends.len() {
+            let (ni, xi) = &ends[i];
+            let (nj, xj) = &ends[j];
+            if ni[..1] == nj[..1] || ((xi - xj).norm() - cable_length).abs() > 1e-9 * l {
+                continue;
+            }
+            let name = format!("c{:02}", cables.len());
+            if bottom_edge.is_none() && xi.z.max(xj.z) < p.contact_radius + 1e-9 * l {
+                bottom_edge = Some(name.clone());
+            }
+            cables.push(CableSpec {
+                name,
+                route: vec![ni.clone(), nj.clone()],
+                ea: p.ea,
+                damping: None,
+                damping_ratio: Some(p.damping_ratio),
+                rest_length: Some(rest_length),
+                prestress: None,
+                force_density: None,
+            });
+        }
+    }
+    let winch_cable = bottom_edge.expect("the bottom face is a cable triangle");
+    SceneSpec {
+        name: "sixbar".into(),
+        description: format!(
+            "Six-bar tensegrity robot standing on a face of three strut ends on a level ground (mu \
+             {}): struts {} m, {} kg, capsules of radius {} m; 24 cables of EA {} N at {} N; \
+             roll_winch hauls the bottom edge {} in to {} of its length over {} s and the robot \
+             rolls onto the next face",
+            p.mu,
+            l,
+            p.bar_mass,
+            p.contact_radius,
+            p.ea,
+            p.prestress,
+            winch_cable,
+            p.roll_fraction,
+            p.roll_duration
+        ),
+        gravity: [0.0, 0.0, -9.81],
+        physics_dt: Some(0.001),
+        bodies,
+        cables,
+        actuators: vec![ActuatorSpec {
+            name: "roll_winch".into(),
+            cable: winch_cable,
+            min_rest_length: round9s(0.2 * cable_length),
+            max_rest_length: round9s(1.2 * cable_length),
+            max_rate: round9s(cable_length),
+        }],
+        deployment: Some(DeploymentSpec {
+            steps: 100,
+            ramps: vec![RampSpec {
+                actuator: "roll_winch".into(),
+                start: 0.2,
+                duration: p.roll_duration,
+                rest_length: round9s(p.roll_fraction * cable_length),
+            }],
+        }),
+        grounds: vec![GroundSpec { name: Some("floor".into()), mu: Some(p.mu), ..Default::default() }],
+        ..Default::default()
+    }
+}
+
+/// `x` rounded to 9 decimals (generated files stay readable and parse back to the same numbers).
+fn round9s(x: f64) -> f64 {
+    (x * 1e9).round() / 1e9
+}
+
+fn round9(v: nalgebra::Vector3<f64>) -> [f64; 3] {
+    [round9s(v.x), round9s(v.y), round9s(v.z)]
 }

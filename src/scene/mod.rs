@@ -51,6 +51,16 @@ pub mod limits {
     pub const RATE: (f64, f64) = (1e-12, 1e6);
     /// Largest |gravity| component, m/s^2.
     pub const MAX_GRAVITY: f64 = 1e3;
+    /// Contact sphere radius, m.
+    pub const CONTACT_RADIUS: (f64, f64) = (0.0, 1e6);
+    /// Ground penalty stiffness, N/m.
+    pub const CONTACT_STIFFNESS: (f64, f64) = (1e-6, 1e12);
+    /// Hunt-Crossley dissipation, s/m.
+    pub const CONTACT_DISSIPATION: (f64, f64) = (0.0, 1e6);
+    /// Friction coefficient.
+    pub const FRICTION: (f64, f64) = (0.0, 100.0);
+    /// Friction regularization speed, m/s.
+    pub const STICTION_SPEED: (f64, f64) = (1e-9, 1e3);
     /// Ramp start and duration, s.
     pub const TIME: (f64, f64) = (0.0, 1e6);
     /// Quasi-static load steps of a deployment.
@@ -127,6 +137,42 @@ pub struct SceneSpec {
     /// Deployment schedule.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub deployment: Option<DeploymentSpec>,
+    /// Half-space grounds that bodies with contact geometry (`contact_radius`) rest on.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub grounds: Vec<GroundSpec>,
+}
+
+/// A half-space ground: a plane through `point` with outward `normal`, and its contact law
+/// (`crate::forces::contact`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroundSpec {
+    /// Unique name (default `ground`, then `ground1`, ...).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Outward normal, world frame (any length; default: against gravity, or +z (+y in a planar
+    /// scene) without gravity). An inclined plane is a tilted normal.
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
+    pub normal: Option<[f64; 3]>,
+    /// A point on the plane, m (default the origin).
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
+    pub point: Option<[f64; 3]>,
+    /// Coulomb friction coefficient (default 1; 0 is frictionless).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mu: Option<f64>,
+    /// Penalty stiffness, N/m (default `1000 W / L`: the structure's whole weight `W` on one
+    /// sphere presses it in by a thousandth of the structure's size `L`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness: Option<f64>,
+    /// Hunt-Crossley dissipation, s/m (default 1): the normal force is `k d (1 + dissipation
+    /// d_dot)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dissipation: Option<f64>,
+    /// Friction regularization speed, m/s (default 1e-4): below it friction acts as a stiff
+    /// viscous stick, and a load at a fraction `r` of the friction limit creeps at
+    /// `stiction_speed r / sqrt(1 - r^2)`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiction_speed: Option<f64>,
 }
 
 fn is_zero3(v: &[f64; 3]) -> bool {
@@ -187,6 +233,15 @@ pub struct BodySpec {
     /// Named attachment points.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub points: BTreeMap<String, PointSpec>,
+    /// Contact geometry, m: the radius of the spheres this body meets the grounds with (a node:
+    /// one at the node; a bar: one at each end, its capsule; a rigid body: one at each of
+    /// `contact_points`). None: the body touches nothing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_radius: Option<f64>,
+    /// Names of this body's points that carry contact spheres (a rigid body needs them; a bar
+    /// defaults to `["a", "b"]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact_points: Option<Vec<String>>,
 }
 
 impl BodySpec {
@@ -201,6 +256,8 @@ impl BodySpec {
             ends: None,
             inertia: None,
             points: BTreeMap::new(),
+            contact_radius: None,
+            contact_points: None,
         }
     }
 }
@@ -327,6 +384,7 @@ pub const BUNDLED: &[(&str, &str)] = &[
     ("prism3", include_str!("../../config/scenes/prism3.toml")),
     ("tbar", include_str!("../../config/scenes/tbar.toml")),
     ("tower", include_str!("../../config/scenes/tower.toml")),
+    ("sixbar", include_str!("../../config/scenes/sixbar.toml")),
 ];
 
 /// The TOML text of the bundled scene `name` (`prism3` or `prism3.toml`), if there is one.
@@ -412,6 +470,7 @@ fn plain_words(message: &str) -> String {
         ("struct DeploymentSpec", "a [deployment] table"),
         ("struct RampSpec", "a [[deployment.ramps]] table"),
         ("struct SolverSpec", "a [solver] table"),
+        ("struct GroundSpec", "a [[grounds]] table"),
         ("enum BodyKindSpec", "a body kind (node, bar, rigid or fixed)"),
         ("enum JointKindSpec", "a joint kind (ball or pin)"),
     ]

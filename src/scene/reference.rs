@@ -25,7 +25,7 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 8] = [
+pub const TABLES: [(&str, &str); 9] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
@@ -34,6 +34,7 @@ pub const TABLES: [(&str, &str); 8] = [
     ("[solver]", "solver"),
     ("[deployment]", "deployment"),
     ("[[deployment.ramps]]", "deployment.ramps"),
+    ("[[grounds]]", "grounds"),
 ];
 
 fn range((lo, hi): (f64, f64)) -> String {
@@ -53,7 +54,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     let coord = format!("each within +-{}", readable_number(limits::MAX_COORDINATE));
     let top = TABLES[0].0;
     let (bodies, joints, cables, actuators) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
-    let (solver, deployment, ramps) = (TABLES[5].0, TABLES[6].0, TABLES[7].0);
+    let (solver, deployment, ramps, grounds) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -112,6 +113,25 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "m",
             "none",
             "named points (not for nodes): body coordinates, or for a bar the fraction along a -> b".into(),
+        ),
+        f(
+            bodies,
+            "contact_radius",
+            "number",
+            "m",
+            "none (touches nothing)",
+            format!(
+                "{}; contact spheres against the grounds: a node's at the node, a bar's at both ends (its capsule), a rigid body's at its `contact_points`",
+                range(limits::CONTACT_RADIUS)
+            ),
+        ),
+        f(
+            bodies,
+            "contact_points",
+            "[strings]",
+            "-",
+            "bar: [\"a\", \"b\"]",
+            "names of the body's points that carry contact spheres (required for rigid bodies; not for nodes)".into(),
         ),
         f(joints, "kind", "string", "-", "required", "`ball` (a on b) or `pin` (a on a world position)".into()),
         f(joints, "a", "string", "-", "required", "point `body.point`, or `body` for its origin".into()),
@@ -190,6 +210,50 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         f(ramps, "start", "number", "s", "0", range(limits::TIME)),
         f(ramps, "duration", "number", "s", "required", format!("> 0, up to {}; within the actuator's max_rate", readable_number(limits::TIME.1))),
         f(ramps, "rest_length", "number", "m", "required", "reached at start + duration, within the actuator's limits".into()),
+        f(grounds, "name", "string", "-", "ground, ground1, ...", "unique; names the contacts in outputs".into()),
+        f(
+            grounds,
+            "normal",
+            "[x, y, z]",
+            "-",
+            "against gravity (else +z; planar +y)",
+            "outward normal of the half-space (any length, not zero); a tilted normal is an incline; planar: in the xy plane".into(),
+        ),
+        f(grounds, "point", "[x, y, z]", "m", "[0, 0, 0]", format!("a point on the plane; {coord}")),
+        f(grounds, "mu", "number", "-", "1", format!("Coulomb friction coefficient, {}", range(limits::FRICTION))),
+        f(
+            grounds,
+            "stiffness",
+            "number",
+            "N/m",
+            "1000 W / L, at least 1e3",
+            format!(
+                "penalty stiffness k: a sphere pressed d into the ground feels k d; the default lets the whole weight W on one sphere press it in by a thousandth of the scene's size L; {}",
+                range(limits::CONTACT_STIFFNESS)
+            ),
+        ),
+        f(
+            grounds,
+            "dissipation",
+            "number",
+            "s/m",
+            "1",
+            format!(
+                "Hunt-Crossley alpha: normal force k d (1 + alpha d_dot), restitution about 1 - (2/3) alpha v_impact; {}",
+                range(limits::CONTACT_DISSIPATION)
+            ),
+        ),
+        f(
+            grounds,
+            "stiction_speed",
+            "number",
+            "m/s",
+            "1e-4",
+            format!(
+                "friction regularization v_s: a load at a fraction r of mu F_n creeps at v_s r / sqrt(1 - r^2); {}",
+                range(limits::STICTION_SPEED)
+            ),
+        ),
     ]
 }
 

@@ -151,6 +151,7 @@ pub fn dynamic_csv_header(model: &Model) -> String {
     for s in ["newton_iterations", "residual_N", "rejected", "substeps", "wall_us"] {
         cols.push(s.into());
     }
+    cols.extend(crate::report::contact_csv_columns(model));
     cols.join(",")
 }
 
@@ -184,6 +185,7 @@ pub fn dynamic_csv_row(sim: &Simulator, stats: &StepStats) -> String {
         stats.substeps,
         stats.wall_time.as_secs_f64() * 1e6
     );
+    crate::report::push_contact_csv(ws, &mut row);
     row
 }
 

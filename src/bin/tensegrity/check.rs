@@ -1,5 +1,5 @@
 //! `tensegrity check SCENE`: validates a scene and prints counts of its bodies, coordinates,
-//! constraints, cables, pulleys and actuators.
+//! constraints, cables, pulleys and actuators, and its grounds and contact spheres.
 
 use std::path::Path;
 
@@ -27,6 +27,21 @@ pub fn run(scene: &Path) -> Result<(), String> {
     say!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));
     if s.planar {
         say!("planar: yes (xy plane)");
+    }
+    if s.grounds > 0 {
+        let grounds: Vec<String> = model
+            .grounds
+            .iter()
+            .map(|g| {
+                let m = &g.material;
+                format!(
+                    "{} (normal [{:.3}, {:.3}, {:.3}], mu {}, stiffness {:.3e} N/m, dissipation {} s/m, stiction speed {:.1e} m/s)",
+                    g.name, g.normal.x, g.normal.y, g.normal.z, m.friction, m.stiffness, m.dissipation, m.stiction_speed
+                )
+            })
+            .collect();
+        say!("grounds: {}", grounds.join("; "));
+        say!("contact spheres: {}", s.contact_spheres);
     }
     if let Some(note) = report::unheld_bodies_note(&model) {
         say!("warning: {note} (dynamics lets them drift or fall)");

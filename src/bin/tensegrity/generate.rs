@@ -1,4 +1,4 @@
-//! `tensegrity generate prism|tower|tbar|atwood`: writes a generated scene as TOML (checked
+//! `tensegrity generate prism|tower|tbar|atwood|sixbar`: writes a generated scene as TOML (checked
 //! as `check` would check it).
 
 use std::path::PathBuf;
@@ -43,6 +43,12 @@ pub enum GenerateKind {
         #[arg(long, allow_hyphen_values = true, default_value_t = 1.0)]
         m2: f64,
     },
+    /// Six-bar tensegrity robot standing on the ground, with a winch that rolls it over.
+    Sixbar {
+        /// Friction coefficient of the ground.
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.8)]
+        mu: f64,
+    },
 }
 
 /// Runs `generate`, to `out` or standard output.
@@ -70,6 +76,7 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
         GenerateKind::Atwood { m1, m2 } => {
             generate::atwood(&generate::AtwoodParams { m1, m2, ..Default::default() })
         }
+        GenerateKind::Sixbar { mu } => generate::sixbar(&generate::SixbarParams { mu, ..Default::default() }),
     };
     // a generator's arguments are scene fields: refuse what `check` would refuse
     let label = format!("<generated {}>", spec.name);

@@ -28,6 +28,8 @@ struct StaticsJson {
     bodies: Vec<report::BodyReport>,
     points: Vec<(String, [f64; 3])>,
     cables: Vec<report::CableReport>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    contacts: Vec<report::ContactReport>,
 }
 
 /// Runs `statics` on `scene`, as JSON when `json`.
@@ -76,6 +78,7 @@ pub fn run(scene: &Path, json: bool) -> Result<(), String> {
             bodies: report::body_reports(&model, &state),
             points: report::point_positions(&model, &ws),
             cables,
+            contacts: report::contact_reports(&model, &ws),
         };
         emit(&(serde_json::to_string_pretty(&out).map_err(|e| e.to_string())? + "\n"));
     } else {
@@ -175,6 +178,21 @@ fn format_statics(
     let _ = writeln!(out, "\n{:<20} {:>12} {:>12} {:>12}", "point", "x m", "y m", "z m");
     for (name, p) in report::point_positions(model, ws) {
         let _ = writeln!(out, "{:<20} {:>12.6} {:>12.6} {:>12.6}", name, Num(p[0]), Num(p[1]), Num(p[2]));
+    }
+    let contacts = report::contact_reports(model, ws);
+    if !contacts.is_empty() {
+        let _ =
+            writeln!(out, "\n{:<20} {:<10} {:>12} {:>14}", "contact", "ground", "gap m", "normal force N");
+        for c in contacts {
+            let _ = writeln!(
+                out,
+                "{:<20} {:<10} {:>12.3e} {:>14.6}",
+                c.point,
+                c.ground,
+                c.gap_m,
+                Num(c.normal_force_n)
+            );
+        }
     }
     out
 }

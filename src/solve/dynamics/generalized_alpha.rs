@@ -303,7 +303,7 @@ pub fn assemble_newton_matrix(
 ) {
     assemble_mass_and_joints(model, ws, mass, kkt);
     let mut sink = kkt.tangents(1.0 / beta_p, gamma_p / beta_p);
-    add_tangents(model, state, &ws.points, &ws.cables, &mut ws.scratch, &mut sink);
+    add_tangents(model, state, &ws.points, &ws.cables, &ws.contacts, &mut ws.scratch, &mut sink);
     add_gyroscopic_damping(model, &state.velocities, &mut sink);
     if model.constraint_count > 0 {
         add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);

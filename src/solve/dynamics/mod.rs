@@ -501,7 +501,8 @@ pub fn explicit_stability_limit(model: &Model, state: &State, integrator: Integr
 /// eigenvalue of the mass-normalized damping matrix there (1/s), with every cable counted as
 /// taut (`taut_stiffness_model`): a cable that starts slack or just taut (a rope at zero tension)
 /// has no stiffness yet, but it will have `EA / L0` as soon as it stretches, and a step above
-/// the limit that stiffness sets diverges then. `(0, 0)` without coordinates or freedom;
+/// the limit that stiffness sets diverges then. Likewise every contact sphere counts as pressed
+/// into every ground (`forces::contact::add_contact_bounds`). `(0, 0)` without coordinates or freedom;
 /// `(inf, inf)` when the mass matrix there is singular.
 pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
     let n = model.dof_count;
@@ -513,6 +514,7 @@ pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
     let (taut_model, taut_state) = taut_stiffness_model(model, state, &ws);
     let (model, state) = (&taut_model, &taut_state);
     evaluate(model, state, &mut ws, Tangents::StiffnessAndDamping);
+    crate::forces::contact::add_contact_bounds(model, &ws.points, &mut ws.stiffness, &mut ws.damping);
     let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return (0.0, 0.0) };
     let m = z.transpose() * mass_matrix(model) * &z;
     let k = z.transpose() * ((&ws.stiffness + ws.stiffness.transpose()) * 0.5) * &z;
@@ -561,11 +563,11 @@ pub fn stability_limit(model: &Model, state: &State) -> f64 {
     2.0 / (w * ((1.0 + zeta * zeta).sqrt() + zeta))
 }
 
-/// Power flows of the cables at one instant (W): actuator power into the cables and power lost
-/// in the dampers (see `EnergyAccount`).
+/// Power flows at one instant (W): actuator power into the cables, and power lost in the cable
+/// dampers and the contacts (normal damping and friction; see `EnergyAccount`).
 pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f64) {
     let mut actuator = 0.0;
-    let mut loss = 0.0;
+    let mut loss = ws.contact_loss_power;
     for (c, r) in ws.cables.iter().enumerate() {
         if r.length <= r.rest_length {
             continue;

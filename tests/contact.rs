@@ -1,0 +1,288 @@
+//! Ground contact (`forces::contact`): the element's tangents against finite differences, closed
+//! forms (a weight's rest penetration, a block sliding down an incline, sticking within the creep
+//! bound), statics of a structure resting on the ground, bounces with and without dissipation and
+//! the energy account, explicit stability limits that see the contact stiffness, and the scene
+//! errors a careless user meets.
+
+mod common;
+
+use common::{fd_damping, fd_stiffness, model_from_toml, rel_err};
+use nalgebra::{DVector, Vector3};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
+use tensegrity::sim::{SimSettings, Simulator, StepError};
+use tensegrity::solve::dynamics::{explicit_stability_limit, Integrator};
+use tensegrity::solve::statics::StaticSolver;
+use tensegrity::State;
+
+const G: f64 = 9.81;
+
+/// A node of `mass` kg at height `z` m on a ground tilted by `tilt` rad about x, with `ground`
+/// the ground table's extra lines.
+fn block_on_incline(mass: f64, tilt: f64, z: f64, ground: &str) -> tensegrity::Model {
+    model_from_toml(&format!(
+        "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"block\"\nkind = \"node\"\nmass = {mass}\n\
+         position = [0.0, 0.0, {z}]\ncontact_radius = 0.0\n[[grounds]]\nnormal = [0.0, {ny}, {nz}]\n{ground}\n",
+        ny = -tilt.sin(),
+        nz = tilt.cos()
+    ))
+}
+
+#[test]
+fn contact_tangents_match_finite_differences() {
+    // a rigid body with three contact spheres, a bar with its capsule and a node, on a tilted
+    // ground with friction and dissipation; every sphere pressed in, slipping fast, slipping at
+    // about the regularization speed, or stuck
+    let model = model_from_toml(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "box"
+kind = "rigid"
+mass = 2.0
+position = [0.0, 0.0, 1.0]
+rotation = [0.1, -0.2, 0.3]
+inertia = [0.02, 0.03, 0.04]
+points = { p = [0.1, 0.05, -0.1], q = [-0.1, 0.05, -0.12], r = [0.0, -0.1, -0.09] }
+contact_radius = 0.02
+contact_points = ["p", "q", "r"]
+[[bodies]]
+name = "bar"
+kind = "bar"
+mass = 1.0
+ends = [[1.0, 0.0, 1.0], [1.3, 0.4, 1.01]]
+contact_radius = 0.01
+[[bodies]]
+name = "bob"
+kind = "node"
+mass = 0.5
+position = [-1.0, 0.0, 1.0]
+contact_radius = 0.01
+[[grounds]]
+normal = [0.05, -0.1, 1.0]
+mu = 0.7
+stiffness = 2e4
+dissipation = 0.8
+stiction_speed = 0.05
+"#,
+    );
+    // lower each body along the normal until its lowest sphere presses in by half its radius
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let ground = &model.grounds[0];
+    for b in 0..model.bodies.len() {
+        let lowest = model
+            .contact_spheres
+            .iter()
+            .zip(&ws.contacts)
+            .filter(|(s, _)| model.points[s.point.0].body.0 == b)
+            .map(|(s, c)| c.gap + 0.5 * s.radius)
+            .fold(f64::INFINITY, f64::min);
+        state.poses[b].position -= ground.normal * lowest;
+    }
+    for (label, scale) in [("fast slip", 1.0), ("slip near v_s", 0.04), ("stuck", 0.0)] {
+        state.velocities = DVector::from_fn(model.dof_count, |i, _| scale * (0.3 + 0.17 * i as f64).sin());
+        evaluate(&model, &state, &mut ws, Tangents::StiffnessAndDamping);
+        let touching = ws.contacts.iter().filter(|c| c.normal_force > 0.0).count();
+        assert!(touching >= 3, "{label}: only {touching} contacts press in");
+        let k_err = rel_err(&ws.stiffness, &fd_stiffness(&model, &state, 1e-7), 1.0);
+        let c_err = rel_err(&ws.damping, &fd_damping(&model, &state, 1e-7), 1.0);
+        assert!(k_err < 1e-6, "{label}: K differs from finite differences by {k_err:e}");
+        assert!(c_err < 1e-6, "{label}: C differs from finite differences by {c_err:e}");
+    }
+}
+
+#[test]
+fn a_weight_rests_at_its_closed_form_penetration_and_the_ground_never_pulls() {
+    // 2 kg on k = 1e4 N/m: delta = m g / k = 1.962 mm
+    let model = block_on_incline(2.0, 0.0, 0.01, "stiffness = 1e4");
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let report = StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).unwrap();
+    let z = state.poses[0].position.z;
+    assert!((z + 2.0 * G / 1e4).abs() < 1e-12, "rest height {z} m");
+    assert!(report.stable, "{}", report.stability_words());
+    assert!((ws.contacts[0].normal_force - 2.0 * G).abs() < 1e-9);
+    // lifted above the ground, the sphere feels nothing; pressed in and pulled out fast, nothing
+    let mut lifted = State::initial(&model);
+    lifted.poses[0].position.z = 0.001;
+    evaluate(&model, &lifted, &mut ws, Tangents::Stiffness);
+    assert_eq!(ws.contacts[0].normal_force, 0.0);
+    assert_eq!(ws.stiffness.amax(), 0.0);
+    lifted.poses[0].position.z = -0.001;
+    lifted.velocities[2] = 5.0; // leaving at 5 m/s > 1 / dissipation
+    evaluate(&model, &lifted, &mut ws, Tangents::Stiffness);
+    assert_eq!(ws.contacts[0].normal_force, 0.0, "the ground pulled");
+    assert!(ws.force[2] < 0.0, "only gravity acts");
+}
+
+#[test]
+fn a_prism_resting_on_the_ground_carries_its_weight_on_its_bar_ends() {
+    // the bundled prism without its pins, with a bottom ring (as `common::free_prism`)
+    let mut spec = tensegrity::scene::generate::prism(&tensegrity::scene::generate::PrismParams::default());
+    spec.joints.clear();
+    let template = spec.cables[0].clone();
+    for i in 0..3 {
+        spec.cables.push(tensegrity::scene::CableSpec {
+            name: format!("bottom{i}"),
+            route: vec![format!("bar0_{i}.a"), format!("bar0_{}.a", (i + 1) % 3)],
+            prestress: None,
+            rest_length: None,
+            force_density: None,
+            ..template.clone()
+        });
+    }
+    for b in &mut spec.bodies {
+        b.contact_radius = Some(0.01);
+    }
+    spec.grounds.push(tensegrity::scene::GroundSpec {
+        point: Some([0.0, 0.0, -0.01]),
+        stiffness: Some(1e5),
+        ..Default::default()
+    });
+    // form-found without weight, then stood on the ground
+    let mut model = common::model_of(&spec);
+    model.gravity = Vector3::new(0.0, 0.0, -G);
+    let weight: f64 = model.bodies.iter().map(|b| b.mass).sum::<f64>() * G;
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let report = StaticSolver::new(&model)
+        .equilibrate(&model, &mut state, &mut ws, &model.solver)
+        .unwrap_or_else(|e| panic!("no equilibrium: {e:?}"));
+    let carried: f64 = ws.contacts.iter().map(|c| c.normal_force).sum();
+    assert!((carried - weight).abs() < 1e-8 * weight, "ground carries {carried} N of {weight} N");
+    let touching = ws.contacts.iter().filter(|c| c.normal_force > 0.0).count();
+    assert_eq!(touching, 3, "the three lower ends stand, the upper ones are free");
+    // free to slide and turn on a frictionless statics ground: 3 rigid-body modes, nothing else
+    assert!(report.stable, "{}", report.stability_words());
+    assert_eq!(report.rigid_modes, 3, "{}", report.stability_words());
+}
+
+/// Runs `model` for `seconds` with generalized-alpha at `dt`.
+fn run(model: &tensegrity::Model, dt: f64, seconds: f64) -> Simulator {
+    let mut sim = Simulator::new(model.clone(), SimSettings { dt, ..Default::default() }).unwrap();
+    while sim.state().time < seconds - 1e-9 {
+        sim.step().unwrap_or_else(|e| panic!("{e}"));
+    }
+    sim
+}
+
+#[test]
+fn a_block_slides_down_a_steep_incline_at_the_coulomb_acceleration() {
+    // 30 degrees, mu 0.3: a = g (sin 30 - 0.3 cos 30) = 2.356 m/s^2 along the slope
+    let tilt = 30f64.to_radians();
+    let depth = G * tilt.cos() / 1e6; // started at its normal equilibrium: no bounce
+    let model =
+        block_on_incline(1.0, tilt, -depth / tilt.cos(), "mu = 0.3\nstiffness = 1e6\nstiction_speed = 1e-4");
+    let slope = Vector3::new(0.0, -tilt.cos(), -tilt.sin()); // downhill
+    let sim = run(&model, 5e-4, 0.5);
+    let v1 = sim.state().velocities.fixed_rows::<3>(0).dot(&slope);
+    let sim2 = run(&model, 5e-4, 1.0);
+    let v2 = sim2.state().velocities.fixed_rows::<3>(0).dot(&slope);
+    let a = (v2 - v1) / 0.5;
+    let expected = G * (tilt.sin() - 0.3 * tilt.cos());
+    assert!((a - expected).abs() < 1e-4 * expected, "a = {a} m/s^2, closed form {expected}");
+    // energy: the friction's booked loss closes the account
+    let e = sim2.energy();
+    assert!(e.damping_loss > 0.0);
+    assert!(e.numerical_loss().abs() < 1e-3 * e.damping_loss, "unexplained {} J", e.numerical_loss());
+}
+
+#[test]
+fn a_block_on_an_incline_within_its_friction_cone_stays_put() {
+    // 30 degrees, mu 0.6 > tan 30: at a regularization speed of 1e-5 m/s the block creeps at
+    // v_s r / sqrt(1 - r^2) = 3.5e-5 m/s (r = tan 30 / 0.6 = 0.962): less than 1e-4 m in 2 s
+    let tilt = 30f64.to_radians();
+    let depth = G * tilt.cos() / 1e6;
+    let model =
+        block_on_incline(1.0, tilt, -depth / tilt.cos(), "mu = 0.6\nstiffness = 1e6\nstiction_speed = 1e-5");
+    let sim = run(&model, 1e-3, 2.0);
+    let drift = (sim.state().poses[0].position - State::initial(&model).poses[0].position).norm();
+    assert!(drift < 1e-4, "drifted {drift} m in 2 s");
+}
+
+#[test]
+fn a_block_on_a_gentle_incline_sticks_within_the_creep_bound() {
+    // 20 degrees, mu 0.6: r = tan 20 / 0.6 = 0.607, creep v_s r / sqrt(1 - r^2) = 0.764 v_s
+    let tilt = 20f64.to_radians();
+    let v_s = 1e-3;
+    // started pressed in by its normal load m g cos(tilt) / k, so that it does not bounce
+    let depth = G * tilt.cos() / 1e6;
+    let ground = format!("mu = 0.6\nstiffness = 1e6\nstiction_speed = {v_s}");
+    let model = block_on_incline(1.0, tilt, -depth / tilt.cos(), &ground);
+    let sim = run(&model, 1e-3, 1.0);
+    let r = tilt.tan() / 0.6;
+    let creep = v_s * r / (1.0 - r * r).sqrt();
+    let speed = sim.state().velocities.fixed_rows::<3>(0).norm();
+    assert!((speed - creep).abs() < 1e-3 * creep, "creeps at {speed} m/s, bound {creep}");
+    assert!((sim.workspace().contacts[0].slip.norm() - creep).abs() < 1e-3 * creep);
+}
+
+#[test]
+fn a_dropped_ball_bounces_back_without_dissipation_and_loses_its_energy_with_it() {
+    // from 0.1 m: impact at sqrt(2 g h) = 1.4007 m/s
+    for (dissipation, restitution_range) in [(0.0, (0.99, 1.002)), (0.5, (0.3, 0.9))] {
+        let text = format!("stiffness = 1e5\ndissipation = {dissipation}\nmu = 0.0");
+        let model = block_on_incline(0.1, 0.0, 0.1, &text);
+        let mut sim = Simulator::new(model, SimSettings { dt: 1e-4, ..Default::default() }).unwrap();
+        let (mut top, mut left) = (0.0f64, false);
+        while sim.state().time < 0.5 {
+            sim.step().unwrap();
+            let z = sim.state().poses[0].position.z;
+            left |= sim.workspace().contacts[0].normal_force > 0.0;
+            if left && z > 0.0 {
+                top = top.max(z);
+            }
+        }
+        let restitution = (top / 0.1).sqrt();
+        assert!(
+            restitution > restitution_range.0 && restitution < restitution_range.1,
+            "dissipation {dissipation}: restitution {restitution}"
+        );
+        let e = sim.energy();
+        let unexplained = e.numerical_loss().abs();
+        assert!(unexplained < 2e-3 * 0.1 * G * 0.1, "dissipation {dissipation}: {unexplained} J unexplained");
+    }
+}
+
+#[test]
+fn explicit_steps_are_limited_by_the_contact_stiffness_before_the_first_touch() {
+    // 1 kg above a ground of 1e6 N/m and no friction: omega = 1000 rad/s, symplectic Euler's
+    // limit 2 / omega (2 ms), though nothing touches yet
+    let model = block_on_incline(1.0, 0.0, 0.5, "stiffness = 1e6\ndissipation = 0.0\nmu = 0.0");
+    let limit = explicit_stability_limit(&model, &State::initial(&model), Integrator::SymplecticEuler);
+    assert!((limit - 2e-3).abs() < 1e-9, "limit {limit} s");
+    let settings = SimSettings { dt: 0.01, integrator: Integrator::SymplecticEuler, ..Default::default() };
+    assert!(matches!(Simulator::new(model, settings), Err(StepError::UnstableExplicitStep { .. })));
+}
+
+#[test]
+fn contact_mistakes_are_named() {
+    let base = "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"b\"\nkind = \"node\"\nmass = 1.0\nposition = [0.0, 0.0, 0.5]\n";
+    let cases = [
+        ("[[grounds]]\n", "grounds[0]", "nothing would touch"),
+        ("contact_radius = 0.01\n", "bodies[0].contact_radius", "no [[grounds]]"),
+        ("contact_radius = -0.01\n[[grounds]]\n", "bodies[0].contact_radius", ">= 0"),
+        ("contact_radius = 0.0\n[[grounds]]\npoint = [0.0, 0.0, 1.0]\n", "grounds[0]", "inside ground"),
+        ("contact_radius = 0.0\n[[grounds]]\nnormal = [0.0, 0.0, 0.0]\n", "grounds[0].normal", "zero"),
+        ("contact_radius = 0.0\n[[grounds]]\nmu = -1\n", "grounds[0].mu", ">= 0"),
+        ("contact_radius = 0.0\n[[grounds]]\nstiffness = nan\n", "grounds[0].stiffness", "finite"),
+        ("contact_radius = 0.0\n[[grounds]]\nfriction = 0.5\n", "grounds[0]", "unknown field"),
+        ("contact_points = [\"x\"]\n[[grounds]]\n", "bodies[0].contact_points", "contact_radius"),
+    ];
+    for (extra, field, words) in cases {
+        let text = format!("{base}{extra}");
+        let err = tensegrity::scene::from_toml(&text, "careless.toml").expect_err(extra);
+        let message = err.to_string();
+        assert!(message.contains("careless.toml"), "{message}");
+        assert!(err.field.starts_with(field), "{extra}: field {} in {message}", err.field);
+        assert!(message.contains(words), "{extra}: {message}");
+    }
+    // a rigid body must name its contact points, and a fixed body cannot have any
+    let rigid = "[[bodies]]\nname = \"r\"\nkind = \"rigid\"\nmass = 1.0\nposition = [0.0, 0.0, 1.0]\ninertia = [1.0, 1.0, 1.0]\ncontact_radius = 0.1\n[[grounds]]\n";
+    let err = tensegrity::scene::from_toml(rigid, "r.toml").unwrap_err();
+    assert_eq!(err.field, "bodies[0].contact_points", "{err}");
+    let fixed = "[[bodies]]\nname = \"f\"\nkind = \"fixed\"\ncontact_radius = 0.1\n[[grounds]]\n";
+    let err = tensegrity::scene::from_toml(fixed, "f.toml").unwrap_err();
+    assert!(err.to_string().contains("[[grounds]]"), "{err}");
+}
