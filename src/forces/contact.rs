@@ -128,6 +128,7 @@ pub fn add_contact_force(
 /// Adds one contact's tangent stiffness `K` and damping `C` (module docs) into `sink`, for the
 /// `response` that `add_contact_force` found at `kin` (poses `poses`, local velocities `v`).
 /// Nothing while the normal force is zero.
+#[allow(clippy::too_many_arguments)]
 pub fn add_contact_tangents<S: TangentSink + ?Sized>(
     model: &Model,
     poses: &[Pose],

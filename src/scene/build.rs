@@ -561,7 +561,7 @@ fn build_grounds(
             stiffness: number(g.stiffness, default_stiffness, limits::CONTACT_STIFFNESS, "N/m", "stiffness")?,
             dissipation: number(g.dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
             friction: number(g.mu, 1.0, limits::FRICTION, "", "mu")?,
-            stiction_speed: number(g.stiction_speed, 1e-4, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
+            stiction_speed: number(g.stiction_speed, 1e-5, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
         };
         grounds.push(GroundModel { name, normal, offset: normal.dot(&point), material });
     }

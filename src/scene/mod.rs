@@ -168,7 +168,7 @@ pub struct GroundSpec {
     /// d_dot)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub dissipation: Option<f64>,
-    /// Friction regularization speed, m/s (default 1e-4): below it friction acts as a stiff
+    /// Friction regularization speed, m/s (default 1e-5): below it friction acts as a stiff
     /// viscous stick, and a load at a fraction `r` of the friction limit creeps at
     /// `stiction_speed r / sqrt(1 - r^2)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -248,7 +248,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "stiction_speed",
             "number",
             "m/s",
-            "1e-4",
+            "1e-5",
             format!(
                 "friction regularization v_s: a load at a fraction r of mu F_n creeps at v_s r / sqrt(1 - r^2); {}",
                 range(limits::STICTION_SPEED)

@@ -64,6 +64,50 @@ impl AlphaCoefficients {
     }
 }
 
+/// The fraction `alpha <= 1` of the Newton update `dd` (local coordinates, its velocity change
+/// `gamma' dd`) that leaves every contact that slips now (slip speed above
+/// `SLIP_LIMIT_ZONE` times its `stiction_speed`) no further than the stick zone when the update
+/// would reverse its slip: `alpha = -u . du / |du|^2` for the slip `u` and its change `du`, the
+/// point of the update's line closest to zero slip. The friction law changes sign across a zone
+/// of width `v_s`, thousands of times smaller than the velocity a step changes by: a full Newton
+/// update from one side lands on the other, and back. 1 when nothing reverses.
+fn slip_reversal_limit(
+    model: &Model,
+    ws: &Workspace,
+    dd: nalgebra::DVectorView<'_, f64>,
+    gamma_p: f64,
+) -> f64 {
+    let mut alpha: f64 = 1.0;
+    for (s, sphere) in model.contact_spheres.iter().enumerate() {
+        let kin = &ws.points[sphere.point.0];
+        let body = &model.bodies[kin.body.0];
+        for (g, ground) in model.grounds.iter().enumerate() {
+            let c = &ws.contacts[s * model.grounds.len() + g];
+            let v_s = ground.material.stiction_speed;
+            if c.normal_force <= 0.0
+                || ground.material.friction == 0.0
+                || c.slip.norm() <= SLIP_LIMIT_ZONE * v_s
+            {
+                continue;
+            }
+            let mut dv = nalgebra::Vector3::zeros();
+            for k in 0..body.dof_count {
+                dv += kin.jacobian.column(k) * (gamma_p * dd[body.dof_offset + k]);
+            }
+            let du = dv - ground.normal * ground.normal.dot(&dv);
+            let along = c.slip.dot(&du);
+            if (c.slip + du).dot(&c.slip) < 0.0 {
+                alpha = alpha.min(-along / du.norm_squared());
+            }
+        }
+    }
+    alpha
+}
+
+/// Slip speeds above this many times a contact's `stiction_speed` count as slipping for
+/// `slip_reversal_limit`.
+pub const SLIP_LIMIT_ZONE: f64 = 2.0;
+
 impl Dynamics {
     #[allow(clippy::too_many_arguments)]
     pub(super) fn generalized_alpha(
@@ -97,15 +141,22 @@ impl Dynamics {
         self.trial.rest_lengths.copy_from_slice(rest_next);
         let mut stats = AttemptStats::default();
         let coefficients = (beta_p, gamma_p);
-        let mut reuse =
-            newton.reuse_factorization && self.factored_for == Some(coefficients) && !self.refresh;
+        // with contacts, full Newton: the friction's slope changes by orders of magnitude between
+        // slip and stick, and old factors then point the wrong way (on the six-bar robot's roll
+        // at stiction speeds 1e-3 to 1e-5 m/s, modified Newton had 15 to 92 steps rejected in
+        // 4 s, full Newton none)
+        let contacts = model.contact_pairs() > 0;
+        let mut reuse = newton.reuse_factorization
+            && !contacts
+            && self.factored_for == Some(coefficients)
+            && !self.refresh;
         let mut previous = f64::INFINITY;
         let mut stale = 0;
         let mut factorizations = 0;
         // full Newton factors the exact matrix; modified Newton starts from the symmetric part's
         // LDL^T and turns to the exact LU for the rest of the step when fresh symmetric factors
         // do not contract the residual well enough
-        let mut exact = !newton.reuse_factorization;
+        let mut exact = !newton.reuse_factorization || contacts;
         let mut fresh = false;
         for iter in 0..=newton.max_iterations {
             self.trial.poses.copy_from_slice(&state.poses);
@@ -179,8 +230,15 @@ impl Dynamics {
                     self.factored_for = None;
                     return Err(AttemptFailure::Diverged);
                 }
-                reuse = newton.reuse_factorization;
+                reuse = newton.reuse_factorization && !contacts;
                 stale = 0;
+            }
+            if contacts {
+                // a contact slipping one way must not be sent through stick to slip the other
+                let alpha = slip_reversal_limit(model, &self.ws, self.rhs.rows(0, n), gamma_p);
+                if alpha < 1.0 {
+                    self.rhs *= alpha;
+                }
             }
             let dd = self.rhs.rows(0, n);
             self.delta += dd;
