@@ -190,8 +190,8 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     let mut loss = 0.0;
     for (s, sphere) in model.contact_spheres.iter().enumerate() {
         for (g, ground) in model.grounds.iter().enumerate() {
-            let response =
-                add_contact_force(model, ground, sphere, &ws.points[sphere.point.0], &mut ws.force);
+            let kin = &ws.points[sphere.point.0];
+            let response = add_contact_force(model, &state.poses, v, ground, sphere, kin, &mut ws.force);
             elastic += response.energy;
             loss += response.loss_power;
             ws.contacts[s * model.grounds.len() + g] = response;

@@ -52,7 +52,7 @@ pub struct ContactReport {
     pub normal_force_n: f64,
     /// Friction force on the body, N, world frame.
     pub friction_n: [f64; 3],
-    /// Slip speed of the sphere's centre along the ground, m/s.
+    /// Slip speed of the sphere's contact point along the ground, m/s (0 while rolling).
     pub slip_speed_m_s: f64,
 }
 

@@ -193,6 +193,45 @@ fn a_block_slides_down_a_steep_incline_at_the_coulomb_acceleration() {
 }
 
 #[test]
+fn a_cylinder_rolls_down_an_incline_without_slipping() {
+    // a solid cylinder (radius 0.1 m, length 0.4 m, 1 kg; spheres of its radius at its end
+    // faces' centres) across the fall line of a 30 degree incline, mu 0.5 > tan 30 / 3: it rolls
+    // at a = g sin 30 / (1 + I / (m R^2)) = g sin 30 / 1.5 = 3.27 m/s^2, where sliding
+    // would be g (sin 30 - mu cos 30) = 0.657 m/s^2
+    let tilt = 30f64.to_radians();
+    let (r, len, k) = (0.1, 0.4, 1e6);
+    let depth = G * tilt.cos() / (2.0 * k);
+    let n = Vector3::new(0.0, -tilt.sin(), tilt.cos());
+    let centre = n * (r - depth);
+    let (axial, transverse) = (0.5 * r * r, (3.0 * r * r + len * len) / 12.0);
+    let model = model_from_toml(&format!(
+        "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"roller\"\nkind = \"rigid\"\nmass = 1.0\n\
+         position = [{}, {}, {}]\ninertia = [{axial}, {transverse}, {transverse}]\n\
+         points = {{ left = [{h}, 0.0, 0.0], right = [-{h}, 0.0, 0.0] }}\ncontact_radius = {r}\n\
+         contact_points = [\"left\", \"right\"]\n[[grounds]]\nnormal = [0.0, {}, {}]\nmu = 0.5\nstiffness = {k}\n",
+        centre.x,
+        centre.y,
+        centre.z,
+        n.y,
+        n.z,
+        h = len / 2.0
+    ));
+    let downhill = Vector3::new(0.0, -tilt.cos(), -tilt.sin());
+    let speed = |t: f64| {
+        let sim = run(&model, 5e-4, t);
+        let v = sim.state().velocities.fixed_rows::<3>(0).dot(&downhill);
+        let slip = sim.workspace().contacts[0].slip.norm();
+        (v, slip)
+    };
+    let ((v1, _), (v2, slip)) = (speed(0.5), speed(1.0));
+    let a = (v2 - v1) / 0.5;
+    let expected = G * tilt.sin() / 1.5;
+    println!("roll: a = {a:.6} m/s^2, closed form {expected:.6}; contact slip {slip:.1e} m/s at {v2:.3} m/s");
+    assert!((a - expected).abs() < 1e-4 * expected, "a = {a} m/s^2, closed form {expected}");
+    assert!(slip < 1e-4, "the contact point slips at {slip} m/s");
+}
+
+#[test]
 fn a_block_on_an_incline_within_its_friction_cone_stays_put() {
     // 30 degrees, mu 0.6 > tan 30: at the default regularization speed of 1e-5 m/s the block creeps at
     // v_s r / sqrt(1 - r^2) = 3.5e-5 m/s (r = tan 30 / 0.6 = 0.962): less than 1e-4 m in 2 s

@@ -514,7 +514,13 @@ pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
     let (taut_model, taut_state) = taut_stiffness_model(model, state, &ws);
     let (model, state) = (&taut_model, &taut_state);
     evaluate(model, state, &mut ws, Tangents::StiffnessAndDamping);
-    crate::forces::contact::add_contact_bounds(model, &ws.points, &mut ws.stiffness, &mut ws.damping);
+    crate::forces::contact::add_contact_bounds(
+        model,
+        &state.poses,
+        &ws.points,
+        &mut ws.stiffness,
+        &mut ws.damping,
+    );
     let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return (0.0, 0.0) };
     let m = z.transpose() * mass_matrix(model) * &z;
     let k = z.transpose() * ((&ws.stiffness + ws.stiffness.transpose()) * 0.5) * &z;
