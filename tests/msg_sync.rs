@@ -38,6 +38,8 @@ fn ros_to_format(ty: &str) -> Format {
         "uint64" => Format::U64,
         "int32" => Format::I32,
         "std_msgs/Header" => Format::TypeName("Header".into()),
+        "geometry_msgs/Point" => Format::TypeName("Point".into()),
+        "geometry_msgs/Vector3" => Format::TypeName("Vector3".into()),
         "builtin_interfaces/Time" => Format::TypeName("Time".into()),
         other => panic!("add a mapping for ROS type '{other}'"),
     }
@@ -59,10 +61,11 @@ fn rust_structs_match_the_msg_files_field_by_field() {
     tracer.trace_simple_type::<ActuatorCommand>().unwrap();
     tracer.trace_simple_type::<Structure>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::AppliedCommands>().unwrap();
+    tracer.trace_simple_type::<tensegrity::io::msg::ContactStates>().unwrap();
     let registry = tracer.registry().unwrap();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg/msg");
     let mut checked = 0;
-    for name in ["CableStates", "ActuatorCommand", "Structure", "AppliedCommands"] {
+    for name in ["CableStates", "ActuatorCommand", "Structure", "AppliedCommands", "ContactStates"] {
         let text = std::fs::read_to_string(dir.join(format!("{name}.msg"))).unwrap();
         let expected: Vec<(String, Format)> =
             parse_msg(&text).into_iter().map(|(ty, n)| (n, ros_to_format(&ty))).collect();
@@ -227,6 +230,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
     tracer.trace_simple_type::<msg::MarkerArray>().unwrap();
     tracer.trace_simple_type::<msg::AppliedCommands>().unwrap();
     tracer.trace_simple_type::<ActuatorCommand>().unwrap();
+    tracer.trace_simple_type::<msg::ContactStates>().unwrap();
     let registry = tracer.registry().unwrap();
     let rust_of = [
         ("rosgraph_msgs/msg/Clock", "Clock"),
@@ -239,6 +243,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
         ("visualization_msgs/msg/MarkerArray", "MarkerArray"),
         ("tensegrity_msgs/msg/AppliedCommands", "AppliedCommands"),
         ("tensegrity_msgs/msg/ActuatorCommand", "ActuatorCommand"),
+        ("tensegrity_msgs/msg/ContactStates", "ContactStates"),
     ];
     // every topic a bag records is covered
     for topic in Topic::ALL {

@@ -63,6 +63,44 @@ fn assert_replays_identically(dir: &Path) {
 }
 
 #[test]
+fn a_robot_on_the_ground_records_its_contacts_and_replays_them_bit_for_bit() {
+    let dir = bag_dir("contacts");
+    let scene = scene_path("sixbar.toml");
+    let out = cli(&[
+        "deploy",
+        scene.to_str().unwrap(),
+        "--dynamic",
+        "--from-equilibrium",
+        "--duration",
+        "0.3",
+        "--record",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let ours = our_counts(&dir);
+    let contacts = "/tensegrity_sim/contacts";
+    assert_eq!(ours.get(contacts), Some(&("tensegrity_msgs/msg/ContactStates".to_string(), 301)), "{ours:?}");
+    // at rest on its bottom face: three ends carry the weight, in the simulator's numbers
+    let model = tensegrity::scene::load(&scene).unwrap();
+    let weight: f64 = model.bodies.iter().map(|b| b.mass).sum::<f64>() * 9.81;
+    let reader = BagReader::open(&dir).unwrap();
+    let first: msg::ContactStates =
+        reader.messages().map(Result::unwrap).find(|m| m.topic == contacts).unwrap().decode().unwrap();
+    assert_eq!(first.point.len(), 12);
+    let standing: Vec<&str> =
+        first.point.iter().zip(&first.in_contact).filter(|(_, c)| **c).map(|(p, _)| p.as_str()).collect();
+    assert_eq!(standing, ["x0.b", "y0.b", "z0.b"]);
+    let carried: f64 = first.normal_force.iter().sum();
+    assert!((carried - weight).abs() < 1e-6 * weight, "{carried} N of {weight} N");
+    if let Some(v) = rosbags_read(&dir) {
+        assert_eq!(rosbags_counts(&v), ours, "rosbags and our reader disagree");
+        let read = &v["messages"][contacts][0];
+        assert_eq!(floats(&read["normal_force"]), first.normal_force, "rosbags reads other numbers");
+    }
+    assert_replays_identically(&dir);
+}
+
+#[test]
 fn a_dynamic_deployment_bag_reads_back_in_rosbags_equal_to_the_simulator() {
     let dir = deploy_recorded("dynamic", &["--dynamic", "--duration", "0.25"]);
     let ours = our_counts(&dir);
@@ -80,6 +118,7 @@ fn a_dynamic_deployment_bag_reads_back_in_rosbags_equal_to_the_simulator() {
         assert_eq!(ours.get(topic), Some(&(ty.to_string(), n)), "{topic}: {ours:?}");
     }
     assert!(ours.contains_key("/diagnostics") && ours.contains_key("/tensegrity_sim/markers"), "{ours:?}");
+    assert!(!ours.contains_key("/tensegrity_sim/contacts"), "a scene without grounds has no contacts topic");
     let Some(v) = rosbags_read(&dir) else { return };
     assert_eq!(rosbags_counts(&v), ours, "rosbags and our reader disagree");
 

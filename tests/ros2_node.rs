@@ -395,3 +395,44 @@ fn command_timeout_stops_the_winch_and_markers_show_the_structure() {
     let stats = node.stop();
     assert_eq!(stats.command_timeouts, 1);
 }
+
+#[test]
+fn a_robot_on_the_ground_publishes_its_contacts() {
+    if !isolated_or_rerun("a_robot_on_the_ground_publishes_its_contacts") {
+        return;
+    }
+    let domain = 73;
+    let params = NodeParams {
+        domain_id: domain,
+        real_time_factor: 1.0,
+        state_publish_rate: 100.0,
+        start_from_equilibrium: true,
+        ..Default::default()
+    };
+    let model = bundled("sixbar.toml");
+    let weight: f64 = model.bodies.iter().map(|b| b.mass).sum::<f64>() * 9.81;
+    let _node = RunningNode::start(model, params);
+    let ctx = context(domain, false).unwrap();
+    let mut ctl = ctx.new_node(NodeName::new("/", "controller").unwrap(), NodeOptions::new()).unwrap();
+    let t_contacts = ctl
+        .create_topic(
+            &Name::new("/tensegrity_sim", "contacts").unwrap(),
+            MessageTypeName::new("tensegrity_msgs", "ContactStates"),
+            &qos(10, false),
+        )
+        .unwrap();
+    let contacts = ctl.create_subscription::<msg::ContactStates>(&t_contacts, None).unwrap();
+    let m = wait_for(Duration::from_secs(10), || contacts.take().ok().flatten())
+        .expect("contact states arrive")
+        .0;
+    assert!(m.is_finite());
+    assert_eq!(m.point.len(), 12, "two ends of six bars against one floor");
+    assert!(m.ground.iter().all(|g| g == "floor"));
+    // standing on its bottom face (the winch starts hauling at 0.2 s: the first messages stand)
+    if m.header.stamp.seconds() < 0.2 {
+        let carried: f64 = m.normal_force.iter().sum();
+        assert!((carried - weight).abs() < 1e-3 * weight, "{carried} N of {weight} N");
+        assert_eq!(m.in_contact.iter().filter(|c| **c).count(), 3);
+    }
+    assert!(m.normal.iter().all(|n| (n.z - 1.0).abs() < 1e-12));
+}

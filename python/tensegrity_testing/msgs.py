@@ -66,6 +66,40 @@ class CableStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::CableStates_"
 
 
 @dataclass
+class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
+    """`geometry_msgs/msg/Point`."""
+
+    x: types.float64 = 0.0
+    y: types.float64 = 0.0
+    z: types.float64 = 0.0
+
+
+@dataclass
+class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
+    """`geometry_msgs/msg/Vector3`."""
+
+    x: types.float64 = 0.0
+    y: types.float64 = 0.0
+    z: types.float64 = 0.0
+
+
+@dataclass
+class ContactStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::ContactStates_"):
+    """`tensegrity_msgs/msg/ContactStates`."""
+
+    header: Header = field(default_factory=Header)
+    point: types.sequence[str] = field(default_factory=list)
+    ground: types.sequence[str] = field(default_factory=list)
+    in_contact: types.sequence[bool] = field(default_factory=list)
+    gap: types.sequence[types.float64] = field(default_factory=list)
+    position: types.sequence[Point] = field(default_factory=list)
+    normal: types.sequence[Vector3] = field(default_factory=list)
+    normal_force: types.sequence[types.float64] = field(default_factory=list)
+    friction: types.sequence[Vector3] = field(default_factory=list)
+    slip_speed: types.sequence[types.float64] = field(default_factory=list)
+
+
+@dataclass
 class Structure(IdlStruct, typename="tensegrity_msgs::msg::dds_::Structure_"):
     """`tensegrity_msgs/msg/Structure`."""
 
@@ -109,24 +143,6 @@ class Clock(IdlStruct, typename="rosgraph_msgs::msg::dds_::Clock_"):
     """`rosgraph_msgs/msg/Clock`."""
 
     clock: Time = field(default_factory=Time)
-
-
-@dataclass
-class Point(IdlStruct, typename="geometry_msgs::msg::dds_::Point_"):
-    """`geometry_msgs/msg/Point`."""
-
-    x: types.float64 = 0.0
-    y: types.float64 = 0.0
-    z: types.float64 = 0.0
-
-
-@dataclass
-class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
-    """`geometry_msgs/msg/Vector3`."""
-
-    x: types.float64 = 0.0
-    y: types.float64 = 0.0
-    z: types.float64 = 0.0
 
 
 @dataclass
@@ -307,6 +323,7 @@ TOPICS = {
     "~/structure": (Structure, 1, True),
     "/diagnostics": (DiagnosticArray, 16, False),
     "~/markers": (MarkerArray, 16, False),
+    "~/contacts": (ContactStates, 16, False),
     "~/actuator_commands": (ActuatorCommand, 1, False),
     "~/joint_commands": (JointState, 1, False),
 }

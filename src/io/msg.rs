@@ -284,6 +284,64 @@ pub struct Vector3 {
     pub z: f64,
 }
 
+/// `tensegrity_msgs/msg/ContactStates`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ContactStates {
+    /// Stamp and frame.
+    pub header: Header,
+    /// Each pair's sphere centre point (`body.point`, or `body` for a node).
+    pub point: Vec<String>,
+    /// Each pair's ground.
+    pub ground: Vec<String>,
+    /// Pressing into the ground.
+    pub in_contact: Vec<bool>,
+    /// Signed distance of the sphere's surface from the ground, m (negative: pressed in).
+    pub gap: Vec<f64>,
+    /// Contact point on the ground, m.
+    pub position: Vec<Point>,
+    /// The ground's outward unit normal.
+    pub normal: Vec<Vector3>,
+    /// Normal force, N.
+    pub normal_force: Vec<f64>,
+    /// Friction force on the body, N.
+    pub friction: Vec<Vector3>,
+    /// Slip speed of the contact point, m/s.
+    pub slip_speed: Vec<f64>,
+}
+
+impl ContactStates {
+    /// Every contact pair of an evaluated state (`report::contact_reports`).
+    pub fn from_state(model: &Model, state: &State, ws: &Workspace, frame: &str) -> Self {
+        let mut m = Self {
+            header: Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() },
+            ..Default::default()
+        };
+        let v = |a: [f64; 3]| Vector3 { x: a[0], y: a[1], z: a[2] };
+        for c in report::contact_reports(model, ws) {
+            m.point.push(c.point);
+            m.ground.push(c.ground);
+            m.in_contact.push(c.in_contact);
+            m.gap.push(c.gap_m);
+            let p = c.position_m;
+            m.position.push(Point { x: p[0], y: p[1], z: p[2] });
+            m.normal.push(v(c.normal));
+            m.normal_force.push(c.normal_force_n);
+            m.friction.push(v(c.friction_n));
+            m.slip_speed.push(c.slip_speed_m_s);
+        }
+        m
+    }
+
+    /// True if every number is finite (nothing else may be published).
+    pub fn is_finite(&self) -> bool {
+        let finite3 = |v: &Vector3| v.x.is_finite() && v.y.is_finite() && v.z.is_finite();
+        self.gap.iter().chain(&self.normal_force).chain(&self.slip_speed).all(|x| x.is_finite())
+            && self.position.iter().all(|p| p.x.is_finite() && p.y.is_finite() && p.z.is_finite())
+            && self.normal.iter().all(finite3)
+            && self.friction.iter().all(finite3)
+    }
+}
+
 /// `geometry_msgs/msg/Transform`.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Transform {

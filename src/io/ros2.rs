@@ -57,6 +57,11 @@ struct Publishers {
     tf_static: Publisher<msg::TfMessage>,
     diagnostics: Publisher<msg::DiagnosticArray>,
     markers: Publisher<msg::MarkerArray>,
+    /// `~/contacts`: its topic, and its writer once a scene with contacts publishes on it (a
+    /// scene without has no writer).
+    contacts_topic: ros2_client::dds::rustdds::Topic,
+    contacts: Option<Publisher<msg::ContactStates>>,
+    contacts_qos: TopicQos,
 }
 
 impl Message for msg::Empty {}
@@ -121,6 +126,18 @@ fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError
 impl NodeSink for DdsTransport {
     fn publish(&mut self, topic: Topic, v: &NodeView<'_>) -> Result<(), PublishError> {
         use crate::io::sink::TopicMessage as M;
+        if topic == Topic::Contacts && self.publishers.contacts.is_none() {
+            let (depth, transient) =
+                (self.publishers.contacts_qos.depth, self.publishers.contacts_qos.transient_local);
+            let writer = self
+                ._node
+                .create_publisher(
+                    &self.publishers.contacts_topic,
+                    Some(writer_qos(depth as usize, transient)),
+                )
+                .map_err(|e| PublishError::Failed(format!("~/contacts writer: {e:?}")))?;
+            self.publishers.contacts = Some(writer);
+        }
         let p = &self.publishers;
         match (topic, M::build(topic, v)?) {
             (_, Some(M::Clock(m))) => sent(p.clock.publish(m)),
@@ -132,6 +149,10 @@ impl NodeSink for DdsTransport {
             (_, Some(M::Structure(m))) => sent(p.structure.publish(m)),
             (_, Some(M::Diagnostics(m))) => sent(p.diagnostics.publish(m)),
             (_, Some(M::Markers(m))) => sent(p.markers.publish(m)),
+            (_, Some(M::Contacts(m))) => match &p.contacts {
+                Some(w) => sent(w.publish(m)),
+                None => Ok(()),
+            },
             // the whole-state sample: the same state goes out on the topics above
             (_, None) => Ok(()),
         }
@@ -251,6 +272,14 @@ impl DdsTransport {
             tf_static: publisher!(Topic::TfStatic),
             diagnostics: publisher!(Topic::Diagnostics),
             markers: publisher!(Topic::Markers),
+            contacts_topic: outputs
+                .iter()
+                .find(|(t, _, _)| *t == Topic::Contacts)
+                .expect("every ROS topic is declared")
+                .1
+                .clone(),
+            contacts: None,
+            contacts_qos: topics::topic_type(Topic::Contacts).expect("a ROS topic").1,
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,

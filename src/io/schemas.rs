@@ -10,6 +10,7 @@ const DEFINITIONS: &[(&str, &str)] = &[
     ("tensegrity_msgs/ActuatorCommand", include_str!("../../msg/msg/ActuatorCommand.msg")),
     ("tensegrity_msgs/AppliedCommands", include_str!("../../msg/msg/AppliedCommands.msg")),
     ("tensegrity_msgs/CableStates", include_str!("../../msg/msg/CableStates.msg")),
+    ("tensegrity_msgs/ContactStates", include_str!("../../msg/msg/ContactStates.msg")),
     ("tensegrity_msgs/Structure", include_str!("../../msg/msg/Structure.msg")),
     ("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),
     ("builtin_interfaces/Duration", "int32 sec\nuint32 nanosec\n"),

@@ -8,8 +8,8 @@ use serde::Serialize;
 use crate::control::ActuatorCommand;
 use crate::evaluate::Workspace;
 use crate::io::msg::{
-    CableStates, Clock, DiagnosticArray, DiagnosticStatus, Header, JointState, MarkerArray, PoseArray,
-    SimResult, Structure, TfMessage, Time,
+    CableStates, Clock, ContactStates, DiagnosticArray, DiagnosticStatus, Header, JointState, MarkerArray,
+    PoseArray, SimResult, Structure, TfMessage, Time,
 };
 use crate::io::topics::Topic;
 use crate::model::{ActuatorId, Model};
@@ -115,7 +115,7 @@ pub struct NodeStats {
     /// Times the command timeout fired.
     pub command_timeouts: u64,
     /// Failed publishes per topic, in `Topic::ALL` order.
-    pub publish_failures: [u64; 10],
+    pub publish_failures: [u64; Topic::ALL.len()],
     /// Incoming samples a transport could not read (malformed, wrong layout).
     pub malformed_incoming: u64,
     /// StepSimulation requests refused or interrupted.
@@ -153,6 +153,8 @@ pub enum TopicMessage {
     Diagnostics(DiagnosticArray),
     /// `~/markers`.
     Markers(MarkerArray),
+    /// `~/contacts`.
+    Contacts(ContactStates),
 }
 
 impl TopicMessage {
@@ -185,6 +187,15 @@ impl TopicMessage {
                 Self::Diagnostics(DiagnosticArray { header, status: view.diagnostics.to_vec() })
             }
             Topic::Markers => Self::Markers(MarkerArray::from_state(model, state, ws, frame)),
+            Topic::Contacts => {
+                let contacts = ContactStates::from_state(model, state, ws, frame);
+                if !contacts.is_finite() {
+                    return Err(crate::io::sink::PublishError::Failed(
+                        "refusing to publish non-finite contact states".into(),
+                    ));
+                }
+                Self::Contacts(contacts)
+            }
             Topic::State => return Ok(None),
         }))
     }

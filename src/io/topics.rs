@@ -27,6 +27,8 @@ pub enum Topic {
     Diagnostics,
     /// `~/markers`.
     Markers,
+    /// `~/contacts` (only scenes with grounds publish it: `Topic::published_by`).
+    Contacts,
     /// The whole state in one sample (body poses, cables, actuators, time and step index), for
     /// transports that carry it so (shared memory); published with the other state topics.
     State,
@@ -34,7 +36,7 @@ pub enum Topic {
 
 impl Topic {
     /// Every topic, in the order of `NodeStats::publish_failures`.
-    pub const ALL: [Topic; 10] = [
+    pub const ALL: [Topic; 11] = [
         Topic::Clock,
         Topic::Tf,
         Topic::TfStatic,
@@ -44,6 +46,7 @@ impl Topic {
         Topic::Structure,
         Topic::Diagnostics,
         Topic::Markers,
+        Topic::Contacts,
         Topic::State,
     ];
     /// The topic's name (`~/` is the node's private namespace).
@@ -58,6 +61,7 @@ impl Topic {
             Topic::Structure => "~/structure",
             Topic::Diagnostics => "/diagnostics",
             Topic::Markers => "~/markers",
+            Topic::Contacts => "~/contacts",
             Topic::State => "~/state",
         }
     }
@@ -67,8 +71,21 @@ impl Topic {
     }
     /// The topics of one state, in publish order: the whole-state sample first (a shared-memory
     /// sample takes microseconds, so it does not wait for the DDS messages' serialization).
-    pub const STATE: [Topic; 5] =
-        [Topic::State, Topic::BodyPoses, Topic::Tf, Topic::CableStates, Topic::ActuatorStates];
+    pub const STATE: [Topic; 6] = [
+        Topic::State,
+        Topic::BodyPoses,
+        Topic::Tf,
+        Topic::CableStates,
+        Topic::ActuatorStates,
+        Topic::Contacts,
+    ];
+
+    /// Whether a node of `model` publishes this topic: `~/contacts` only where the scene declares
+    /// grounds and contact spheres (a scene without contact has no such topic, no writer and no
+    /// bag channel), every other topic always.
+    pub fn published_by(self, model: &crate::model::Model) -> bool {
+        self != Topic::Contacts || model.contact_pairs() > 0
+    }
 }
 
 /// QoS a topic is offered with (what `ros2 bag play` offers again): reliable, keep last `depth`,
@@ -116,6 +133,7 @@ pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
         Topic::Structure => ("tensegrity_msgs/msg/Structure", q(1, true)),
         Topic::Diagnostics => ("diagnostic_msgs/msg/DiagnosticArray", q(16, false)),
         Topic::Markers => ("visualization_msgs/msg/MarkerArray", q(16, false)),
+        Topic::Contacts => ("tensegrity_msgs/msg/ContactStates", q(16, false)),
         Topic::State => return None,
     })
 }

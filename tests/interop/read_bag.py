@@ -47,6 +47,11 @@ def fields(msgtype, m):
         return {'level': [int(s.level) for s in m.status]}
     if msgtype == 'visualization_msgs/msg/MarkerArray':
         return {'markers': len(m.markers)}
+    if msgtype == 'tensegrity_msgs/msg/ContactStates':
+        return {'point': list(m.point), 'ground': list(m.ground), 'in_contact': [bool(b) for b in m.in_contact],
+                'normal_force': [float(f) for f in m.normal_force],
+                'position': [[p.x, p.y, p.z] for p in m.position],
+                'friction': [[f.x, f.y, f.z] for f in m.friction]}
     raise SystemExit(f'unexpected type {msgtype}')
 
 

@@ -634,7 +634,9 @@ impl NodeCore {
     /// The state topics (`Topic::STATE`).
     fn publish_state(&mut self, sink: &mut dyn NodeSink) {
         for topic in Topic::STATE {
-            self.publish(sink, topic);
+            if topic.published_by(self.sim.model()) {
+                self.publish(sink, topic);
+            }
         }
         self.last_state_publish = Some(self.sim.state().time);
     }

@@ -5,6 +5,7 @@
 
 use crate::evaluate::Workspace;
 use crate::forces::cable::CableResponse;
+use crate::forces::contact::ContactResponse;
 use crate::io::record::bag::{BagTopic, Compose};
 use crate::io::sink::TopicMessage;
 use crate::io::sink::{ConstantsId, NodeStats, NodeView};
@@ -16,8 +17,8 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 /// The topics whose messages the writer thread builds from a `StepBatch`'s states. `/clock`
 /// goes in the batch too (its time alone); the others are built on the node's thread: those
 /// sent once or rarely.
-pub(super) const DEFERRED: [Topic; 5] =
-    [Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers];
+pub(super) const DEFERRED: [Topic; 6] =
+    [Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers, Topic::Contacts];
 
 /// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
 /// record is one step's `/clock` or one state, whatever topics it is published on): one queue
@@ -116,7 +117,7 @@ pub(super) struct StepBatch {
     node_name: String,
     constants: Option<ConstantsId>,
     /// Bag topic of each `Topic`, in `Topic::ALL` order (the recorder's).
-    handles: [Option<BagTopic>; 10],
+    handles: [Option<BagTopic>; Topic::ALL.len()],
     /// The writer thread's unpacked state, to build messages from.
     view: UnpackedState,
     /// Reused serialization buffer.
@@ -133,7 +134,7 @@ pub(super) struct UnpackedState {
 }
 
 impl StepBatch {
-    pub(super) fn new(model: std::sync::Arc<Model>, handles: [Option<BagTopic>; 10]) -> Self {
+    pub(super) fn new(model: std::sync::Arc<Model>, handles: [Option<BagTopic>; Topic::ALL.len()]) -> Self {
         let (packed_len, points_len) = (packed_len(&model), 3 * model.points.len());
         let state_len = packed_len + points_len;
         Self {
@@ -230,7 +231,8 @@ impl StepBatch {
 /// Appends what the state messages read from `view` to `out` (`len` numbers, `packed_len` of
 /// its model), in the order `unpack_state` reads it back: time; per body position (3) and
 /// rotation quaternion (i, j, k, w); rest lengths; per cable length, rest length, tension and
-/// slack (1 or 0); segment lengths; rates.
+/// slack (1 or 0); segment lengths; rates; per contact pair gap, normal force, friction (3),
+/// slip (3) and contact point (3).
 /// Sizes are the model's. Point positions, which the markers alone read, are appended by
 /// `pack_points` when a state is published on `~/markers`. What no message reads (velocities,
 /// multipliers, length rates, energies) is not copied: a message that comes to read more must
@@ -250,13 +252,23 @@ pub(super) fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
     }
     out.extend_from_slice(&ws.segment_lengths);
     out.extend_from_slice(view.rates);
+    for c in &ws.contacts {
+        out.extend_from_slice(&[c.gap, c.normal_force]);
+        out.extend_from_slice(c.friction.as_slice());
+        out.extend_from_slice(c.slip.as_slice());
+        out.extend_from_slice(c.position.as_slice());
+    }
     debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
 
 /// How many numbers `pack_state` packs for a state of `model`.
 pub(super) fn packed_len(model: &Model) -> usize {
     let segments: usize = model.cables.iter().map(|c| c.segment_count()).sum();
-    1 + 7 * model.bodies.len() + 5 * model.cables.len() + segments + model.cables.len()
+    1 + 7 * model.bodies.len()
+        + 5 * model.cables.len()
+        + segments
+        + model.cables.len()
+        + 11 * model.contact_pairs()
 }
 
 /// Appends every point's position (3 each) of `view` to `out`.
@@ -301,6 +313,18 @@ pub(super) fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut Unp
     ws.segment_lengths.copy_from_slice(take(n));
     let n = to.rates.len();
     to.rates.copy_from_slice(take(n));
+    for c in &mut ws.contacts {
+        let v = take(11);
+        *c = ContactResponse {
+            gap: v[0],
+            normal_force: v[1],
+            friction: Vector3::new(v[2], v[3], v[4]),
+            slip: Vector3::new(v[5], v[6], v[7]),
+            position: Vector3::new(v[8], v[9], v[10]),
+            // not read by any message (`pack_state`)
+            ..Default::default()
+        };
+    }
     if let Some(points) = points {
         for (p, xyz) in ws.points.iter_mut().zip(points.chunks_exact(3)) {
             p.position = Vector3::from_column_slice(xyz);
@@ -458,7 +482,7 @@ mod tests {
         pack_state(&live, packed_len(&model), &mut numbers);
         let points = numbers.len();
         pack_points(&live, &mut numbers);
-        let mut unpacked = StepBatch::new(std::sync::Arc::new(model.clone()), [None; 10]).view;
+        let mut unpacked = StepBatch::new(std::sync::Arc::new(model.clone()), [None; Topic::ALL.len()]).view;
         let point_numbers = &numbers[points..];
         assert_eq!(point_numbers.len(), 3 * model.points.len());
         unpack_state(&numbers[start..], Some(point_numbers), &mut unpacked);

@@ -180,12 +180,12 @@ pub fn settings_of(run: &RunInfo) -> Result<(SimSettings, NodeParams), String> {
     Ok((settings, params))
 }
 
-/// The topics a node with `params` publishes, and the applied commands, as bag topics: the
-/// `Topic` each comes from (`None`: applied commands).
-pub fn node_topics(params: &NodeParams) -> Vec<(Option<Topic>, TopicSpec)> {
+/// The topics a node with `params` publishes for `model`, and the applied commands, as bag
+/// topics: the `Topic` each comes from (`None`: applied commands).
+pub fn node_topics(params: &NodeParams, model: &Model) -> Vec<(Option<Topic>, TopicSpec)> {
     let mut out = Vec::new();
     for topic in Topic::ALL {
-        if topic == Topic::Markers && params.markers_rate <= 0.0 {
+        if (topic == Topic::Markers && params.markers_rate <= 0.0) || !topic.published_by(model) {
             continue;
         }
         if let Some((type_name, qos)) = topic_type(topic) {

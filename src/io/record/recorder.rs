@@ -30,7 +30,7 @@ pub struct BagRecorder {
     /// batch is full, any other message comes, or the bag closes).
     batch: Option<Box<StepBatch>>,
     /// Bag topic of each `Topic`, in `Topic::ALL` order.
-    topics: [Option<BagTopic>; 10],
+    topics: [Option<BagTopic>; Topic::ALL.len()],
     applied: BagTopic,
     actuator_names: Vec<String>,
     log_time: LogTime,
@@ -51,11 +51,11 @@ impl BagRecorder {
         log_time: LogTime,
         options: &BagOptions,
     ) -> Result<Self, BagError> {
-        let specs = node_topics(params);
+        let specs = node_topics(params, model);
         // the queue holds batches of states: as many states as `options.queue` messages
         let options = BagOptions { queue: options.queue.div_ceil(BATCH_RECORDS), ..options.clone() };
         let writer = BagWriter::create(dir, specs.iter().map(|(_, s)| s.clone()).collect(), run, &options)?;
-        let mut topics = [None; 10];
+        let mut topics = [None; Topic::ALL.len()];
         let mut applied = BagTopic(0);
         for (k, (topic, _)) in specs.iter().enumerate() {
             match topic {
@@ -333,7 +333,7 @@ impl PathPublisher {
             let _ = sink.publish(Topic::Structure, &view);
             let _ = sink.publish(Topic::TfStatic, &view);
         }
-        for t in Topic::STATE.into_iter().chain([Topic::Clock]) {
+        for t in Topic::STATE.into_iter().chain([Topic::Clock]).filter(|t| t.published_by(model)) {
             let _ = sink.publish(t, &view);
         }
         self.previous = Some((state.time, state.rest_lengths.clone()));

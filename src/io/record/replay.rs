@@ -104,7 +104,7 @@ struct Produced {
 /// Collects what a re-run publishes, serialized as the recorder would, and passes it on to an
 /// optional recorder (`--out`).
 struct RerunSink {
-    names: [Option<String>; 10],
+    names: [Option<String>; Topic::ALL.len()],
     produced: VecDeque<Produced>,
     applied: u64,
     out: Option<BagRecorder>,
@@ -191,8 +191,8 @@ pub fn replay(
         }
         Ok(Some(BagRecorder::create(dir, model, &params, &record, log, &BagOptions::default())?))
     };
-    let mut names: [Option<String>; 10] = Default::default();
-    for (topic, spec) in node_topics(&params) {
+    let mut names: [Option<String>; Topic::ALL.len()] = Default::default();
+    for (topic, spec) in node_topics(&params, &model) {
         if let Some(t) = topic {
             names[t.index()] = Some(spec.name);
         }
@@ -434,6 +434,7 @@ pub fn decode_json(m: &crate::io::record::bag::RecordedMessage) -> Result<serde_
         "tf2_msgs/msg/TFMessage" => json::<msg::TfMessage>(m),
         "geometry_msgs/msg/PoseArray" => json::<msg::PoseArray>(m),
         "tensegrity_msgs/msg/CableStates" => json::<msg::CableStates>(m),
+        "tensegrity_msgs/msg/ContactStates" => json::<msg::ContactStates>(m),
         "sensor_msgs/msg/JointState" => json::<msg::JointState>(m),
         "tensegrity_msgs/msg/Structure" => json::<msg::Structure>(m),
         "diagnostic_msgs/msg/DiagnosticArray" => json::<msg::DiagnosticArray>(m),
