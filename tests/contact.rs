@@ -118,20 +118,7 @@ fn a_weight_rests_at_its_closed_form_penetration_and_the_ground_never_pulls() {
 
 #[test]
 fn a_prism_resting_on_the_ground_carries_its_weight_on_its_bar_ends() {
-    // the bundled prism without its pins, with a bottom ring (as `common::free_prism`)
-    let mut spec = tensegrity::scene::generate::prism(&tensegrity::scene::generate::PrismParams::default());
-    spec.joints.clear();
-    let template = spec.cables[0].clone();
-    for i in 0..3 {
-        spec.cables.push(tensegrity::scene::CableSpec {
-            name: format!("bottom{i}"),
-            route: vec![format!("bar0_{i}.a"), format!("bar0_{}.a", (i + 1) % 3)],
-            prestress: None,
-            rest_length: None,
-            force_density: None,
-            ..template.clone()
-        });
-    }
+    let mut spec = common::free_prism_spec();
     for b in &mut spec.bodies {
         b.contact_radius = Some(0.01);
     }

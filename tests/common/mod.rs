@@ -154,8 +154,8 @@ pub fn scratch(name: &str) -> std::path::PathBuf {
     d
 }
 
-/// The bundled prism without its pins and with a bottom ring: held by nothing.
-pub fn free_prism() -> Model {
+/// The bundled prism's spec without its pins and with a bottom ring: held by nothing.
+pub fn free_prism_spec() -> SceneSpec {
     let mut spec = tensegrity::scene::generate::prism(&tensegrity::scene::generate::PrismParams::default());
     spec.name = "free prism".into();
     spec.joints.clear();
@@ -170,5 +170,10 @@ pub fn free_prism() -> Model {
             ..template.clone()
         });
     }
-    build_model(&spec, "<free prism>", None).unwrap_or_else(|e| panic!("{e}"))
+    spec
+}
+
+/// The bundled prism without its pins and with a bottom ring: held by nothing.
+pub fn free_prism() -> Model {
+    build_model(&free_prism_spec(), "<free prism>", None).unwrap_or_else(|e| panic!("{e}"))
 }
