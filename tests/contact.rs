@@ -414,3 +414,26 @@ fn error_controlled_generalized_alpha_resolves_the_impacts_a_long_fixed_step_mis
     };
     assert!(matches!(Simulator::new(model.clone(), settings), Err(StepError::ToleranceWithContact { .. })));
 }
+
+#[test]
+fn rviz_markers_show_the_contact_points_and_their_forces() {
+    use tensegrity::io::msg::MarkerArray;
+    let model = common::bundled("sixbar");
+    let sim = Simulator::at_equilibrium(model.clone(), SimSettings::default()).unwrap();
+    let markers = MarkerArray::from_state(&model, sim.state(), sim.workspace(), "world").markers;
+    let find = |ns: &str| markers.iter().find(|m| m.ns == ns).unwrap_or_else(|| panic!("no {ns} marker"));
+    let (points, forces) = (find("contacts"), find("contact_forces"));
+    assert_eq!(points.points.len(), 3, "the three ends it stands on");
+    assert_eq!(forces.points.len(), 6, "a line per contact");
+    for pair in forces.points.chunks(2) {
+        // standing still on a level floor: straight up, the largest a fifth of the robot's size
+        assert!((pair[1].z - pair[0].z) > 0.1 && (pair[1].x - pair[0].x).abs() < 1e-6);
+    }
+    // a scene without grounds draws none
+    let prism = common::bundled("prism3");
+    let state = State::initial(&prism);
+    let mut ws = Workspace::new(&prism);
+    evaluate(&prism, &state, &mut ws, Tangents::None);
+    let plain = MarkerArray::from_state(&prism, &state, &ws, "world").markers;
+    assert!(plain.iter().all(|m| !m.ns.starts_with("contact")));
+}

@@ -765,7 +765,10 @@ pub struct MarkerArray {
 impl MarkerArray {
     /// RViz view of an evaluated state: struts (bars, and rigid bodies' points joined to their
     /// centre) as grey lines, nodes as spheres, and cable segments coloured from blue (no tension)
-    /// to red (the largest tension), slack cables pale grey.
+    /// to red (the largest tension), slack cables pale grey. In a scene with grounds, also the
+    /// contact points that press into a ground (green spheres, `contacts`) and their forces
+    /// (`contact_forces`: a line from each contact point along the force on the body, normal and
+    /// friction, the largest force drawn a fifth of the structure's size long).
     pub fn from_state(model: &Model, state: &State, ws: &Workspace, frame: &str) -> Self {
         use crate::model::BodyKind;
         let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() };
@@ -819,6 +822,28 @@ impl MarkerArray {
         let mut markers = vec![struts, cables];
         if !nodes.points.is_empty() {
             markers.push(nodes);
+        }
+        if model.contact_pairs() > 0 {
+            let green = ColorRgba { r: 0.1, g: 0.7, b: 0.2, a: 1.0 };
+            let mut touching = base("contacts", 7, 0.04, green);
+            let mut forces = base("contact_forces", 5, 0.01, ColorRgba { r: 0.1, g: 0.5, b: 0.1, a: 1.0 });
+            let f_max = ws.contacts.iter().map(|c| c.normal_force).fold(0.0, f64::max).max(1e-12);
+            let (lo, hi) = ws.points.iter().fold(
+                (nalgebra::Vector3::repeat(f64::INFINITY), nalgebra::Vector3::repeat(f64::NEG_INFINITY)),
+                |(lo, hi), p| (lo.inf(&p.position), hi.sup(&p.position)),
+            );
+            let length = 0.2 * (hi - lo).norm() / f_max;
+            for (k, c) in ws.contacts.iter().enumerate() {
+                if !c.in_contact() {
+                    continue;
+                }
+                let normal = model.grounds[k % model.grounds.len()].normal;
+                touching.points.push(point(&c.position));
+                forces.points.push(point(&c.position));
+                forces.points.push(point(&(c.position + c.force(&normal) * length)));
+            }
+            markers.push(touching);
+            markers.push(forces);
         }
         for (i, m) in markers.iter_mut().enumerate() {
             m.id = i as i32;
