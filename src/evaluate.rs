@@ -188,14 +188,12 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
 
     // contacts: every sphere against every ground
     let mut loss = 0.0;
-    for (s, sphere) in model.contact_spheres.iter().enumerate() {
-        for (g, ground) in model.grounds.iter().enumerate() {
-            let kin = &ws.points[sphere.point.0];
-            let response = add_contact_force(model, &state.poses, v, ground, sphere, kin, &mut ws.force);
-            elastic += response.energy;
-            loss += response.loss_power;
-            ws.contacts[s * model.grounds.len() + g] = response;
-        }
+    for (k, sphere, ground) in model.contact_pair_list() {
+        let kin = &ws.points[sphere.point.0];
+        let response = add_contact_force(model, &state.poses, v, ground, sphere, kin, &mut ws.force);
+        elastic += response.energy;
+        loss += response.loss_power;
+        ws.contacts[k] = response;
     }
     ws.contact_loss_power = loss;
 
@@ -215,20 +213,9 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     scratch: &mut CableScratch,
     sink: &mut S,
 ) {
-    for (s, sphere) in model.contact_spheres.iter().enumerate() {
-        for (g, ground) in model.grounds.iter().enumerate() {
-            let response = &contacts[s * model.grounds.len() + g];
-            add_contact_tangents(
-                model,
-                &state.poses,
-                &state.velocities,
-                ground,
-                sphere,
-                &points[sphere.point.0],
-                response,
-                sink,
-            );
-        }
+    for (k, sphere, ground) in model.contact_pair_list() {
+        let (poses, v, kin) = (&state.poses, &state.velocities, &points[sphere.point.0]);
+        add_contact_tangents(model, poses, v, ground, sphere, kin, &contacts[k], sink);
     }
     for (c, cable) in model.cables.iter().enumerate() {
         let t = cables[c].tension;

@@ -59,21 +59,19 @@ pub struct ContactReport {
 /// Every contact pair of `model` (sphere-major, `Model::contact_pairs`) from the evaluated `ws`.
 pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
     let mut out = Vec::with_capacity(model.contact_pairs());
-    for (s, sphere) in model.contact_spheres.iter().enumerate() {
-        for (g, ground) in model.grounds.iter().enumerate() {
-            let c = &ws.contacts[s * model.grounds.len() + g];
-            out.push(ContactReport {
-                point: model.points[sphere.point.0].name.clone(),
-                ground: ground.name.clone(),
-                in_contact: c.in_contact(),
-                gap_m: c.gap,
-                position_m: c.position.into(),
-                normal: ground.normal.into(),
-                normal_force_n: c.normal_force,
-                friction_n: c.friction.into(),
-                slip_speed_m_s: c.slip.norm(),
-            });
-        }
+    for (k, sphere, ground) in model.contact_pair_list() {
+        let c = &ws.contacts[k];
+        out.push(ContactReport {
+            point: model.points[sphere.point.0].name.clone(),
+            ground: ground.name.clone(),
+            in_contact: c.in_contact(),
+            gap_m: c.gap,
+            position_m: c.position.into(),
+            normal: ground.normal.into(),
+            normal_force_n: c.normal_force,
+            friction_n: c.friction.into(),
+            slip_speed_m_s: c.slip.norm(),
+        });
     }
     out
 }
@@ -82,12 +80,10 @@ pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
 /// `_friction_N` (magnitude) and `_slip_m_s` (slip speed); none without contacts.
 pub fn contact_csv_columns(model: &Model) -> Vec<String> {
     let mut cols = Vec::new();
-    for sphere in &model.contact_spheres {
-        for ground in &model.grounds {
-            let pair = format!("{}@{}", model.points[sphere.point.0].name, ground.name);
-            for what in ["normal_force_N", "friction_N", "slip_m_s"] {
-                cols.push(format!("{pair}_{what}"));
-            }
+    for (_, sphere, ground) in model.contact_pair_list() {
+        let pair = format!("{}@{}", model.points[sphere.point.0].name, ground.name);
+        for what in ["normal_force_N", "friction_N", "slip_m_s"] {
+            cols.push(format!("{pair}_{what}"));
         }
     }
     cols

@@ -523,11 +523,13 @@ impl Simulator {
                         }
                         let retry = fraction * h_try;
                         if fraction < 1.0 && retry >= dt * MIN_CONTROLLED_STEP {
-                            self.state.copy_from(before);
-                            evaluate_forces(&self.model, &self.state, &mut self.ws);
-                            if !self.dynamics.initialize(&self.model, &mut self.state) {
-                                return Err(StepError::Initialization);
-                            }
+                            undo_sub_step(
+                                &self.model,
+                                &mut self.dynamics,
+                                &mut self.state,
+                                &mut self.ws,
+                                before,
+                            )?;
                             stats.rejected += 1;
                             stats.newton_iterations += a.iterations;
                             h = retry;
@@ -553,12 +555,14 @@ impl Simulator {
                         if gain.is_nan() || gain > IMPLICIT_GAIN_FACTOR * scale {
                             // undo the sub-step and retry it in halves, from consistent
                             // accelerations at the restored state
-                            self.state.copy_from(before);
                             self.energy = *energy_before;
-                            evaluate_forces(&self.model, &self.state, &mut self.ws);
-                            if !self.dynamics.initialize(&self.model, &mut self.state) {
-                                return Err(StepError::Initialization);
-                            }
+                            undo_sub_step(
+                                &self.model,
+                                &mut self.dynamics,
+                                &mut self.state,
+                                &mut self.ws,
+                                before,
+                            )?;
                             stats.rejected += 1;
                             stats.newton_iterations += a.iterations;
                             h = 0.5 * h_try;
@@ -681,6 +685,24 @@ impl Simulator {
             }
         }
         self
+    }
+}
+
+/// Undoes a sub-step: `state` back to `before`, `ws` evaluated there (`evaluate_forces`), and the
+/// integrator restarted from consistent accelerations (its history is the undone sub-step's).
+fn undo_sub_step(
+    model: &Model,
+    dynamics: &mut Dynamics,
+    state: &mut State,
+    ws: &mut Workspace,
+    before: &State,
+) -> Result<(), StepError> {
+    state.copy_from(before);
+    evaluate_forces(model, state, ws);
+    if dynamics.initialize(model, state) {
+        Ok(())
+    } else {
+        Err(StepError::Initialization)
     }
 }
 

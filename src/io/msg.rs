@@ -833,14 +833,14 @@ impl MarkerArray {
                 |(lo, hi), p| (lo.inf(&p.position), hi.sup(&p.position)),
             );
             let length = 0.2 * (hi - lo).norm() / f_max;
-            for (k, c) in ws.contacts.iter().enumerate() {
+            for (k, _, ground) in model.contact_pair_list() {
+                let c = &ws.contacts[k];
                 if !c.in_contact() {
                     continue;
                 }
-                let normal = model.grounds[k % model.grounds.len()].normal;
                 touching.points.push(point(&c.position));
                 forces.points.push(point(&c.position));
-                forces.points.push(point(&(c.position + c.force(&normal) * length)));
+                forces.points.push(point(&(c.position + c.force(&ground.normal) * length)));
             }
             markers.push(touching);
             markers.push(forces);

@@ -419,6 +419,15 @@ impl Model {
         self.contact_spheres.len() * self.grounds.len()
     }
 
+    /// Every contact pair, in that order: `(k, sphere, ground)` with `k = s * grounds.len() + g`.
+    pub fn contact_pair_list(&self) -> impl Iterator<Item = (usize, &ContactSphere, &GroundModel)> + '_ {
+        self.contact_spheres
+            .iter()
+            .flat_map(move |sphere| self.grounds.iter().map(move |ground| (sphere, ground)))
+            .enumerate()
+            .map(|(k, (sphere, ground))| (k, sphere, ground))
+    }
+
     /// Index of the body called `name`.
     pub fn body_id(&self, name: &str) -> Option<BodyId> {
         self.bodies.iter().position(|b| b.name == name).map(BodyId)

@@ -28,6 +28,7 @@ use nalgebra::Matrix6;
 
 use crate::constraints::{add_multiplier_hessian_to, add_reaction_force};
 use crate::evaluate::{add_tangents, evaluate_forces, Workspace};
+use crate::forces::contact::contact_point;
 use crate::model::Model;
 use crate::solve::linear::{FactorKind, KktSystem};
 use crate::state::{retract, State};
@@ -64,8 +65,8 @@ impl AlphaCoefficients {
     }
 }
 
-/// The fraction `alpha <= 1` of the Newton update `dd` (local coordinates, its velocity change
-/// `gamma' dd`) that leaves every contact that slips now (slip speed above
+/// The fraction `alpha <= 1` of the Newton update `dd` at the iterate `state` (local coordinates,
+/// its velocity change `gamma' dd`) that leaves every contact that slips now (slip speed above
 /// `SLIP_LIMIT_ZONE` times its `stiction_speed`) no further than the stick zone when the update
 /// would reverse its slip: `alpha = -u . du / |du|^2` for the slip `u` and its change `du`, the
 /// point of the update's line closest to zero slip. The friction law changes sign across a zone
@@ -73,32 +74,30 @@ impl AlphaCoefficients {
 /// update from one side lands on the other, and back. 1 when nothing reverses.
 fn slip_reversal_limit(
     model: &Model,
+    state: &State,
     ws: &Workspace,
     dd: nalgebra::DVectorView<'_, f64>,
     gamma_p: f64,
 ) -> f64 {
     let mut alpha: f64 = 1.0;
-    for (s, sphere) in model.contact_spheres.iter().enumerate() {
+    for (k, sphere, ground) in model.contact_pair_list() {
+        let c = &ws.contacts[k];
+        let v_s = ground.material.stiction_speed;
+        if c.normal_force <= 0.0 || ground.material.friction == 0.0 || c.slip.norm() <= SLIP_LIMIT_ZONE * v_s
+        {
+            continue;
+        }
+        // the slip is the contact point's: its velocity change is J_c gamma' dd
         let kin = &ws.points[sphere.point.0];
+        let j_c = contact_point(model, &state.poses, &state.velocities, ground, sphere, kin).jacobian;
         let body = &model.bodies[kin.body.0];
-        for (g, ground) in model.grounds.iter().enumerate() {
-            let c = &ws.contacts[s * model.grounds.len() + g];
-            let v_s = ground.material.stiction_speed;
-            if c.normal_force <= 0.0
-                || ground.material.friction == 0.0
-                || c.slip.norm() <= SLIP_LIMIT_ZONE * v_s
-            {
-                continue;
-            }
-            let mut dv = nalgebra::Vector3::zeros();
-            for k in 0..body.dof_count {
-                dv += kin.jacobian.column(k) * (gamma_p * dd[body.dof_offset + k]);
-            }
-            let du = dv - ground.normal * ground.normal.dot(&dv);
-            let along = c.slip.dot(&du);
-            if (c.slip + du).dot(&c.slip) < 0.0 {
-                alpha = alpha.min(-along / du.norm_squared());
-            }
+        let mut dv = nalgebra::Vector3::zeros();
+        for k in 0..body.dof_count {
+            dv += j_c.column(k) * (gamma_p * dd[body.dof_offset + k]);
+        }
+        let du = dv - ground.normal * ground.normal.dot(&dv);
+        if (c.slip + du).dot(&c.slip) < 0.0 {
+            alpha = alpha.min(-c.slip.dot(&du) / du.norm_squared());
         }
     }
     alpha
@@ -235,7 +234,7 @@ impl Dynamics {
             }
             if contacts {
                 // a contact slipping one way must not be sent through stick to slip the other
-                let alpha = slip_reversal_limit(model, &self.ws, self.rhs.rows(0, n), gamma_p);
+                let alpha = slip_reversal_limit(model, &self.trial, &self.ws, self.rhs.rows(0, n), gamma_p);
                 if alpha < 1.0 {
                     self.rhs *= alpha;
                 }
