@@ -1,5 +1,5 @@
 //! The evaluation stage: takes a `Model`, a `State` and a preallocated `Workspace`, gives every
-//! point's kinematics, the total applied force `Q` (cables + gravity, `crate::forces`), its
+//! point's kinematics, the total applied force `Q` (cables, contacts and gravity, `crate::forces`), its
 //! tangents `K = -dQ/dq` and `C = -dQ/dv` (through an `assembly::TangentSink`), the joints'
 //! values and Jacobian (`crate::constraints`), every cable's response and the energies. The
 //! solvers read everything from the workspace.
@@ -9,6 +9,7 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
 use crate::constraints;
 use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableResponse, CableScratch};
+use crate::forces::collision::{add_collision_force, add_collision_tangents};
 use crate::forces::contact::{add_contact_force, add_contact_tangents, ContactResponse};
 use crate::kinematics::{point_kinematics, PointKinematics};
 use crate::model::{BodyId, CableId, Model, PointId};
@@ -28,7 +29,8 @@ pub enum Tangents {
 /// Energies of a configuration, J.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Energies {
-    /// Elastic energy stored in taut cables and in contacts pressed into a ground.
+    /// Elastic energy stored in taut cables and in contacts (pressed into a ground, or struts
+    /// pressed into each other).
     pub elastic: f64,
     /// Gravitational potential `-sum_b m_b g . x_b`.
     pub gravitational: f64,
@@ -53,8 +55,12 @@ pub struct Workspace {
     pub constraint_jacobian: DMatrix<f64>,
     /// Every cable's response, parallel to `Model::cables`.
     pub cables: Vec<CableResponse>,
-    /// Every contact pair's response (`Model::contact_pairs`: pair `s * grounds + g`).
+    /// Every contact's response (`Model::contact_pairs`: the ground pairs, sphere `s` against
+    /// ground `g` at `s * grounds + g`, then the strut pairs).
     pub contacts: Vec<ContactResponse>,
+    /// Per strut pair, which side of the second bar's axis the first passes
+    /// (`forces::collision::ClosestPoints::side`: +1, -1, or 0 when that is not defined).
+    pub strut_sides: Vec<f64>,
     /// Power dissipated by all contacts (normal damping and friction), W.
     pub contact_loss_power: f64,
     /// Segment lengths of all cables, concatenated (cable `c` starts at `route_start - c`).
@@ -91,6 +97,7 @@ impl Workspace {
             constraint_jacobian: DMatrix::zeros(if dense { model.constraint_count } else { 0 }, n),
             cables: vec![CableResponse::default(); model.cables.len()],
             contacts: vec![ContactResponse::default(); model.contact_pairs()],
+            strut_sides: vec![0.0; model.strut_pairs.len()],
             contact_loss_power: 0.0,
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
@@ -195,6 +202,16 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
         loss += response.loss_power;
         ws.contacts[k] = response;
     }
+    // strut pairs: capsule against capsule
+    let first = model.ground_pairs();
+    for (i, pair) in model.strut_pairs.iter().enumerate() {
+        let (response, side) =
+            add_collision_force(model, &ws.points, pair, &model.strut_material, &mut ws.force);
+        elastic += response.energy;
+        loss += response.loss_power;
+        ws.contacts[first + i] = response;
+        ws.strut_sides[i] = side;
+    }
     ws.contact_loss_power = loss;
 
     constraints::evaluate_values(model, &ws.points, &mut ws.constraint);
@@ -216,6 +233,13 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     for (k, sphere, ground) in model.contact_pair_list() {
         let (poses, v, kin) = (&state.poses, &state.velocities, &points[sphere.point.0]);
         add_contact_tangents(model, poses, v, ground, sphere, kin, &contacts[k], sink);
+    }
+    let first = model.ground_pairs();
+    for (i, pair) in model.strut_pairs.iter().enumerate() {
+        if contacts[first + i].normal_force > 0.0 {
+            let (poses, v) = (&state.poses, &state.velocities);
+            add_collision_tangents(model, poses, v, points, pair, &model.strut_material, sink);
+        }
     }
     for (c, cable) in model.cables.iter().enumerate() {
         let t = cables[c].tension;

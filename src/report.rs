@@ -33,41 +33,46 @@ pub struct CableReport {
     pub pulley_slip: Vec<f64>,
 }
 
-/// What one contact sphere is doing against one ground, for output.
+/// What one contact sphere is doing against one ground (or one bar against another), for
+/// output.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ContactReport {
-    /// The sphere's centre point (`body.point`, or `body` for a node).
+    /// The sphere's centre point (`body.point`, or `body` for a node); for two struts, the first
+    /// bar.
     pub point: String,
-    /// The ground's name.
+    /// The ground's name; for two struts, the second bar.
     pub ground: String,
-    /// True while the sphere presses into the ground.
+    /// True while the sphere presses into the ground (the capsules into each other).
     pub in_contact: bool,
-    /// Signed distance of the sphere's surface from the ground, m (negative: pressed in).
+    /// Signed distance of the sphere's surface from the ground (between the capsules' surfaces),
+    /// m (negative: pressed in).
     pub gap_m: f64,
-    /// Contact point: the sphere's centre projected on the ground, m.
+    /// Contact point: the sphere's centre projected on the ground (the middle of the two axes'
+    /// closest points), m.
     pub position_m: [f64; 3],
-    /// The ground's outward normal.
+    /// The ground's outward normal (from the second bar toward the first).
     pub normal: [f64; 3],
-    /// Normal force on the body, N (>= 0).
+    /// Normal force on the body (the first bar), N (>= 0).
     pub normal_force_n: f64,
-    /// Friction force on the body, N, world frame.
+    /// Friction force on the body (the first bar), N, world frame.
     pub friction_n: [f64; 3],
-    /// Slip speed of the sphere's contact point along the ground, m/s (0 while rolling).
+    /// Slip speed of the contact point along the ground (of one bar along the other), m/s (0
+    /// while rolling on a ground).
     pub slip_speed_m_s: f64,
 }
 
-/// Every contact pair of `model` (sphere-major, `Model::contact_pairs`) from the evaluated `ws`.
+/// Every contact of `model` (`Model::contact_pairs` order: ground pairs sphere-major, then strut
+/// pairs) from the evaluated `ws`.
 pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
     let mut out = Vec::with_capacity(model.contact_pairs());
-    for (k, sphere, ground) in model.contact_pair_list() {
-        let c = &ws.contacts[k];
+    for ((point, ground), c) in model.contact_labels().zip(&ws.contacts) {
         out.push(ContactReport {
-            point: model.points[sphere.point.0].name.clone(),
-            ground: ground.name.clone(),
+            point: point.to_string(),
+            ground: ground.to_string(),
             in_contact: c.in_contact(),
             gap_m: c.gap,
             position_m: c.position.into(),
-            normal: ground.normal.into(),
+            normal: c.normal.into(),
             normal_force_n: c.normal_force,
             friction_n: c.friction.into(),
             slip_speed_m_s: c.slip.norm(),
@@ -76,12 +81,13 @@ pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
     out
 }
 
-/// Column names of the contact pairs in a CSV: per pair `{point}@{ground}_normal_force_N`,
-/// `_friction_N` (magnitude) and `_slip_m_s` (slip speed); none without contacts.
+/// Column names of the contacts in a CSV: per pair `{point}@{ground}_normal_force_N`,
+/// `_friction_N` (magnitude) and `_slip_m_s` (slip speed), for strut pairs `{bar}@{bar}_...`;
+/// none without contacts.
 pub fn contact_csv_columns(model: &Model) -> Vec<String> {
     let mut cols = Vec::new();
-    for (_, sphere, ground) in model.contact_pair_list() {
-        let pair = format!("{}@{}", model.points[sphere.point.0].name, ground.name);
+    for (point, ground) in model.contact_labels() {
+        let pair = format!("{point}@{ground}");
         for what in ["normal_force_N", "friction_N", "slip_m_s"] {
             cols.push(format!("{pair}_{what}"));
         }

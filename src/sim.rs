@@ -70,6 +70,9 @@ pub struct StepStats {
     /// Sub-steps accepted at the smallest error-controlled step (`MIN_CONTROLLED_STEP` of the
     /// interval) without meeting the tolerance: where the motion jumps (a cable goes slack).
     pub forced: usize,
+    /// Sub-steps undone and retried in halves because one bar passed through another
+    /// (`[collisions]`: the side one axis passes the other on flipped within the sub-step).
+    pub pass_throughs: usize,
     /// Wall-clock time spent in the step.
     pub wall_time: Duration,
 }
@@ -90,6 +93,20 @@ pub enum StepError {
         min_dt: f64,
         /// Residual of the last attempt (NaN if it diverged).
         residual: f64,
+    },
+    /// A bar passed through another within even the smallest allowed sub-step.
+    #[error(
+        "bar '{first}' passed through bar '{second}' at t = {time} s within a sub-step of {dt:.3e} s (the smallest allowed): stiffen [collisions] or give the bars larger contact_radius"
+    )]
+    PassThrough {
+        /// The first bar of the pair.
+        first: String,
+        /// The second bar.
+        second: String,
+        /// Time of the last accepted state, s.
+        time: f64,
+        /// The sub-step that let it through, s.
+        dt: f64,
     },
     /// Consistent initial accelerations could not be computed (singular mass/constraint system).
     #[error("cannot start the dynamics: the mass and constraint matrix is singular or not finite")]
@@ -240,6 +257,10 @@ pub struct Simulator {
     /// pair's gap there, to retry a sub-step that steps too far past a touchdown or a lift-off
     /// (`CONTACT_EVENT_DEPTH`). `None` otherwise.
     contact_events: Option<(State, Vec<f64>)>,
+    /// With strut pairs (`[collisions]`): the state before the sub-step under way and every
+    /// pair's side (`Workspace::strut_sides`) there, to undo a sub-step that carries one bar
+    /// through another. `None` otherwise.
+    pass_through_guard: Option<(State, Vec<f64>)>,
 }
 
 impl Simulator {
@@ -337,6 +358,7 @@ impl Simulator {
             guard: None,
             implicit_guard: None,
             contact_events: None,
+            pass_through_guard: None,
         }
         .with_divergence_guard())
     }
@@ -457,6 +479,10 @@ impl Simulator {
                     *g = c.gap;
                 }
             }
+            if let Some((before, sides)) = &mut self.pass_through_guard {
+                before.copy_from(&self.state);
+                sides.copy_from_slice(&self.ws.strut_sides);
+            }
             self.rest_now.copy_from_slice(&self.state.rest_lengths);
             self.control.advance(&self.model, self.state.time, h_try, &self.rest_now, &mut self.rest_next);
             Control::rates(&self.model, &self.rest_now, &self.rest_next, h_try, &mut self.rest_rate);
@@ -503,6 +529,35 @@ impl Simulator {
                     }
                     if !self.dynamics.take_final_evaluation(&mut self.ws) {
                         evaluate_forces(&self.model, &self.state, &mut self.ws);
+                    }
+                    if let Some((before, sides)) = &self.pass_through_guard {
+                        // a bar whose axis changed sides of another's within the sub-step went
+                        // through it (the penalty force never saw it, or could not stop it):
+                        // undo and retry in halves
+                        let crossed = sides.iter().zip(&self.ws.strut_sides).position(|(a, b)| a * b < 0.0);
+                        if let Some(i) = crossed {
+                            undo_sub_step(
+                                &self.model,
+                                &mut self.dynamics,
+                                &mut self.state,
+                                &mut self.ws,
+                                before,
+                            )?;
+                            stats.rejected += 1;
+                            stats.pass_throughs += 1;
+                            stats.newton_iterations += a.iterations;
+                            h = 0.5 * h_try;
+                            if h < self.settings.min_dt.max(dt * MIN_CONTROLLED_STEP) {
+                                let pair = &self.model.strut_pairs[i];
+                                return Err(StepError::PassThrough {
+                                    first: self.model.bodies[pair.bars[0].0].name.clone(),
+                                    second: self.model.bodies[pair.bars[1].0].name.clone(),
+                                    time: self.state.time,
+                                    dt: h_try,
+                                });
+                            }
+                            continue;
+                        }
                     }
                     if let (Some((before, gaps)), Some(tol), false) =
                         (&self.contact_events, tolerance, forced)
@@ -671,6 +726,9 @@ impl Simulator {
     fn with_divergence_guard(mut self) -> Self {
         if self.settings.tolerance.is_some() && self.model.contact_pairs() > 0 {
             self.contact_events = Some((self.state.clone(), vec![0.0; self.model.contact_pairs()]));
+        }
+        if !self.model.strut_pairs.is_empty() {
+            self.pass_through_guard = Some((self.state.clone(), vec![0.0; self.model.strut_pairs.len()]));
         }
         if self.settings.tolerance.is_none() {
             let size = crate::solve::statics::body_size(&self.model)

@@ -101,6 +101,42 @@ fn a_robot_on_the_ground_records_its_contacts_and_replays_them_bit_for_bit() {
 }
 
 #[test]
+fn colliding_struts_are_recorded_as_contacts_and_replay_bit_for_bit() {
+    let dir = bag_dir("collision");
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let scene = root.join("config/examples/collision.toml");
+    let args = [
+        "deploy",
+        scene.to_str().unwrap(),
+        "--dynamic",
+        "--duration",
+        "0.5",
+        "--record",
+        dir.to_str().unwrap(),
+    ];
+    let out = cli(&args);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("struts that collided: rod-trapeze"));
+    let contacts = "/tensegrity_sim/contacts";
+    let reader = BagReader::open(&dir).unwrap();
+    let states: Vec<msg::ContactStates> = reader
+        .messages()
+        .map(Result::unwrap)
+        .filter(|m| m.topic == contacts)
+        .map(|m| m.decode().unwrap())
+        .collect();
+    assert_eq!(states.len(), 501);
+    assert_eq!(
+        (states[0].point.as_slice(), states[0].ground.as_slice()),
+        (&["rod".to_string()][..], &["trapeze".to_string()][..])
+    );
+    // the rod lands on the bar: pressed in, pushed up (the normal from the bar to the rod)
+    let landed = states.iter().find(|m| m.in_contact[0]).expect("the rod never touched the bar");
+    assert!(landed.normal_force[0] > 0.0 && landed.normal[0].z > 0.99, "{landed:?}");
+    assert_replays_identically(&dir);
+}
+
+#[test]
 fn a_dynamic_deployment_bag_reads_back_in_rosbags_equal_to_the_simulator() {
     let dir = deploy_recorded("dynamic", &["--dynamic", "--duration", "0.25"]);
     let ours = our_counts(&dir);

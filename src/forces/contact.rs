@@ -63,8 +63,12 @@ pub struct ContactResponse {
     /// Slip velocity `u` of the sphere's contact point along the ground, world frame, m/s (0
     /// for a sphere that rolls without slipping).
     pub slip: Vector3<f64>,
-    /// The contact point: the sphere's centre projected on the ground, world frame, m.
+    /// The contact point: the sphere's centre projected on the ground (for two struts, the
+    /// middle of their axes' closest points), world frame, m.
     pub position: Vector3<f64>,
+    /// Unit contact normal, world frame: the ground's outward normal (for two struts, from the
+    /// second toward the first).
+    pub normal: Vector3<f64>,
     /// Stored energy `k delta^2 / 2`, J.
     pub energy: f64,
     /// Power dissipated by the normal damping and the friction, W (>= 0).
@@ -76,9 +80,9 @@ impl ContactResponse {
     pub fn in_contact(&self) -> bool {
         self.gap < 0.0
     }
-    /// The whole force on the body, world frame, N: `F_n n + F_t`.
-    pub fn force(&self, normal: &Vector3<f64>) -> Vector3<f64> {
-        normal * self.normal_force + self.friction
+    /// The whole force on the body (for two struts, on the first), world frame, N: `F_n n + F_t`.
+    pub fn force(&self) -> Vector3<f64> {
+        self.normal * self.normal_force + self.friction
     }
 }
 
@@ -138,7 +142,7 @@ pub fn contact_response(
     let delta = ground.offset + sphere.radius - height;
     let position = kin.position - n * (height - ground.offset);
     if delta.is_nan() || delta <= 0.0 {
-        return ContactResponse { gap: -delta, position, ..Default::default() };
+        return ContactResponse { gap: -delta, position, normal: *n, ..Default::default() };
     }
     let delta_dot = -n.dot(&kin.velocity);
     let spring = m.stiffness * delta;
@@ -155,6 +159,7 @@ pub fn contact_response(
         friction,
         slip,
         position,
+        normal: *n,
         energy: 0.5 * spring * delta,
         loss_power,
     }
@@ -174,7 +179,7 @@ pub fn add_contact_force(
     let point = contact_point(model, poses, v, ground, sphere, kin);
     let response = contact_response(ground, sphere, kin, &point);
     if response.normal_force > 0.0 {
-        let f = response.force(&ground.normal);
+        let f = response.force();
         add_vector(model, kin.body, &(point.jacobian.transpose() * f), 1.0, force);
     }
     response
@@ -218,7 +223,7 @@ pub fn add_contact_tangents<S: TangentSink + ?Sized>(
     let mut k: Matrix6<f64> = -(j_c.transpose() * a_pos * j);
     let model_body = &model.bodies[body.0];
     if model_body.kind != crate::model::BodyKind::Node {
-        let f = response.force(&n);
+        let f = response.force();
         let mut d = velocity_derivative(model, poses, v, sphere.point);
         let b_r = model_body.basis.fixed_view::<3, 6>(3, 0);
         let rot = poses[body.0].rotation.to_rotation_matrix();
@@ -254,7 +259,7 @@ pub fn add_contact_bounds(
     stiffness: &mut nalgebra::DMatrix<f64>,
     damping: &mut nalgebra::DMatrix<f64>,
 ) {
-    if model.contact_pairs() == 0 {
+    if model.ground_pairs() == 0 {
         return;
     }
     let weight = model.bodies.iter().map(|b| b.mass).sum::<f64>() * model.gravity.norm();

@@ -1,8 +1,9 @@
 //! Force elements: takes a route's point kinematics and a cable's material, gives the cable's
 //! generalized force, tangent stiffness and damping (`cable`, the classical and sliding cable
 //! element), and a contact sphere's normal and friction force against a ground with their tangents
-//! (`contact`). Gravity and the sum over elements are the evaluation stage's (`crate::evaluate`);
+//! (`contact`), and two bars' capsules colliding (`collision`). Gravity and the sum over elements are the evaluation stage's (`crate::evaluate`);
 //! assembly into coordinates is `crate::assembly`'s.
 
 pub mod cable;
+pub mod collision;
 pub mod contact;

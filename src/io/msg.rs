@@ -289,9 +289,9 @@ pub struct Vector3 {
 pub struct ContactStates {
     /// Stamp and frame.
     pub header: Header,
-    /// Each pair's sphere centre point (`body.point`, or `body` for a node).
+    /// Each pair's sphere centre point (`body.point`, or `body` for a node; a strut pair: its first bar).
     pub point: Vec<String>,
-    /// Each pair's ground.
+    /// Each pair's ground (a strut pair: its second bar).
     pub ground: Vec<String>,
     /// Pressing into the ground.
     pub in_contact: Vec<bool>,
@@ -833,14 +833,13 @@ impl MarkerArray {
                 |(lo, hi), p| (lo.inf(&p.position), hi.sup(&p.position)),
             );
             let length = 0.2 * (hi - lo).norm() / f_max;
-            for (k, _, ground) in model.contact_pair_list() {
-                let c = &ws.contacts[k];
+            for c in &ws.contacts {
                 if !c.in_contact() {
                     continue;
                 }
                 touching.points.push(point(&c.position));
                 forces.points.push(point(&c.position));
-                forces.points.push(point(&(c.position + c.force(&ground.normal) * length)));
+                forces.points.push(point(&(c.position + c.force() * length)));
             }
             markers.push(touching);
             markers.push(forces);

@@ -203,6 +203,18 @@ pub struct ContactSphere {
     pub radius: f64,
 }
 
+/// Two bars whose capsules collide (`crate::forces::collision`): each bar's axis runs between
+/// its ends `a` and `b`, and the capsules have the bars' `contact_radius`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StrutPair {
+    /// The two bars.
+    pub bars: [BodyId; 2],
+    /// The axes' end points: the first bar's `a`, `b`, then the second's.
+    pub ends: [PointId; 4],
+    /// Sum of the two capsule radii, m: the axes touch at this distance.
+    pub radius: f64,
+}
+
 /// The other side of a ball joint.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum JointTarget {
@@ -339,6 +351,10 @@ pub struct Model {
     pub grounds: Vec<GroundModel>,
     /// Contact spheres on bodies; every sphere meets every ground (`Model::contact_pairs`).
     pub contact_spheres: Vec<ContactSphere>,
+    /// Bar pairs whose capsules collide (none: struts pass through each other, at no cost).
+    pub strut_pairs: Vec<StrutPair>,
+    /// The contact law between colliding bars (used only with `strut_pairs`).
+    pub strut_material: ContactMaterial,
     /// Actuator names, parallel to `actuators`.
     pub actuator_names: Vec<String>,
     /// Deployment schedule.
@@ -415,8 +431,28 @@ impl Model {
 
     /// Number of (sphere, ground) contact pairs: `contact_spheres.len() * grounds.len()`, pair
     /// `s * grounds.len() + g` for sphere `s` and ground `g`.
-    pub fn contact_pairs(&self) -> usize {
+    pub fn ground_pairs(&self) -> usize {
         self.contact_spheres.len() * self.grounds.len()
+    }
+
+    /// Number of contacts of every kind: the ground pairs (`ground_pairs`, first) then the strut
+    /// pairs (`strut_pairs`, in order). Contact outputs (`Workspace::contacts`, CSV columns, the
+    /// `~/contacts` topic, bags) list them in that order.
+    pub fn contact_pairs(&self) -> usize {
+        self.ground_pairs() + self.strut_pairs.len()
+    }
+
+    /// Every contact's names, in `contact_pairs` order: for a ground pair the sphere's point and
+    /// the ground (`s1.a`, `ground`), for a strut pair the two bars (`s1`, `s2`).
+    pub fn contact_labels(&self) -> impl Iterator<Item = (&str, &str)> + '_ {
+        let grounds = self
+            .contact_pair_list()
+            .map(|(_, sphere, ground)| (self.points[sphere.point.0].name.as_str(), ground.name.as_str()));
+        let struts = self
+            .strut_pairs
+            .iter()
+            .map(|p| (self.bodies[p.bars[0].0].name.as_str(), self.bodies[p.bars[1].0].name.as_str()));
+        grounds.chain(struts)
     }
 
     /// Every contact pair, in that order: `(k, sphere, ground)` with `k = s * grounds.len() + g`.

@@ -5,11 +5,11 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 
-use super::{limits, BodyKindSpec, JointKindSpec, PointSpec, SceneSpec};
+use super::{limits, BodyKindSpec, CollisionPairsSpec, JointKindSpec, PointSpec, SceneSpec};
 use crate::error::{readable_number, SceneError};
 use crate::model::{
     ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, ContactMaterial, ContactSphere, GroundModel,
-    JointModel, JointTarget, Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings,
+    JointModel, JointTarget, Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings, StrutPair,
 };
 use crate::solve::formfind::{find_rest_lengths, RestLengthSpec};
 
@@ -103,6 +103,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let solver = build_solver(spec, &cx)?;
     let contact_spheres = build_contact_spheres(spec, &cx, &bodies, &point_names)?;
     let grounds = build_grounds(spec, &cx, &bodies, &points)?;
+    let (strut_pairs, strut_material) =
+        build_strut_pairs(spec, &cx, &bodies, &points, &point_names, &joints)?;
     let mut model = Model {
         name: if spec.name.is_empty() { file.to_string() } else { spec.name.clone() },
         bodies,
@@ -115,6 +117,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         actuator_names,
         grounds,
         contact_spheres,
+        strut_pairs,
+        strut_material,
         schedule: Schedule::default(),
         gravity: Vector3::from(spec.gravity),
         planar: spec.planar,
@@ -512,9 +516,7 @@ fn build_grounds(
     bodies: &[BodyModel],
     points: &[PointModel],
 ) -> Result<Vec<GroundModel>, SceneError> {
-    // default stiffness: the whole weight on one sphere presses it in by a thousandth of the size
-    let weight = bodies.iter().map(|b| b.mass).sum::<f64>() * Vector3::from(spec.gravity).norm();
-    let default_stiffness = (1000.0 * weight / scene_size(bodies, points)).max(1e3);
+    let default_stiffness = default_contact_stiffness(spec, bodies, points);
     let mut grounds: Vec<GroundModel> = Vec::new();
     for (i, g) in spec.grounds.iter().enumerate() {
         let e = |field: &str, reason: String| cx.err("grounds", i, field, reason);
@@ -568,6 +570,175 @@ fn build_grounds(
     Ok(grounds)
 }
 
+/// The default penalty stiffness of grounds and strut collisions, N/m: the structure's whole
+/// weight on one contact presses it in by a thousandth of the scene's size (at least 1e3).
+fn default_contact_stiffness(spec: &SceneSpec, bodies: &[BodyModel], points: &[PointModel]) -> f64 {
+    let weight = bodies.iter().map(|b| b.mass).sum::<f64>() * Vector3::from(spec.gravity).norm();
+    (1000.0 * weight / scene_size(bodies, points)).max(1e3)
+}
+
+/// The strut pairs of `[collisions]` and their contact law (none and an unused default without
+/// the table). A pair's bars both need a `contact_radius`; `all` leaves out pairs a joint joins
+/// (they touch at the joint by design); no pair may start with its capsules pressed into each
+/// other by more than `START_PENETRATION` of the scene's size.
+fn build_strut_pairs(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    bodies: &[BodyModel],
+    points: &[PointModel],
+    point_names: &BTreeMap<String, PointId>,
+    joints: &[JointModel],
+) -> Result<(Vec<StrutPair>, ContactMaterial), SceneError> {
+    let default_stiffness = default_contact_stiffness(spec, bodies, points);
+    let Some(c) = &spec.collisions else {
+        let unused = ContactMaterial {
+            stiffness: default_stiffness,
+            dissipation: 1.0,
+            friction: 0.3,
+            stiction_speed: 1e-5,
+        };
+        return Ok((Vec::new(), unused));
+    };
+    let e = |field: &str, reason: String| cx.top(&format!("collisions.{field}"), reason);
+    let number = |x: Option<f64>, default: f64, range, unit, field: &str| match x {
+        None => Ok(default),
+        Some(x) => in_range(x, range, unit).map_err(|r| e(field, r)),
+    };
+    let material = ContactMaterial {
+        stiffness: number(c.stiffness, default_stiffness, limits::CONTACT_STIFFNESS, "N/m", "stiffness")?,
+        dissipation: number(c.dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
+        friction: number(c.mu, 0.3, limits::FRICTION, "", "mu")?,
+        stiction_speed: number(c.stiction_speed, 1e-5, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
+    };
+    let capsule = |b: usize| -> Option<(PointId, PointId, f64)> {
+        let body = &spec.bodies[b];
+        let radius = body.contact_radius?;
+        if bodies[b].kind != BodyKind::Bar {
+            return None;
+        }
+        let end = |x: &str| point_names.get(&format!("{}.{x}", body.name)).copied();
+        Some((end("a")?, end("b")?, radius))
+    };
+    let joined = |a: usize, b: usize| {
+        joints.iter().any(|j| {
+            let body_of = |p: PointId| points[p.0].body.0;
+            match j.target {
+                JointTarget::Point(q) => {
+                    let pair = (body_of(j.point), body_of(q));
+                    pair == (a, b) || pair == (b, a)
+                }
+                JointTarget::World(_) => false,
+            }
+        })
+    };
+    let mut chosen: Vec<(usize, usize)> = Vec::new();
+    match &c.pairs {
+        None => {
+            chosen = all_bar_pairs(spec, bodies, &joined, &capsule);
+        }
+        Some(CollisionPairsSpec::Word(w)) if w == "all" => {
+            chosen = all_bar_pairs(spec, bodies, &joined, &capsule);
+        }
+        Some(CollisionPairsSpec::Word(w)) => {
+            return Err(e(
+                "pairs",
+                format!("'{w}' is neither \"all\" nor a list of bar pairs like [[\"s1\", \"s2\"]]"),
+            ))
+        }
+        Some(CollisionPairsSpec::List(list)) => {
+            if list.is_empty() {
+                return Err(e("pairs", "empty: name at least one pair of bars, or write \"all\"".into()));
+            }
+            for [x, y] in list {
+                let find = |name: &str| {
+                    let b = bodies
+                        .iter()
+                        .position(|b| b.name == name)
+                        .ok_or_else(|| e("pairs", format!("no body called '{name}'")))?;
+                    if bodies[b].kind != BodyKind::Bar {
+                        return Err(e(
+                            "pairs",
+                            format!(
+                                "'{name}' is a {}: only bars collide (capsules)",
+                                bodies[b].kind.as_str()
+                            ),
+                        ));
+                    }
+                    if capsule(b).is_none() {
+                        return Err(e(
+                            "pairs",
+                            format!("bar '{name}' has no contact_radius (its capsule's radius, m)"),
+                        ));
+                    }
+                    Ok(b)
+                };
+                let (a, b) = (find(x)?, find(y)?);
+                if a == b {
+                    return Err(e("pairs", format!("['{x}', '{y}'] names one bar twice")));
+                }
+                if joined(a, b) {
+                    return Err(e(
+                        "pairs",
+                        format!("'{x}' and '{y}' are joined by a joint, where their capsules always touch"),
+                    ));
+                }
+                if chosen.iter().any(|&(p, q)| (p, q) == (a, b) || (q, p) == (a, b)) {
+                    return Err(e("pairs", format!("['{x}', '{y}'] is listed twice")));
+                }
+                chosen.push((a, b));
+            }
+        }
+    }
+    if chosen.is_empty() {
+        return Err(e(
+            "pairs",
+            "no pair of bars can collide: give at least two bars (not joined by a joint) a contact_radius (m)".into(),
+        ));
+    }
+    let allowance = START_PENETRATION * scene_size(bodies, points);
+    let mut pairs = Vec::with_capacity(chosen.len());
+    for (a, b) in chosen {
+        let ((pa, pb, ra), (pc, pd, rb)) = (capsule(a).expect("checked"), capsule(b).expect("checked"));
+        let at = |p: PointId| bodies[points[p.0].body.0].initial_pose.transform_point(&points[p.0].local);
+        let cp = crate::forces::collision::closest_points(&at(pa), &at(pb), &at(pc), &at(pd));
+        let depth = ra + rb - cp.w.norm();
+        if depth > allowance {
+            return Err(e(
+                "pairs",
+                format!(
+                    "bars '{}' and '{}' start with their capsules {} m into each other: move them apart, or leave \
+                     the pair out with a list of pairs",
+                    bodies[a].name,
+                    bodies[b].name,
+                    readable_number(depth)
+                ),
+            ));
+        }
+        pairs.push(StrutPair { bars: [BodyId(a), BodyId(b)], ends: [pa, pb, pc, pd], radius: ra + rb });
+    }
+    Ok((pairs, material))
+}
+
+/// Every two bars with a capsule that no joint joins, in scene order.
+fn all_bar_pairs(
+    spec: &SceneSpec,
+    bodies: &[BodyModel],
+    joined: &dyn Fn(usize, usize) -> bool,
+    capsule: &dyn Fn(usize) -> Option<(PointId, PointId, f64)>,
+) -> Vec<(usize, usize)> {
+    let bars: Vec<usize> =
+        (0..bodies.len().min(spec.bodies.len())).filter(|&b| capsule(b).is_some()).collect();
+    let mut out = Vec::new();
+    for (i, &a) in bars.iter().enumerate() {
+        for &b in &bars[i + 1..] {
+            if !joined(a, b) {
+                out.push((a, b));
+            }
+        }
+    }
+    out
+}
+
 /// The diagonal of the box around every point at the start, m (at least 1 mm).
 fn scene_size(bodies: &[BodyModel], points: &[PointModel]) -> f64 {
     let at = |p: &PointModel| bodies[p.body.0].initial_pose.transform_point(&p.local);
@@ -596,8 +767,12 @@ fn check_contacts(spec: &SceneSpec, model: &Model, cx: &Ctx) -> Result<(), Scene
              that should a contact_radius (m)",
         ));
     }
-    if model.grounds.is_empty() && !model.contact_spheres.is_empty() {
-        let i = spec.bodies.iter().position(|b| b.contact_radius.is_some()).unwrap_or(0);
+    // without grounds, only bars in [collisions] may carry contact geometry
+    let stranded = |b: &super::BodySpec| {
+        b.contact_radius.is_some() && (spec.collisions.is_none() || b.kind != BodyKindSpec::Bar)
+    };
+    if model.grounds.is_empty() && spec.bodies.iter().any(stranded) {
+        let i = spec.bodies.iter().position(stranded).unwrap_or(0);
         return Err(cx.err(
             "bodies",
             i,

@@ -140,6 +140,42 @@ pub struct SceneSpec {
     /// Half-space grounds that bodies with contact geometry (`contact_radius`) rest on.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub grounds: Vec<GroundSpec>,
+    /// Strut-strut collision between bars' capsules (off unless declared).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub collisions: Option<CollisionSpec>,
+}
+
+/// Which bars collide with which, and the contact law between them
+/// (`crate::forces::collision`): the same law as against a ground.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CollisionSpec {
+    /// `"all"` (default): every two bars with a `contact_radius` that no joint joins; or a list
+    /// of bar-name pairs, `[["s1", "s2"], ["s1", "s3"]]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pairs: Option<CollisionPairsSpec>,
+    /// Coulomb friction coefficient between struts (default 0.3; 0 is frictionless).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mu: Option<f64>,
+    /// Penalty stiffness, N/m (default as a ground's: `1000 W / L`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiffness: Option<f64>,
+    /// Hunt-Crossley dissipation, s/m (default 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dissipation: Option<f64>,
+    /// Friction regularization speed, m/s (default 1e-5).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stiction_speed: Option<f64>,
+}
+
+/// The bar pairs of `[collisions]`: the word `all`, or a list of name pairs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum CollisionPairsSpec {
+    /// `"all"`.
+    Word(String),
+    /// `[["s1", "s2"], ...]`.
+    List(Vec<[String; 2]>),
 }
 
 /// A half-space ground: a plane through `point` with outward `normal`, and its contact law

@@ -25,7 +25,7 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 9] = [
+pub const TABLES: [(&str, &str); 10] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
@@ -35,6 +35,7 @@ pub const TABLES: [(&str, &str); 9] = [
     ("[deployment]", "deployment"),
     ("[[deployment.ramps]]", "deployment.ramps"),
     ("[[grounds]]", "grounds"),
+    ("[collisions]", "collisions"),
 ];
 
 fn range((lo, hi): (f64, f64)) -> String {
@@ -55,6 +56,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     let top = TABLES[0].0;
     let (bodies, joints, cables, actuators) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
     let (solver, deployment, ramps, grounds) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
+    let collisions = TABLES[9].0;
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -121,7 +123,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "m",
             "none (touches nothing)",
             format!(
-                "{}; contact spheres against the grounds: a node's at the node, a bar's at both ends (its capsule), a rigid body's at its `contact_points`",
+                "{}; contact spheres against the grounds: a node's at the node, a bar's at both ends (its capsule; also its radius in `[collisions]`), a rigid body's at its `contact_points`",
                 range(limits::CONTACT_RADIUS)
             ),
         ),
@@ -253,6 +255,39 @@ pub fn scene_fields() -> Vec<FieldDoc> {
                 "friction regularization v_s: a load at a fraction r of mu F_n creeps at v_s r / sqrt(1 - r^2); {}",
                 range(limits::STICTION_SPEED)
             ),
+        ),
+        f(
+            collisions,
+            "pairs",
+            "\"all\" or [[bar, bar], ...]",
+            "-",
+            "\"all\"",
+            "bars whose capsules (radius: each bar's contact_radius) collide; all: every two bars with a contact_radius that no joint joins".into(),
+        ),
+        f(collisions, "mu", "number", "-", "0.3", format!("Coulomb friction between struts, {}", range(limits::FRICTION))),
+        f(
+            collisions,
+            "stiffness",
+            "number",
+            "N/m",
+            "1000 W / L, at least 1e3",
+            format!("penalty stiffness k, as a ground's; {}", range(limits::CONTACT_STIFFNESS)),
+        ),
+        f(
+            collisions,
+            "dissipation",
+            "number",
+            "s/m",
+            "1",
+            format!("Hunt-Crossley alpha, as a ground's; {}", range(limits::CONTACT_DISSIPATION)),
+        ),
+        f(
+            collisions,
+            "stiction_speed",
+            "number",
+            "m/s",
+            "1e-5",
+            format!("friction regularization v_s, as a ground's; {}", range(limits::STICTION_SPEED)),
         ),
     ]
 }

@@ -632,6 +632,9 @@ impl KktSystem {
                 }
             }
         }
+        for pair in &model.strut_pairs {
+            couple(pair.bars[0], pair.bars[1], &mut cols);
+        }
         let rows = model.joint_rows();
         for joint in &model.joints {
             for (p, _) in joint_points(joint) {

@@ -97,6 +97,8 @@ pub struct RunTotals {
     pub rejected: usize,
     /// Accepted sub-steps (equal to `steps` for fixed steps without rejections).
     pub substeps: usize,
+    /// Sub-steps retried because one bar passed through another (`StepStats::pass_throughs`).
+    pub pass_throughs: usize,
     /// Wall time of the stepping (callbacks excluded).
     pub wall_time: Duration,
 }
@@ -108,6 +110,7 @@ impl RunTotals {
         self.newton_iterations += stats.newton_iterations;
         self.rejected += stats.rejected;
         self.substeps += stats.substeps;
+        self.pass_throughs += stats.pass_throughs;
         self.wall_time += stats.wall_time;
     }
 }

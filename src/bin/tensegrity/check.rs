@@ -1,5 +1,6 @@
 //! `tensegrity check SCENE`: validates a scene and prints counts of its bodies, coordinates,
-//! constraints, cables, pulleys and actuators, and its grounds and contact spheres.
+//! constraints, cables, pulleys and actuators, its grounds and contact spheres, and its colliding
+//! strut pairs.
 
 use std::path::Path;
 
@@ -42,6 +43,20 @@ pub fn run(scene: &Path) -> Result<(), String> {
             .collect();
         say!("grounds: {}", grounds.join("; "));
         say!("contact spheres: {}", s.contact_spheres);
+    }
+    if !model.strut_pairs.is_empty() {
+        let m = &model.strut_material;
+        let pairs: Vec<String> =
+            model.contact_labels().skip(model.ground_pairs()).map(|(a, b)| format!("{a}-{b}")).collect();
+        say!(
+            "strut collisions: {} ({}) (mu {}, stiffness {:.3e} N/m, dissipation {} s/m, stiction speed {:.1e} m/s)",
+            counted(pairs.len(), "pair"),
+            pairs.join(", "),
+            m.friction,
+            m.stiffness,
+            m.dissipation,
+            m.stiction_speed
+        );
     }
     if let Some(note) = report::unheld_bodies_note(&model) {
         say!("warning: {note} (dynamics lets them drift or fall)");

@@ -202,9 +202,15 @@ fn deploy_dynamic(
     let steps = (duration / settings.dt).round().max(1.0) as u64;
     let bar = progress(steps, "steps");
     let mut totals = study::RunTotals::default();
+    // strut pairs ([collisions]) that touched at some step, by index
+    let mut struts_touched = vec![false; model.strut_pairs.len()];
     for _ in 0..steps {
         let stats = run.step().map_err(|fault| format!("{label}: {fault}"))?;
         totals.add(&stats);
+        let contacts = &run.simulator().workspace().contacts[model.ground_pairs()..];
+        for (touched, c) in struts_touched.iter_mut().zip(contacts) {
+            *touched |= c.in_contact();
+        }
         bar.inc(1);
         writeln!(file, "{}", study::dynamic_csv_row(run.simulator(), &stats))
             .map_err(|e| write_error(out, e))?;
@@ -220,10 +226,26 @@ fn deploy_dynamic(
         ),
         None => String::new(),
     };
+    let collisions = if model.strut_pairs.is_empty() {
+        String::new()
+    } else {
+        let names: Vec<String> = model
+            .contact_labels()
+            .skip(model.ground_pairs())
+            .zip(&struts_touched)
+            .filter(|(_, t)| **t)
+            .map(|((a, b), _)| format!("{a}-{b}"))
+            .collect();
+        format!(
+            "; struts that collided: {} (sub-steps retried for passing through: {})",
+            if names.is_empty() { "none".to_string() } else { names.join(", ") },
+            totals.pass_throughs
+        )
+    };
     say_closing(
         out,
         format!(
-            "{}: {} steps of {} s with {} from {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){bag}",
+            "{}: {} steps of {} s with {} from {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){collisions}{bag}",
             model.name,
             totals.steps,
             settings.dt,

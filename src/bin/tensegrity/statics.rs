@@ -181,8 +181,7 @@ fn format_statics(
     }
     let contacts = report::contact_reports(model, ws);
     if !contacts.is_empty() {
-        let _ =
-            writeln!(out, "\n{:<20} {:<10} {:>12} {:>14}", "contact", "ground", "gap m", "normal force N");
+        let _ = writeln!(out, "\n{:<20} {:<10} {:>12} {:>14}", "contact", "with", "gap m", "normal force N");
         for c in contacts {
             let _ = writeln!(
                 out,

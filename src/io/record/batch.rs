@@ -232,7 +232,7 @@ impl StepBatch {
 /// its model), in the order `unpack_state` reads it back: time; per body position (3) and
 /// rotation quaternion (i, j, k, w); rest lengths; per cable length, rest length, tension and
 /// slack (1 or 0); segment lengths; rates; per contact pair gap, normal force, friction (3),
-/// slip (3) and contact point (3).
+/// slip (3), contact point (3) and normal (3).
 /// Sizes are the model's. Point positions, which the markers alone read, are appended by
 /// `pack_points` when a state is published on `~/markers`. What no message reads (velocities,
 /// multipliers, length rates, energies) is not copied: a message that comes to read more must
@@ -257,6 +257,7 @@ pub(super) fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
         out.extend_from_slice(c.friction.as_slice());
         out.extend_from_slice(c.slip.as_slice());
         out.extend_from_slice(c.position.as_slice());
+        out.extend_from_slice(c.normal.as_slice());
     }
     debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
@@ -268,7 +269,7 @@ pub(super) fn packed_len(model: &Model) -> usize {
         + 5 * model.cables.len()
         + segments
         + model.cables.len()
-        + 11 * model.contact_pairs()
+        + 14 * model.contact_pairs()
 }
 
 /// Appends every point's position (3 each) of `view` to `out`.
@@ -314,13 +315,14 @@ pub(super) fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut Unp
     let n = to.rates.len();
     to.rates.copy_from_slice(take(n));
     for c in &mut ws.contacts {
-        let v = take(11);
+        let v = take(14);
         *c = ContactResponse {
             gap: v[0],
             normal_force: v[1],
             friction: Vector3::new(v[2], v[3], v[4]),
             slip: Vector3::new(v[5], v[6], v[7]),
             position: Vector3::new(v[8], v[9], v[10]),
+            normal: Vector3::new(v[11], v[12], v[13]),
             // not read by any message (`pack_state`)
             ..Default::default()
         };

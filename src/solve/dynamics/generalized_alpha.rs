@@ -66,7 +66,8 @@ impl AlphaCoefficients {
 }
 
 /// The fraction `alpha <= 1` of the Newton update `dd` at the iterate `state` (local coordinates,
-/// its velocity change `gamma' dd`) that leaves every contact that slips now (slip speed above
+/// its velocity change `gamma' dd`) that leaves every contact (against a ground, or between two
+/// struts) that slips now (slip speed above
 /// `SLIP_LIMIT_ZONE` times its `stiction_speed`) no further than the stick zone when the update
 /// would reverse its slip: `alpha = -u . du / |du|^2` for the slip `u` and its change `du`, the
 /// point of the update's line closest to zero slip. The friction law changes sign across a zone
@@ -98,6 +99,32 @@ fn slip_reversal_limit(
         let du = dv - ground.normal * ground.normal.dot(&dv);
         if (c.slip + du).dot(&c.slip) < 0.0 {
             alpha = alpha.min(-c.slip.dot(&du) / du.norm_squared());
+        }
+    }
+    // strut pairs: the slip is the closest points' relative velocity, shared between each bar's
+    // ends as the force is (`forces::collision`)
+    let m = &model.strut_material;
+    if m.friction > 0.0 {
+        let first = model.ground_pairs();
+        for (i, pair) in model.strut_pairs.iter().enumerate() {
+            let c = &ws.contacts[first + i];
+            if c.normal_force <= 0.0 || c.slip.norm() <= SLIP_LIMIT_ZONE * m.stiction_speed {
+                continue;
+            }
+            let x = pair.ends.map(|p| ws.points[p.0].position);
+            let cp = crate::forces::collision::closest_points(&x[0], &x[1], &x[2], &x[3]);
+            let mut dv = nalgebra::Vector3::zeros();
+            for (p, share) in pair.ends.iter().zip([1.0 - cp.s, cp.s, cp.t - 1.0, -cp.t]) {
+                let kin = &ws.points[p.0];
+                let body = &model.bodies[kin.body.0];
+                for k in 0..body.dof_count {
+                    dv += kin.jacobian.column(k) * (share * gamma_p * dd[body.dof_offset + k]);
+                }
+            }
+            let du = dv - c.normal * c.normal.dot(&dv);
+            if (c.slip + du).dot(&c.slip) < 0.0 {
+                alpha = alpha.min(-c.slip.dot(&du) / du.norm_squared());
+            }
         }
     }
     alpha

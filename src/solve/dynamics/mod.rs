@@ -502,7 +502,8 @@ pub fn explicit_stability_limit(model: &Model, state: &State, integrator: Integr
 /// taut (`taut_stiffness_model`): a cable that starts slack or just taut (a rope at zero tension)
 /// has no stiffness yet, but it will have `EA / L0` as soon as it stretches, and a step above
 /// the limit that stiffness sets diverges then. Likewise every contact sphere counts as pressed
-/// into every ground (`forces::contact::add_contact_bounds`). `(0, 0)` without coordinates or freedom;
+/// into every ground (`forces::contact::add_contact_bounds`) and every strut pair as touching
+/// (`forces::collision::add_collision_bounds`). `(0, 0)` without coordinates or freedom;
 /// `(inf, inf)` when the mass matrix there is singular.
 pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
     let n = model.dof_count;
@@ -521,6 +522,7 @@ pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
         &mut ws.stiffness,
         &mut ws.damping,
     );
+    crate::forces::collision::add_collision_bounds(model, &ws.points, &mut ws.stiffness, &mut ws.damping);
     let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else { return (0.0, 0.0) };
     let m = z.transpose() * mass_matrix(model) * &z;
     let k = z.transpose() * ((&ws.stiffness + ws.stiffness.transpose()) * 0.5) * &z;
