@@ -287,3 +287,23 @@ fn the_readme_names_the_command_that_writes_each_bundled_scene() {
         "the bundled-scene table lists every scene with its command"
     );
 }
+
+#[test]
+fn a_quasi_static_roll_of_the_robot_says_to_follow_it_dynamically() {
+    // the six-bar has no equilibrium once it tips over: a careless quasi-static deploy is told why
+    // and what to run instead
+    let out = common::scratch("quasi-static-roll").join("roll.csv");
+    let run = tensegrity(&[
+        "deploy",
+        "config/scenes/sixbar.toml",
+        "--quasi-static",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("equilibrium not found") && err.contains("--dynamic"), "{err}");
+    // the rows up to the tip-over are written
+    let rows = std::fs::read_to_string(&out).unwrap().lines().count();
+    assert!(rows > 50, "{rows} rows");
+}

@@ -13,6 +13,7 @@ use tensegrity::report;
 use tensegrity::sim::SimSettings;
 use tensegrity::solve::deploy::deploy_quasi_static;
 use tensegrity::study;
+use tensegrity::SolveError;
 use tensegrity::{Model, State};
 
 use crate::output::*;
@@ -120,7 +121,17 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
         }
         bar.inc(1);
     })
-    .map_err(|e| format!("{}: {e}", scene.display()))?;
+    .map_err(|e| {
+        // a robot on the ground loses its equilibrium where it tips over or slides: statics sees
+        // the grounds' normal springs and no friction
+        let hint = if model.contact_pairs() > 0 && matches!(e, SolveError::NoEquilibrium { .. }) {
+            "; with contacts a structure has no equilibrium once it tips over or slides (statics \
+             sees the normal springs, not friction): follow the deployment with --dynamic"
+        } else {
+            ""
+        };
+        format!("{}: {e}{hint}", scene.display())
+    })?;
     bar.finish_and_clear();
     if let Some(e) = io_error {
         return Err(write_error(&out, e));
