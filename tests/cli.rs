@@ -28,6 +28,10 @@ fn bundled_scenes_match_their_generators() {
         ("tower.toml", generate::tower(&Default::default())),
         ("atwood.toml", generate::atwood(&Default::default())),
         ("sixbar.toml", generate::sixbar(&Default::default())),
+        (
+            "sixbar_rover.toml",
+            generate::sixbar(&generate::SixbarParams { all_winches: true, ..Default::default() }),
+        ),
     ];
     for (file, spec) in cases {
         let text = std::fs::read_to_string(root().join("config/scenes").join(file)).unwrap();

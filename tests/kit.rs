@@ -371,3 +371,78 @@ fn an_interrupted_test_leaves_no_child_behind_not_even_a_stopped_one() {
         std::thread::sleep(Duration::from_millis(10));
     }
 }
+
+// README example (Rust, a robot): start here.
+/// Where the six-bar robot rolls when a winch hauls in the cable between two of the strut ends
+/// it stands on (`a`, `b`): along that edge, toward the side the two struts lean to (the
+/// horizontal run from each foot to its strut's centre, summed along the edge). A rule read off
+/// the simulator for this robot, checked at every roll below. A unit vector in the floor's plane.
+fn roll_direction(s: &Snapshot, a: &str, b: &str) -> [f64; 2] {
+    let strut = |foot: &str| s.position(foot.split('.').next().unwrap()).unwrap();
+    let (pa, pb) = (s.contact(a).unwrap().position, s.contact(b).unwrap().position);
+    let (ca, cb) = (strut(a), strut(b));
+    let edge = [pb[0] - pa[0], pb[1] - pa[1]];
+    let length = edge[0].hypot(edge[1]);
+    let lean = (ca[0] - pa[0] + cb[0] - pb[0]) * edge[0] + (ca[1] - pa[1] + cb[1] - pb[1]) * edge[1];
+    let sign = if lean >= 0.0 { 1.0 } else { -1.0 };
+    [sign * edge[0] / length, sign * edge[1] / length]
+}
+
+/// The robot's centre (the struts' mean position) in the floor's plane, m.
+fn centre(s: &Snapshot) -> [f64; 2] {
+    let n = s.body_position.len() as f64;
+    let sum = s.body_position.iter().fold([0.0, 0.0], |c, p| [c[0] + p[0], c[1] + p[1]]);
+    [sum[0] / n, sum[1] / n]
+}
+
+/// Steps until the robot stands still on three feet (its centre moves less than 1 mm in 0.1 s).
+fn settle(sim: &testing::SimUnderTest, mut s: Snapshot) -> Snapshot {
+    for _ in 0..100 {
+        let before = centre(&s);
+        s = sim.step(100).unwrap();
+        let after = centre(&s);
+        if s.touching().count() >= 3 && (after[0] - before[0]).hypot(after[1] - before[1]) < 1e-3 {
+            return s;
+        }
+    }
+    panic!("the robot did not come to rest");
+}
+
+#[test]
+fn a_controller_rolls_the_six_bar_robot_face_to_face_to_a_goal() {
+    // sixbar_rover: the six-bar robot with a winch on every cable (w_ and the cable's name)
+    let scene = tensegrity::scene::load(std::path::Path::new("config/scenes/sixbar_rover.toml")).unwrap();
+    let sim = SimBuilder::bundled("sixbar_rover").param("start_from_equilibrium", "true").start().unwrap();
+    let goal = [2.0, -1.0];
+    let mut s = sim.step(0).unwrap();
+    let mut rolls = 0;
+    while (goal[0] - centre(&s)[0]).hypot(goal[1] - centre(&s)[1]) > 0.3 {
+        let feet: Vec<&str> = s.touching().collect();
+        let here = centre(&s);
+        let toward_goal = |d: &[f64; 2]| d[0] * (goal[0] - here[0]) + d[1] * (goal[1] - here[1]);
+        // of the cables between two feet, the one whose roll points most toward the goal
+        let (cable, predicted) = (0..scene.cables.len())
+            .filter_map(|c| {
+                let route = scene.route(tensegrity::model::CableId(c));
+                let (a, b) = (scene.points[route[0].0].name.as_str(), scene.points[route[1].0].name.as_str());
+                (feet.contains(&a) && feet.contains(&b)).then(|| (c, roll_direction(&s, a, b)))
+            })
+            .max_by(|x, y| toward_goal(&x.1).total_cmp(&toward_goal(&y.1)))
+            .expect("the robot stands on a cable between two feet");
+        let (winch, rest) = (format!("w_{}", scene.cable_names[cable]), scene.initial_rest_lengths[cable]);
+        // haul it in to 57 % for 2.5 s (the robot tips onto the next face), pay it back out, settle
+        sim.step_with(&[Command::new(&winch).rest_length(0.57 * rest)], 2500).unwrap();
+        s = settle(&sim, sim.step_with(&[Command::new(&winch).rest_length(rest)], 500).unwrap());
+        let moved = [centre(&s)[0] - here[0], centre(&s)[1] - here[1]];
+        let along = (moved[0] * predicted[0] + moved[1] * predicted[1]) / moved[0].hypot(moved[1]);
+        println!(
+            "roll {rolls}: {winch} moved the robot {moved:.2?} m, now on {:?}",
+            s.touching().collect::<Vec<_>>()
+        );
+        assert!(along > 0.94, "{winch}: rolled {moved:?}, predicted {predicted:?}");
+        rolls += 1;
+        assert!(rolls <= 12, "not at the goal after {rolls} rolls: at {:?}", centre(&s));
+    }
+    assert!(sim.stop().fault.is_none());
+}
+// README example end.

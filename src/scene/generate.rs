@@ -483,6 +483,10 @@ pub struct SixbarParams {
     pub roll_fraction: f64,
     /// Duration of that haul, s.
     pub roll_duration: f64,
+    /// A winch on every cable (`w_` and the cable's name: `w_c00` ... `w_c23`), for a
+    /// controller that rolls the robot where it wants, and no schedule; else the one
+    /// `roll_winch` and its haul.
+    pub all_winches: bool,
 }
 
 impl Default for SixbarParams {
@@ -497,6 +501,7 @@ impl Default for SixbarParams {
             mu: 0.8,
             roll_fraction: 0.57,
             roll_duration: 2.0,
+            all_winches: false,
         }
     }
 }
@@ -581,6 +586,32 @@ pub fn sixbar(p: &SixbarParams) -> SceneSpec {
         }
     }
     let winch_cable = bottom_edge.expect("the bottom face is a cable triangle");
+    let winch = |name: String, cable: &str| ActuatorSpec {
+        name,
+        cable: cable.to_string(),
+        min_rest_length: round9s(0.2 * cable_length),
+        max_rest_length: round9s(1.2 * cable_length),
+        max_rate: round9s(cable_length),
+    };
+    if p.all_winches {
+        let actuators = cables.iter().map(|c| winch(format!("w_{}", c.name), &c.name)).collect();
+        return SceneSpec {
+            name: "sixbar_rover".into(),
+            description: format!(
+                "Six-bar tensegrity robot standing on a face of three strut ends on a level ground \
+                 (mu {}): struts {} m, {} kg, capsules of radius {} m; 24 cables of EA {} N at {} N, \
+                 each on a winch (w_ and its name) for a controller to roll the robot where it wants",
+                p.mu, l, p.bar_mass, p.contact_radius, p.ea, p.prestress
+            ),
+            gravity: [0.0, 0.0, -9.81],
+            physics_dt: Some(0.001),
+            bodies,
+            cables,
+            actuators,
+            grounds: vec![GroundSpec { name: Some("floor".into()), mu: Some(p.mu), ..Default::default() }],
+            ..Default::default()
+        };
+    }
     SceneSpec {
         name: "sixbar".into(),
         description: format!(
@@ -602,13 +633,7 @@ pub fn sixbar(p: &SixbarParams) -> SceneSpec {
         physics_dt: Some(0.001),
         bodies,
         cables,
-        actuators: vec![ActuatorSpec {
-            name: "roll_winch".into(),
-            cable: winch_cable,
-            min_rest_length: round9s(0.2 * cable_length),
-            max_rest_length: round9s(1.2 * cable_length),
-            max_rate: round9s(cable_length),
-        }],
+        actuators: vec![winch("roll_winch".into(), &winch_cable)],
         deployment: Some(DeploymentSpec {
             steps: 100,
             ramps: vec![RampSpec {

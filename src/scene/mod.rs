@@ -421,6 +421,7 @@ pub const BUNDLED: &[(&str, &str)] = &[
     ("tbar", include_str!("../../config/scenes/tbar.toml")),
     ("tower", include_str!("../../config/scenes/tower.toml")),
     ("sixbar", include_str!("../../config/scenes/sixbar.toml")),
+    ("sixbar_rover", include_str!("../../config/scenes/sixbar_rover.toml")),
 ];
 
 /// The TOML text of the bundled scene `name` (`prism3` or `prism3.toml`), if there is one.

@@ -1,5 +1,6 @@
-//! What a test reads and sends: `Snapshot` (the state after a step, by name), `Names` (the
-//! scene's names in array order) and `Command` (one actuator command, built by name).
+//! What a test reads and sends: `Snapshot` (the state after a step, by name, with its contacts),
+//! `Names` (the scene's names in array order) and `Command` (one actuator command, built by
+//! name).
 
 use std::sync::Arc;
 
@@ -18,6 +19,9 @@ pub struct Names {
     pub cables: Vec<String>,
     /// Actuator names.
     pub actuators: Vec<String>,
+    /// Each contact's two names (`Model::contact_labels`): a sphere's point and its ground
+    /// (`x0.b`, `floor`), then each colliding strut pair's two bars.
+    pub contacts: Vec<(String, String)>,
 }
 
 impl Names {
@@ -27,6 +31,7 @@ impl Names {
             bodies: model.bodies.iter().map(|b| b.name.clone()).collect(),
             cables: model.cable_names.clone(),
             actuators: model.actuator_names.clone(),
+            contacts: model.contact_labels().map(|(a, b)| (a.to_string(), b.to_string())).collect(),
         }
     }
 }
@@ -58,8 +63,29 @@ pub struct Snapshot {
     pub actuator_rest_length: Vec<f64>,
     /// Each actuator's rest-length rate over the last step, m/s.
     pub actuator_rate: Vec<f64>,
+    /// Each contact (in `Names::contacts` order; empty for a scene without contact).
+    pub contacts: Vec<ContactSnapshot>,
     /// The node's counters at this state.
     pub stats: NodeStats,
+}
+
+/// What one contact is doing (`report::ContactReport`, without the names).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ContactSnapshot {
+    /// Pressed in.
+    pub in_contact: bool,
+    /// Signed distance of the surfaces, m (negative: pressed in).
+    pub gap: f64,
+    /// The contact point, m.
+    pub position: [f64; 3],
+    /// Unit normal (a ground's outward one; for two struts, from the second toward the first).
+    pub normal: [f64; 3],
+    /// Normal force, N.
+    pub normal_force: f64,
+    /// Friction force on the body (the first bar), N.
+    pub friction: [f64; 3],
+    /// Slip speed, m/s.
+    pub slip_speed: f64,
 }
 
 impl Snapshot {
@@ -77,6 +103,7 @@ impl Snapshot {
             cable_slack: Vec::new(),
             actuator_rest_length: Vec::new(),
             actuator_rate: Vec::new(),
+            contacts: Vec::new(),
             stats: NodeStats::default(),
         }
     }
@@ -118,6 +145,35 @@ impl Snapshot {
             self.actuator_rest_length.push(state.rest_lengths[a.cable.0]);
             self.actuator_rate.push(v.rates[a.cable.0]);
         }
+        self.contacts.clear();
+        for c in &ws.contacts {
+            self.contacts.push(ContactSnapshot {
+                in_contact: c.in_contact(),
+                gap: c.gap,
+                position: c.position.into(),
+                normal: c.normal.into(),
+                normal_force: c.normal_force,
+                friction: c.friction.into(),
+                slip_speed: c.slip.norm(),
+            });
+        }
+    }
+
+    /// The first contact of point `name` (a sphere's centre, `body.point`; for a strut pair, its
+    /// first bar).
+    pub fn contact(&self, name: &str) -> Option<&ContactSnapshot> {
+        self.names.contacts.iter().position(|c| c.0 == name).map(|k| &self.contacts[k])
+    }
+
+    /// The points (a sphere's, `body.point`) that press into a ground now, in contact order;
+    /// for a strut pair in contact, its first bar.
+    pub fn touching(&self) -> impl Iterator<Item = &str> + '_ {
+        self.names
+            .contacts
+            .iter()
+            .zip(&self.contacts)
+            .filter(|(_, c)| c.in_contact)
+            .map(|(n, _)| n.0.as_str())
     }
 
     /// The index of cable `name`.

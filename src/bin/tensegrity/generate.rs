@@ -48,6 +48,9 @@ pub enum GenerateKind {
         /// Friction coefficient of the ground.
         #[arg(long, allow_hyphen_values = true, default_value_t = 0.8)]
         mu: f64,
+        /// A winch on every cable and no schedule (the bundled sixbar_rover, for controllers).
+        #[arg(long)]
+        all_winches: bool,
     },
 }
 
@@ -76,7 +79,9 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
         GenerateKind::Atwood { m1, m2 } => {
             generate::atwood(&generate::AtwoodParams { m1, m2, ..Default::default() })
         }
-        GenerateKind::Sixbar { mu } => generate::sixbar(&generate::SixbarParams { mu, ..Default::default() }),
+        GenerateKind::Sixbar { mu, all_winches } => {
+            generate::sixbar(&generate::SixbarParams { mu, all_winches, ..Default::default() })
+        }
     };
     // a generator's arguments are scene fields: refuse what `check` would refuse
     let label = format!("<generated {}>", spec.name);
