@@ -76,7 +76,7 @@ fn main() {
     println!("Lockstep, node paused, 1 step per request, deploying (scene schedule), generalized-alpha dt = 1 ms ({lockstep_n} round trips; DDS {dds_n}):\n");
     println!("| scene | client | node transports | round trip p50 us | p99 us | round trips/s | offline step p50 us | overhead p50 us |");
     println!("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: |");
-    for (k, name) in ["prism3.toml", "tower.toml"].iter().enumerate() {
+    for (k, name) in ["prism3.toml", "tower.toml", "sixbar.toml"].iter().enumerate() {
         lockstep_table(name, lockstep_n, dds_n, 76 + k as u16);
     }
 }

@@ -585,3 +585,45 @@ mod with_dds {
         assert_eq!((stats.steps, stats.commands_accepted, stats.commands_rejected), (12, 3, 1));
     }
 }
+
+#[test]
+fn a_robot_on_the_ground_serves_its_contacts_with_each_lockstep_answer() {
+    let model = bundled("sixbar.toml");
+    let weight: f64 = model.bodies.iter().map(|b| b.mass).sum::<f64>() * 9.81;
+    let params = NodeParams {
+        start_paused: true,
+        state_publish_rate: 0.0,
+        start_from_equilibrium: true,
+        ..shm_params("contacts")
+    };
+    let prefix = params.shm_prefix();
+    let _node = RunningNode::start_serving(model.clone(), params);
+    let client = ShmClient::connect(&prefix, WAIT).unwrap();
+    let structure = client.structure(WAIT).unwrap();
+    let labels: Vec<(String, String)> =
+        model.contact_labels().map(|(a, b)| (a.to_string(), b.to_string())).collect();
+    assert_eq!(structure.contact_names, labels);
+    for steps in [1, 20] {
+        let answer = client.lockstep(steps, &[], WAIT).unwrap();
+        let contacts = client.latest_contacts().unwrap().expect("contacts with the answer");
+        let c = contacts.payload();
+        assert_eq!(
+            (c.step, c.time.to_bits()),
+            (answer.payload().state.step, answer.payload().state.time.to_bits())
+        );
+        assert_eq!(c.contact_count as usize, labels.len());
+        let standing: Vec<&str> =
+            (0..labels.len()).filter(|&i| c.in_contact[i] == 1).map(|i| labels[i].0.as_str()).collect();
+        assert_eq!(standing, ["x0.b", "y0.b", "z0.b"]);
+        let carried: f64 = c.normal_force[..labels.len()].iter().sum();
+        assert!((carried - weight).abs() < 1e-6 * weight, "{carried} N of {weight} N");
+    }
+    // a scene without contact has no contacts service and names none
+    let params = NodeParams { start_paused: true, state_publish_rate: 0.0, ..shm_params("no_contacts") };
+    let prefix = params.shm_prefix();
+    let _plain = RunningNode::start_serving(bundled("prism3.toml"), params);
+    let client = ShmClient::connect(&prefix, WAIT).unwrap();
+    assert!(client.structure(WAIT).unwrap().contact_names.is_empty());
+    client.lockstep(1, &[], WAIT).unwrap();
+    assert!(client.latest_contacts().unwrap().is_none());
+}

@@ -4,6 +4,6 @@ network namespace where the kernel allows it), `msgs` has the node's message typ
 msg/, `shm` the zero-copy lockstep client; the pytest plugin gives the `tensegrity_node` fixture.
 """
 
-from .node import EXIT_STATUS, NodeFailed, State, TensegrityNode, command, find_executable
+from .node import EXIT_STATUS, Contact, NodeFailed, State, TensegrityNode, command, find_executable
 
-__all__ = ["EXIT_STATUS", "NodeFailed", "State", "TensegrityNode", "command", "find_executable"]
+__all__ = ["EXIT_STATUS", "Contact", "NodeFailed", "State", "TensegrityNode", "command", "find_executable"]

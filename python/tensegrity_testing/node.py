@@ -86,6 +86,23 @@ def _param_text(value):
 
 
 @dataclass
+class Contact:
+    """One contact after a step: a sphere's point and its ground (a strut pair: its two bars),
+    pressed in or not, gap (m, negative: pressed in), normal force (N), contact point (m), unit
+    normal, friction force on the body (N) and slip speed (m/s)."""
+
+    point: str
+    other: str
+    in_contact: bool
+    gap: float
+    normal_force: float
+    position: tuple
+    normal: tuple
+    friction: tuple
+    slip_speed: float
+
+
+@dataclass
 class State:
     """The state after a step, copied out of shared memory (SI units; arrays in the order of the
     structure's names)."""
@@ -102,6 +119,7 @@ class State:
     actuator_rest_length: list = field(default_factory=list)
     actuator_rate: list = field(default_factory=list)
     commands_rejected: int = 0
+    contacts: list = field(default_factory=list)
 
     @classmethod
     def of(cls, s):
@@ -307,7 +325,15 @@ class TensegrityNode:
         if self.shm is None:
             raise RuntimeError("lockstep needs the shared-memory transport (transports)")
         answer = self.shm.lockstep(steps, list(commands), timeout=self.timeout)
-        return State.of(answer.state)
+        state = State.of(answer.state)
+        c = self.shm.latest_contacts()
+        if c is not None and c.step == state.step:
+            state.contacts = [
+                Contact(point, other, bool(c.in_contact[i]), c.gap[i], c.normal_force[i],
+                        tuple(c.position[i]), tuple(c.normal[i]), tuple(c.friction[i]), c.slip_speed[i])
+                for i, (point, other) in enumerate(self.names["contacts"])
+            ]
+        return state
 
     # ----- the end -------------------------------------------------------------------------
 

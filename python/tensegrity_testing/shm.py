@@ -41,6 +41,7 @@ import iceoryx2 as iox2
 MAX_BODIES = 256
 MAX_CABLES = 1024
 MAX_ACTUATORS = 256
+MAX_CONTACTS = 512
 NAME_BYTES = 64
 MESSAGE_BYTES = 256
 
@@ -104,7 +105,7 @@ class StructureSample(ctypes.Structure):
         ("body_count", u32),
         ("cable_count", u32),
         ("actuator_count", u32),
-        ("reserved", u32),
+        ("contact_count", u32),
         ("scene_name", Name),
         ("frame_id", Name),
         ("body_names", Name * MAX_BODIES),
@@ -114,11 +115,35 @@ class StructureSample(ctypes.Structure):
         ("actuator_min_rest_length", f64 * MAX_ACTUATORS),
         ("actuator_max_rest_length", f64 * MAX_ACTUATORS),
         ("actuator_max_rate", f64 * MAX_ACTUATORS),
+        ("contact_point", Name * MAX_CONTACTS),
+        ("contact_with", Name * MAX_CONTACTS),
     ]
 
     @staticmethod
     def type_name() -> str:
         return "TensegrityStructure"
+
+
+class ContactsSample(ctypes.Structure):
+    """`TensegrityContacts`: every contact after a step (scenes with contacts only)."""
+
+    _fields_ = [
+        ("time", f64),
+        ("step", u64),
+        ("contact_count", u32),
+        ("reserved", u32),
+        ("gap", f64 * MAX_CONTACTS),
+        ("normal_force", f64 * MAX_CONTACTS),
+        ("slip_speed", f64 * MAX_CONTACTS),
+        ("position", (f64 * 3) * MAX_CONTACTS),
+        ("normal", (f64 * 3) * MAX_CONTACTS),
+        ("friction", (f64 * 3) * MAX_CONTACTS),
+        ("in_contact", u8 * MAX_CONTACTS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "TensegrityContacts"
 
 
 class CommandEntry(ctypes.Structure):
@@ -263,6 +288,13 @@ class TensegrityClient:
         )
         self.wake_node = self._service("to_node").event().open().notifier_builder().create()
         self.updates = self._service("from_node").event().open().listener_builder().create()
+        # only a scene with contacts has this service (the node creates it before the others)
+        try:
+            self.contacts_sub = (
+                self._service("contacts").publish_subscribe(ContactsSample).open().subscriber_builder().create()
+            )
+        except Exception:
+            self.contacts_sub = None
 
     def _wait(self, ready, timeout):
         """Polls `ready()` for the spin time, then blocks on the node's events until `timeout`.
@@ -306,6 +338,7 @@ class TensegrityClient:
             "cable_names": [text(s.cable_names[i]) for i in range(s.cable_count)],
             "actuator_names": [text(s.actuator_names[i]) for i in range(s.actuator_count)],
             "actuator_cable": [s.actuator_cable[i] for i in range(s.actuator_count)],
+            "contacts": [(text(s.contact_point[i]), text(s.contact_with[i])) for i in range(s.contact_count)],
         }
 
     def next_state(self, timeout=1.0):
@@ -320,6 +353,21 @@ class TensegrityClient:
             return copy
 
         return self._wait(ready, timeout)
+
+    def latest_contacts(self):
+        """A copy of the newest contacts sample received (older ones are released), or None when
+        none arrived or the scene has no contacts. After a lockstep answer it is that answer's
+        step: the node publishes the contacts first."""
+        if self.contacts_sub is None:
+            return None
+        newest = None
+        while True:
+            sample = self.contacts_sub.receive()
+            if sample is None:
+                break
+            newest = ContactsSample()
+            ctypes.memmove(ctypes.byref(newest), sample.payload_ptr, ctypes.sizeof(ContactsSample))
+        return newest
 
     @staticmethod
     def _fill(command, entries):

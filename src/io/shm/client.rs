@@ -33,6 +33,8 @@ pub struct Structure {
     pub actuator_names: Vec<String>,
     /// The cable each actuator drives.
     pub actuator_cable: Vec<usize>,
+    /// Each contact's two names, in `ContactsSample` order (empty without contacts).
+    pub contact_names: Vec<(String, String)>,
 }
 
 /// A controller's connection to a node over shared memory: state, structure, commands and
@@ -43,6 +45,8 @@ pub struct ShmClient {
     _node: Option<iceoryx2::node::Node<Svc>>,
     state: Subscriber<Svc, StateSample, ()>,
     structure: Subscriber<Svc, StructureSample, ()>,
+    /// The contacts (None: the scene has none).
+    contacts: Option<Subscriber<Svc, ContactsSample, ()>>,
     commands: Publisher<Svc, CommandSample, ()>,
     lockstep: Client<Svc, LockstepRequest, (), LockstepResponse, ()>,
     updates: Listener<Svc>,
@@ -52,6 +56,8 @@ pub struct ShmClient {
 
 /// A state sample as received (zero-copy; dereferences to `StateSample` through `payload()`).
 pub type StateRef = Sample<Svc, StateSample, ()>;
+/// A contacts sample as received (zero-copy; `payload()` is the `ContactsSample`).
+pub type ContactsRef = Sample<Svc, ContactsSample, ()>;
 /// A lockstep answer as received (zero-copy; `payload()` is the `LockstepResponse`).
 pub type LockstepAnswer = Response<Svc, LockstepResponse, ()>;
 
@@ -110,7 +116,17 @@ impl ShmClient {
             .event()
             .open()
             .map_err(ipc("from_node event"))?;
+        // the node creates it before the others, so it exists now if the scene has contacts
+        let contacts = match node
+            .service_builder(&service_name(&names.contacts)?)
+            .publish_subscribe::<ContactsSample>()
+            .open()
+        {
+            Ok(service) => Some(service.subscriber_builder().create().map_err(ipc("contacts subscriber"))?),
+            Err(_) => None,
+        };
         Ok(Self {
+            contacts,
             prefix: String::new(),
             state: state.subscriber_builder().create().map_err(ipc("state subscriber"))?,
             structure: structure.subscriber_builder().create().map_err(ipc("structure subscriber"))?,
@@ -182,6 +198,12 @@ impl ShmClient {
                 .iter()
                 .map(|c| *c as usize)
                 .collect(),
+            contact_names: (0..s.contact_count as usize)
+                .map(|i| {
+                    let name = |f: &[u8; NAME_BYTES]| read_name(f).unwrap_or("").to_string();
+                    (name(&s.contact_point[i]), name(&s.contact_with[i]))
+                })
+                .collect(),
         })
     }
 
@@ -222,6 +244,18 @@ impl ShmClient {
                 None => return Ok(out.into()),
             }
         }
+    }
+
+    /// The newest contacts sample received so far (older ones are released), or None when none
+    /// arrived since the last call or the scene has no contacts. After a lockstep answer it is
+    /// that answer's step (the node publishes the contacts first).
+    pub fn latest_contacts(&self) -> Result<Option<ContactsRef>, ShmError> {
+        let Some(contacts) = &self.contacts else { return Ok(None) };
+        let mut newest = None;
+        while let Some(s) = contacts.receive().map_err(ipc("contacts"))? {
+            newest = Some(s);
+        }
+        Ok(newest)
     }
 
     /// Sends one command message (applied at the node's next step boundary, or rejected whole:

@@ -18,6 +18,9 @@ pub const MAX_BODIES: usize = 256;
 pub const MAX_CABLES: usize = 1024;
 /// Most actuators a scene may have on this transport (and entries in one command).
 pub const MAX_ACTUATORS: usize = 256;
+/// Most contacts (ground pairs and strut pairs, `Model::contact_pairs`) a scene may have on this
+/// transport.
+pub const MAX_CONTACTS: usize = 512;
 /// Bytes of a name field (UTF-8, NUL-terminated, so names have at most `NAME_BYTES - 1` bytes).
 pub const NAME_BYTES: usize = 64;
 /// Bytes of the message of a lockstep answer (UTF-8, NUL-terminated).
@@ -104,8 +107,9 @@ pub struct StructureSample {
     pub cable_count: u32,
     /// Actuators in use.
     pub actuator_count: u32,
-    /// Zero.
-    pub reserved: u32,
+    /// Contacts in use (ground pairs, then strut pairs); 0 for a scene without contact, which
+    /// has no `contacts` service.
+    pub contact_count: u32,
     /// Scene name.
     pub scene_name: [u8; NAME_BYTES],
     /// Fixed frame of the poses.
@@ -124,6 +128,43 @@ pub struct StructureSample {
     pub actuator_max_rest_length: [f64; MAX_ACTUATORS],
     /// Largest rate each actuator accepts, m/s.
     pub actuator_max_rate: [f64; MAX_ACTUATORS],
+    /// Each contact's first name, in `ContactsSample` order: a contact sphere's centre point
+    /// (`body.point`, or `body` for a node), or a strut pair's first bar.
+    pub contact_point: [[u8; NAME_BYTES]; MAX_CONTACTS],
+    /// Each contact's second name: the ground, or a strut pair's second bar.
+    pub contact_with: [[u8; NAME_BYTES]; MAX_CONTACTS],
+}
+
+/// Every contact after a step (`report::ContactReport`'s numbers), on `<prefix>/contacts`, a
+/// service only scenes with contacts have. The node publishes it with every state sample and
+/// before every lockstep answer, so the newest one a controller holds after an answer is that
+/// answer's step. Only the first `contact_count` entries are meaningful.
+#[derive(Debug, Clone, ZeroCopySend)]
+#[repr(C)]
+#[type_name("TensegrityContacts")]
+pub struct ContactsSample {
+    /// Simulation time, s.
+    pub time: f64,
+    /// Steps taken since the start or the last reset (as `StateSample::step`).
+    pub step: u64,
+    /// Contacts in use.
+    pub contact_count: u32,
+    /// Zero.
+    pub reserved: u32,
+    /// Signed distance of the surfaces, m (negative: pressed in).
+    pub gap: [f64; MAX_CONTACTS],
+    /// Normal force, N (>= 0).
+    pub normal_force: [f64; MAX_CONTACTS],
+    /// Slip speed of the contact point, m/s.
+    pub slip_speed: [f64; MAX_CONTACTS],
+    /// Contact point, m, world frame.
+    pub position: [[f64; 3]; MAX_CONTACTS],
+    /// Unit normal: the ground's outward one (a strut pair's, from the second bar to the first).
+    pub normal: [[f64; 3]; MAX_CONTACTS],
+    /// Friction force on the body (a strut pair's first bar), N, world frame.
+    pub friction: [[f64; 3]; MAX_CONTACTS],
+    /// 1 while pressed in.
+    pub in_contact: [u8; MAX_CONTACTS],
 }
 
 /// One actuator command: a target rest length (reached at the given or the actuator's largest
@@ -280,11 +321,13 @@ pub fn check_command(
 /// Implement only for such types.
 #[allow(unsafe_code)]
 pub unsafe trait ZeroValid {}
-// SAFETY (all five): `#[repr(C)]` structs of u8, u32, u64, f64 and arrays of them (CommandEntry too)
+// SAFETY (all six): `#[repr(C)]` structs of u8, u32, u64, f64 and arrays of them (CommandEntry too)
 #[allow(unsafe_code)]
 unsafe impl ZeroValid for StateSample {}
 #[allow(unsafe_code)]
 unsafe impl ZeroValid for StructureSample {}
+#[allow(unsafe_code)]
+unsafe impl ZeroValid for ContactsSample {}
 #[allow(unsafe_code)]
 unsafe impl ZeroValid for CommandSample {}
 #[allow(unsafe_code)]

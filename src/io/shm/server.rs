@@ -58,12 +58,30 @@ fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64)
     out.published_ns = realtime_ns();
 }
 
+/// Fills `out` (all zero on entry) with every contact of `v`.
+fn fill_contacts(out: &mut ContactsSample, v: &NodeView<'_>) {
+    out.time = v.state.time;
+    out.step = v.step;
+    out.contact_count = v.workspace.contacts.len() as u32;
+    for (i, c) in v.workspace.contacts.iter().enumerate() {
+        out.gap[i] = c.gap;
+        out.normal_force[i] = c.normal_force;
+        out.slip_speed[i] = c.slip.norm();
+        out.position[i] = c.position.into();
+        out.normal[i] = c.normal.into();
+        out.friction[i] = c.friction.into();
+        out.in_contact[i] = u8::from(c.in_contact());
+    }
+}
+
 /// The node's shared-memory face: see the module docs.
 pub struct ShmTransport {
     node: iceoryx2::node::Node<Svc>,
     prefix: String,
     state: Publisher<Svc, StateSample, ()>,
     structure: Publisher<Svc, StructureSample, ()>,
+    /// The contacts' publisher (scenes with contacts only).
+    contacts: Option<Publisher<Svc, ContactsSample, ()>>,
     commands: Subscriber<Svc, CommandSample, ()>,
     lockstep: Server<Svc, LockstepRequest, (), LockstepResponse, ()>,
     wake: Listener<Svc>,
@@ -93,6 +111,23 @@ impl ShmTransport {
         let node = new_node()?;
         node.try_cleanup_dead_nodes();
         let taken = |e: String| ShmError::Taken(prefix.clone(), e);
+        // first, so that a controller that finds the other services finds this one too
+        let contacts = if model.contact_pairs() > 0 {
+            let service = node
+                .service_builder(&service_name(&names.contacts)?)
+                .publish_subscribe::<ContactsSample>()
+                .max_publishers(1)
+                .max_subscribers(MAX_CONTROLLERS)
+                .subscriber_max_buffer_size(STATE_BUFFER)
+                .subscriber_max_borrowed_samples(STATE_BUFFER)
+                .history_size(0)
+                .enable_safe_overflow(true)
+                .open_or_create()
+                .map_err(ipc("contacts service"))?;
+            Some(service.publisher_builder().create().map_err(|e| taken(format!("{e:?}")))?)
+        } else {
+            None
+        };
         let state = node
             .service_builder(&service_name(&names.state)?)
             .publish_subscribe::<StateSample>()
@@ -160,6 +195,7 @@ impl ShmTransport {
             prefix,
             state: state_publisher,
             structure,
+            contacts,
             commands,
             lockstep,
             wake,
@@ -180,7 +216,21 @@ impl ShmTransport {
         &self.prefix
     }
 
+    /// Publishes the contacts of `v` (nothing for a scene without contacts).
+    fn publish_contacts(&mut self, v: &NodeView<'_>) -> Result<(), PublishError> {
+        let Some(publisher) = &self.contacts else { return Ok(()) };
+        let fail = |e: String| PublishError::Failed(format!("contacts: {e}"));
+        let mut sample = publisher.loan_uninit().map_err(|e| fail(format!("{e:?}")))?;
+        fill_contacts(zeroed(sample.payload_mut()), v);
+        // SAFETY: `zeroed` initialized the whole payload
+        #[allow(unsafe_code)]
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(|e| fail(format!("{e:?}")))?;
+        Ok(())
+    }
+
     fn publish_state(&mut self, v: &NodeView<'_>) -> Result<(), PublishError> {
+        self.publish_contacts(v)?;
         let mut sample =
             self.state.loan_uninit().map_err(|e| PublishError::Failed(format!("state: {e:?}")))?;
         fill_state(zeroed(sample.payload_mut()), v, self.commands_applied_ns);
@@ -201,6 +251,11 @@ impl ShmTransport {
         s.body_count = m.bodies.len() as u32;
         s.cable_count = m.cables.len() as u32;
         s.actuator_count = m.actuators.len() as u32;
+        s.contact_count = m.contact_pairs() as u32;
+        for (i, (point, with)) in m.contact_labels().enumerate() {
+            write_name(&mut s.contact_point[i], point);
+            write_name(&mut s.contact_with[i], with);
+        }
         write_name(&mut s.scene_name, &m.name);
         write_name(&mut s.frame_id, v.frame_id);
         for (i, b) in m.bodies.iter().enumerate() {
@@ -225,6 +280,8 @@ impl ShmTransport {
 
     /// Answers a lockstep request with `result` and the state in `view`.
     fn answer(&mut self, request: Lockstep, result: &SimResult, steps_taken: u64, view: &NodeView<'_>) {
+        // the contacts of the answer's step first (a failure to publish them is the state's too)
+        let _ = self.publish_contacts(view);
         if let Ok(mut response) = request.loan_uninit() {
             let r = zeroed(response.payload_mut());
             r.result = result.result;

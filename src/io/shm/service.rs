@@ -90,6 +90,7 @@ pub fn check_capacity(model: &Model, frame_id: &str) -> Result<(), ShmError> {
         ("bodies", model.bodies.len(), MAX_BODIES, "MAX_BODIES"),
         ("cables", model.cables.len(), MAX_CABLES, "MAX_CABLES"),
         ("actuators", model.actuators.len(), MAX_ACTUATORS, "MAX_ACTUATORS"),
+        ("contacts", model.contact_pairs(), MAX_CONTACTS, "MAX_CONTACTS"),
     ];
     for (what, count, limit, constant) in counts {
         if count > limit {
@@ -100,7 +101,8 @@ pub fn check_capacity(model: &Model, frame_id: &str) -> Result<(), ShmError> {
         .chain(std::iter::once(("frame_id", frame_id)))
         .chain(model.bodies.iter().map(|b| ("body name", b.name.as_str())))
         .chain(model.cable_names.iter().map(|n| ("cable name", n.as_str())))
-        .chain(model.actuator_names.iter().map(|n| ("actuator name", n.as_str())));
+        .chain(model.actuator_names.iter().map(|n| ("actuator name", n.as_str())))
+        .chain(model.contact_labels().flat_map(|(a, b)| [("contact name", a), ("contact name", b)]));
     for (what, name) in names {
         if name.len() >= NAME_BYTES {
             let shown = commands::excerpt(name, commands::EXCERPT_CHARS);
@@ -121,6 +123,8 @@ pub struct ServiceNames {
     pub commands: String,
     /// `<prefix>/lockstep`.
     pub lockstep: String,
+    /// `<prefix>/contacts` (scenes with contacts only).
+    pub contacts: String,
     /// `<prefix>/to_node` (event).
     pub to_node: String,
     /// `<prefix>/from_node` (event).
@@ -136,6 +140,7 @@ impl ServiceNames {
             structure: n("structure"),
             commands: n("actuator_commands"),
             lockstep: n("lockstep"),
+            contacts: n("contacts"),
             to_node: n("to_node"),
             from_node: n("from_node"),
         }
