@@ -295,6 +295,12 @@ fn lockstep_table(name: &str, n: usize, dds_n: usize, domain: u16) {
     );
     let (rt, per_s) = rust_lockstep(&prefix, n);
     row(label, "Rust", "shm", &rt, per_s, step);
+    node.stop();
+    // a fresh node, so that the Python client steps the same stretch of the schedule
+    let node = RunningNode::start_serving(
+        model.clone(),
+        NodeParams { transports: vec![TransportKind::Shm], ..base.clone() },
+    );
     if let Some(py) = python::bench_python_with("iceoryx2") {
         let script = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/interop/shm_client.py");
         let out = Command::new(py)
