@@ -555,19 +555,35 @@ fn build_grounds(
             }
             None => Vector3::zeros(),
         };
-        let number = |x: Option<f64>, default: f64, range, unit, field: &str| match x {
-            None => Ok(default),
-            Some(x) => in_range(x, range, unit).map_err(|r| e(field, r)),
-        };
-        let material = ContactMaterial {
-            stiffness: number(g.stiffness, default_stiffness, limits::CONTACT_STIFFNESS, "N/m", "stiffness")?,
-            dissipation: number(g.dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
-            friction: number(g.mu, 1.0, limits::FRICTION, "", "mu")?,
-            stiction_speed: number(g.stiction_speed, 1e-5, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
-        };
+        let law = [g.stiffness, g.dissipation, g.mu, g.stiction_speed];
+        let material = contact_material(law, default_stiffness, 1.0, &e)?;
         grounds.push(GroundModel { name, normal, offset: normal.dot(&point), material });
     }
     Ok(grounds)
+}
+
+/// Default friction coefficient between struts (`[collisions] mu`).
+const STRUT_FRICTION: f64 = 0.3;
+
+/// A contact law from a table's optional `[stiffness, dissipation, mu, stiction_speed]`, each
+/// checked against its range, with the defaults (`default_stiffness`, 1 s/m, `default_mu`,
+/// 1e-5 m/s); `e(field, reason)` makes the error that names the field.
+fn contact_material(
+    [stiffness, dissipation, mu, stiction_speed]: [Option<f64>; 4],
+    default_stiffness: f64,
+    default_mu: f64,
+    e: &dyn Fn(&str, String) -> SceneError,
+) -> Result<ContactMaterial, SceneError> {
+    let number = |x: Option<f64>, default: f64, range, unit, field: &str| match x {
+        None => Ok(default),
+        Some(x) => in_range(x, range, unit).map_err(|r| e(field, r)),
+    };
+    Ok(ContactMaterial {
+        stiffness: number(stiffness, default_stiffness, limits::CONTACT_STIFFNESS, "N/m", "stiffness")?,
+        dissipation: number(dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
+        friction: number(mu, default_mu, limits::FRICTION, "", "mu")?,
+        stiction_speed: number(stiction_speed, 1e-5, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
+    })
 }
 
 /// The default penalty stiffness of grounds and strut collisions, N/m: the structure's whole
@@ -591,25 +607,13 @@ fn build_strut_pairs(
 ) -> Result<(Vec<StrutPair>, ContactMaterial), SceneError> {
     let default_stiffness = default_contact_stiffness(spec, bodies, points);
     let Some(c) = &spec.collisions else {
-        let unused = ContactMaterial {
-            stiffness: default_stiffness,
-            dissipation: 1.0,
-            friction: 0.3,
-            stiction_speed: 1e-5,
-        };
+        let unused = contact_material([None; 4], default_stiffness, STRUT_FRICTION, &|_, _| unreachable!())
+            .expect("the defaults are in range");
         return Ok((Vec::new(), unused));
     };
     let e = |field: &str, reason: String| cx.top(&format!("collisions.{field}"), reason);
-    let number = |x: Option<f64>, default: f64, range, unit, field: &str| match x {
-        None => Ok(default),
-        Some(x) => in_range(x, range, unit).map_err(|r| e(field, r)),
-    };
-    let material = ContactMaterial {
-        stiffness: number(c.stiffness, default_stiffness, limits::CONTACT_STIFFNESS, "N/m", "stiffness")?,
-        dissipation: number(c.dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
-        friction: number(c.mu, 0.3, limits::FRICTION, "", "mu")?,
-        stiction_speed: number(c.stiction_speed, 1e-5, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
-    };
+    let law = [c.stiffness, c.dissipation, c.mu, c.stiction_speed];
+    let material = contact_material(law, default_stiffness, STRUT_FRICTION, &e)?;
     let capsule = |b: usize| -> Option<(PointId, PointId, f64)> {
         let body = &spec.bodies[b];
         let radius = body.contact_radius?;
