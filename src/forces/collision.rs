@@ -120,6 +120,23 @@ pub fn closest_points(
     ClosestPoints { s, t, s_free: !parallel && s > 0.0 && s < 1.0, t_free: t > 0.0 && t < 1.0, w }
 }
 
+/// Below this distance of their axes, m, two capsules' normal is not `w / |w|` but
+/// `crossing_normal`'s, and their tangents are left out (the axes meet: no direction to
+/// differentiate).
+pub const AXIS_DISTANCE_FLOOR: f64 = 1e-12;
+
+/// A unit normal for axes that meet: across both (`e1 x e2`), or for parallel ones any direction
+/// normal to the first.
+fn crossing_normal(e1: &Vector3<f64>, e2: &Vector3<f64>) -> Vector3<f64> {
+    let across = e1.cross(e2);
+    if across.norm() > 1e-9 * e1.norm() * e2.norm() {
+        return across.normalize();
+    }
+    let e = e1.normalize();
+    let helper = if e.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    e.cross(&helper).normalize()
+}
+
 /// The end points' positions and velocities of a pair: `[a, b, c, d]`.
 fn ends(points: &[PointKinematics], pair: &StrutPair) -> ([Vector3<f64>; 4], [Vector3<f64>; 4]) {
     let k = pair.ends.map(|p| points[p.0]);
@@ -147,7 +164,7 @@ fn pair_response(
 ) -> (ContactResponse, ClosestPoints) {
     let cp = closest_points(&x[0], &x[1], &x[2], &x[3]);
     let d = cp.w.norm();
-    let n = if d > 0.0 { cp.w / d } else { (x[1] - x[0]).cross(&(x[3] - x[2])).normalize() };
+    let n = if d > AXIS_DISTANCE_FLOOR { cp.w / d } else { crossing_normal(&(x[1] - x[0]), &(x[3] - x[2])) };
     let p1 = x[0] + (x[1] - x[0]) * cp.s;
     let delta = radius - d;
     let mut response =
@@ -205,7 +222,7 @@ fn end_force_derivatives(
 ) -> Option<(Mat12, Mat12, [Vector3<f64>; 4])> {
     let (response, cp) = pair_response(x, v, radius, m);
     let f_n = response.normal_force;
-    if f_n <= 0.0 {
+    if f_n <= 0.0 || cp.w.norm() <= AXIS_DISTANCE_FLOOR {
         return None;
     }
     let (s, t, w) = (cp.s, cp.t, cp.w);
