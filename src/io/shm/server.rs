@@ -74,6 +74,27 @@ fn fill_contacts(out: &mut ContactsSample, v: &NodeView<'_>) {
     }
 }
 
+/// Opens (or creates) the per-step publish-subscribe service `name` of payload `T` (the state,
+/// the contacts): one publisher, `MAX_CONTROLLERS` subscribers that keep the newest
+/// `STATE_BUFFER` samples (the oldest is overwritten: a slow reader never holds the node up), no
+/// history.
+fn per_step_service<T: std::fmt::Debug + ZeroCopySend>(
+    node: &iceoryx2::node::Node<Svc>,
+    name: &str,
+    what: &str,
+) -> Result<iceoryx2::service::port_factory::publish_subscribe::PortFactory<Svc, T, ()>, ShmError> {
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<T>()
+        .max_publishers(1)
+        .max_subscribers(MAX_CONTROLLERS)
+        .subscriber_max_buffer_size(STATE_BUFFER)
+        .subscriber_max_borrowed_samples(STATE_BUFFER)
+        .history_size(0)
+        .enable_safe_overflow(true)
+        .open_or_create()
+        .map_err(ipc(what))
+}
+
 /// The node's shared-memory face: see the module docs.
 pub struct ShmTransport {
     node: iceoryx2::node::Node<Svc>,
@@ -113,32 +134,12 @@ impl ShmTransport {
         let taken = |e: String| ShmError::Taken(prefix.clone(), e);
         // first, so that a controller that finds the other services finds this one too
         let contacts = if model.contact_pairs() > 0 {
-            let service = node
-                .service_builder(&service_name(&names.contacts)?)
-                .publish_subscribe::<ContactsSample>()
-                .max_publishers(1)
-                .max_subscribers(MAX_CONTROLLERS)
-                .subscriber_max_buffer_size(STATE_BUFFER)
-                .subscriber_max_borrowed_samples(STATE_BUFFER)
-                .history_size(0)
-                .enable_safe_overflow(true)
-                .open_or_create()
-                .map_err(ipc("contacts service"))?;
+            let service = per_step_service::<ContactsSample>(&node, &names.contacts, "contacts service")?;
             Some(service.publisher_builder().create().map_err(|e| taken(format!("{e:?}")))?)
         } else {
             None
         };
-        let state = node
-            .service_builder(&service_name(&names.state)?)
-            .publish_subscribe::<StateSample>()
-            .max_publishers(1)
-            .max_subscribers(MAX_CONTROLLERS)
-            .subscriber_max_buffer_size(STATE_BUFFER)
-            .subscriber_max_borrowed_samples(STATE_BUFFER)
-            .history_size(0)
-            .enable_safe_overflow(true)
-            .open_or_create()
-            .map_err(ipc("state service"))?;
+        let state = per_step_service::<StateSample>(&node, &names.state, "state service")?;
         let structure = node
             .service_builder(&service_name(&names.structure)?)
             .publish_subscribe::<StructureSample>()
