@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, DVector, Vector3, Vector6};
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
 use crate::constraints;
 use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableResponse, CableScratch};
-use crate::forces::collision::{add_collision_force, add_collision_tangents};
+use crate::forces::collision::{add_collision_force, add_collision_tangents, ClosestPoints};
 use crate::forces::contact::{add_contact_force, add_contact_tangents, ContactResponse};
 use crate::kinematics::{point_kinematics, PointKinematics};
 use crate::model::{BodyId, CableId, Model, PointId};
@@ -58,9 +58,9 @@ pub struct Workspace {
     /// Every contact's response (`Model::contact_pairs`: the ground pairs, sphere `s` against
     /// ground `g` at `s * grounds + g`, then the strut pairs).
     pub contacts: Vec<ContactResponse>,
-    /// Per strut pair, which side of the second bar's axis the first passes
-    /// (`forces::collision::ClosestPoints::side`: +1, -1, or 0 when that is not defined).
-    pub strut_sides: Vec<f64>,
+    /// Per strut pair, the closest points of the two axes (`ClosestPoints::side` tells which
+    /// side of the second bar's axis the first passes: +1, -1, or 0 when that is not defined).
+    pub strut_closest: Vec<ClosestPoints>,
     /// Power dissipated by all contacts (normal damping and friction), W.
     pub contact_loss_power: f64,
     /// Segment lengths of all cables, concatenated (cable `c` starts at `route_start - c`).
@@ -97,7 +97,7 @@ impl Workspace {
             constraint_jacobian: DMatrix::zeros(if dense { model.constraint_count } else { 0 }, n),
             cables: vec![CableResponse::default(); model.cables.len()],
             contacts: vec![ContactResponse::default(); model.contact_pairs()],
-            strut_sides: vec![0.0; model.strut_pairs.len()],
+            strut_closest: vec![ClosestPoints::default(); model.strut_pairs.len()],
             contact_loss_power: 0.0,
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
@@ -145,7 +145,8 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
             stiffness: &mut ws.stiffness,
             damping: if want_c { Some(&mut ws.damping) } else { None },
         };
-        add_tangents(model, state, &ws.points, &ws.cables, &ws.contacts, &mut ws.scratch, &mut sink);
+        let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
+        add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
     }
     constraints::evaluate_jacobian(model, &ws.points, &mut ws.constraint_jacobian);
 }
@@ -205,12 +206,12 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     // strut pairs: capsule against capsule
     let first = model.ground_pairs();
     for (i, pair) in model.strut_pairs.iter().enumerate() {
-        let (response, side) =
+        let (response, closest) =
             add_collision_force(model, &ws.points, pair, &model.strut_material, &mut ws.force);
         elastic += response.energy;
         loss += response.loss_power;
         ws.contacts[first + i] = response;
-        ws.strut_sides[i] = side;
+        ws.strut_closest[i] = closest;
     }
     ws.contact_loss_power = loss;
 
@@ -226,7 +227,7 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     state: &State,
     points: &[PointKinematics],
     cables: &[CableResponse],
-    contacts: &[ContactResponse],
+    (contacts, strut_closest): (&[ContactResponse], &[ClosestPoints]),
     scratch: &mut CableScratch,
     sink: &mut S,
 ) {
@@ -236,9 +237,10 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     }
     let first = model.ground_pairs();
     for (i, pair) in model.strut_pairs.iter().enumerate() {
-        if contacts[first + i].normal_force > 0.0 {
-            let (poses, v) = (&state.poses, &state.velocities);
-            add_collision_tangents(model, poses, v, points, pair, &model.strut_material, sink);
+        let response = &contacts[first + i];
+        if response.normal_force > 0.0 {
+            let (poses, v, m) = (&state.poses, &state.velocities, &model.strut_material);
+            add_collision_tangents(model, poses, v, points, pair, m, (response, &strut_closest[i]), sink);
         }
     }
     for (c, cable) in model.cables.iter().enumerate() {

@@ -247,20 +247,23 @@ pub struct Simulator {
     /// the step diverges (`StepError::Diverged`), and the energy scale that tells it
     /// (`divergence_scale`). `None` for every other integrator and setting, which pay nothing.
     guard: Option<(State, EnergyAccount, f64)>,
-    /// Generalized-alpha at a fixed step: the state before the sub-step under way and the energy
-    /// scale; a sub-step that makes up more than `IMPLICIT_GAIN_FACTOR` times the scale is undone
-    /// and retried in halves (a tension-only cable snapping taut and slack faster than the step
-    /// can pump energy into the run, where the linear analysis promises stability). `None`
-    /// otherwise.
-    implicit_guard: Option<(State, EnergyAccount, f64)>,
-    /// With a tolerance and contacts: the state before the sub-step under way and every contact
-    /// pair's gap there, to retry a sub-step that steps too far past a touchdown or a lift-off
+    /// The state before the sub-step under way, kept when a guard below may undo it (one copy
+    /// per sub-step serves them all). `None` when no guard is armed.
+    sub_step_start: Option<State>,
+    /// Generalized-alpha at a fixed step: the energy account before the sub-step under way and
+    /// the energy scale; a sub-step that makes up more than `IMPLICIT_GAIN_FACTOR` times the
+    /// scale is undone and retried in halves (a tension-only cable snapping taut and slack faster
+    /// than the step can pump energy into the run, where the linear analysis promises
+    /// stability). `None` otherwise.
+    implicit_guard: Option<(EnergyAccount, f64)>,
+    /// With a tolerance and contacts: every contact pair's gap before the sub-step under way, to
+    /// retry a sub-step that steps too far past a touchdown or a lift-off
     /// (`CONTACT_EVENT_DEPTH`). `None` otherwise.
-    contact_events: Option<(State, Vec<f64>)>,
-    /// With strut pairs (`[collisions]`): the state before the sub-step under way and every
-    /// pair's side (`Workspace::strut_sides`) there, to undo a sub-step that carries one bar
-    /// through another. `None` otherwise.
-    pass_through_guard: Option<(State, Vec<f64>)>,
+    contact_events: Option<Vec<f64>>,
+    /// With strut pairs (`[collisions]`): every pair's side (`ClosestPoints::side` in `Workspace::strut_closest`) before
+    /// the sub-step under way, to undo a sub-step that carries one bar through another. `None`
+    /// otherwise.
+    pass_through_guard: Option<Vec<f64>>,
 }
 
 impl Simulator {
@@ -356,6 +359,7 @@ impl Simulator {
             next_h: settings.dt * INITIAL_STEP_FRACTION,
             mean_h: settings.dt,
             guard: None,
+            sub_step_start: None,
             implicit_guard: None,
             contact_events: None,
             pass_through_guard: None,
@@ -469,19 +473,21 @@ impl Simulator {
             } else {
                 h
             };
-            if let Some((before, energy, _)) = &mut self.implicit_guard {
+            if let Some(before) = &mut self.sub_step_start {
                 before.copy_from(&self.state);
+            }
+            if let Some((energy, _)) = &mut self.implicit_guard {
                 *energy = self.energy;
             }
-            if let Some((before, gaps)) = &mut self.contact_events {
-                before.copy_from(&self.state);
+            if let Some(gaps) = &mut self.contact_events {
                 for (g, c) in gaps.iter_mut().zip(&self.ws.contacts) {
                     *g = c.gap;
                 }
             }
-            if let Some((before, sides)) = &mut self.pass_through_guard {
-                before.copy_from(&self.state);
-                sides.copy_from_slice(&self.ws.strut_sides);
+            if let Some(sides) = &mut self.pass_through_guard {
+                for (side, closest) in sides.iter_mut().zip(&self.ws.strut_closest) {
+                    *side = closest.side;
+                }
             }
             self.rest_now.copy_from_slice(&self.state.rest_lengths);
             self.control.advance(&self.model, self.state.time, h_try, &self.rest_now, &mut self.rest_next);
@@ -530,11 +536,12 @@ impl Simulator {
                     if !self.dynamics.take_final_evaluation(&mut self.ws) {
                         evaluate_forces(&self.model, &self.state, &mut self.ws);
                     }
-                    if let Some((before, sides)) = &self.pass_through_guard {
+                    if let (Some(sides), Some(before)) = (&self.pass_through_guard, &self.sub_step_start) {
                         // a bar whose axis changed sides of another's within the sub-step went
                         // through it (the penalty force never saw it, or could not stop it):
                         // undo and retry in halves
-                        let crossed = sides.iter().zip(&self.ws.strut_sides).position(|(a, b)| a * b < 0.0);
+                        let crossed =
+                            sides.iter().zip(&self.ws.strut_closest).position(|(a, b)| a * b.side < 0.0);
                         if let Some(i) = crossed {
                             undo_sub_step(
                                 &self.model,
@@ -559,8 +566,8 @@ impl Simulator {
                             continue;
                         }
                     }
-                    if let (Some((before, gaps)), Some(tol), false) =
-                        (&self.contact_events, tolerance, forced)
+                    if let (Some(gaps), Some(before), Some(tol), false) =
+                        (&self.contact_events, &self.sub_step_start, tolerance, forced)
                     {
                         // a touchdown or lift-off inside the sub-step is a kink of the force
                         // that the error estimate sees only after the fact: a sub-step that
@@ -594,7 +601,9 @@ impl Simulator {
                     let (p_act1, p_loss1) = cable_powers(&self.model, &self.ws, &self.rest_rate);
                     self.energy.actuator_work += 0.5 * h_try * (p_act0 + p_act1);
                     self.energy.damping_loss += 0.5 * h_try * (p_loss0 + p_loss1);
-                    if let Some((before, energy_before, scale)) = &self.implicit_guard {
+                    if let (Some((energy_before, scale)), Some(before)) =
+                        (&self.implicit_guard, &self.sub_step_start)
+                    {
                         let e = self.ws.energies;
                         let now = EnergyAccount {
                             kinetic: e.kinetic,
@@ -725,22 +734,27 @@ impl Simulator {
     /// size or cable length), J.
     fn with_divergence_guard(mut self) -> Self {
         if self.settings.tolerance.is_some() && self.model.contact_pairs() > 0 {
-            self.contact_events = Some((self.state.clone(), vec![0.0; self.model.contact_pairs()]));
+            self.contact_events = Some(vec![0.0; self.model.contact_pairs()]);
         }
         if !self.model.strut_pairs.is_empty() {
-            self.pass_through_guard = Some((self.state.clone(), vec![0.0; self.model.strut_pairs.len()]));
+            self.pass_through_guard = Some(vec![0.0; self.model.strut_pairs.len()]);
         }
         if self.settings.tolerance.is_none() {
             let size = crate::solve::statics::body_size(&self.model)
                 .max(self.ws.cables.iter().map(|c| c.length).fold(0.0, f64::max));
             let weight: f64 = self.model.bodies.iter().map(|b| b.mass * self.model.gravity.norm()).sum();
             let scale = self.energy.kinetic + self.energy.elastic + weight * size;
-            let armed = Some((self.state.clone(), self.energy, scale.max(1e-9)));
             if self.settings.integrator.is_explicit() {
-                self.guard = armed;
+                self.guard = Some((self.state.clone(), self.energy, scale.max(1e-9)));
             } else {
-                self.implicit_guard = armed;
+                self.implicit_guard = Some((self.energy, scale.max(1e-9)));
             }
+        }
+        let undoable = self.implicit_guard.is_some()
+            || self.contact_events.is_some()
+            || self.pass_through_guard.is_some();
+        if undoable {
+            self.sub_step_start = Some(self.state.clone());
         }
         self
     }

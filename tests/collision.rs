@@ -119,7 +119,7 @@ fn bars_thrown_at_each_other_bounce_back_keeping_momentum_and_never_gaining_ener
             };
             largest_rise = largest_rise.max(mechanical - lowest);
             lowest = lowest.min(mechanical);
-            assert!(sim.workspace().strut_sides[0] >= 0.0, "the upper bar went through");
+            assert!(sim.workspace().strut_closest[0].side >= 0.0, "the upper bar went through");
         }
         assert!(touched, "the bars never met");
         let v = &sim.state().velocities;

@@ -49,7 +49,7 @@ type Mat12 = SMatrix<f64, 12, 12>;
 const PARALLEL: f64 = 1e-12;
 
 /// The closest points of two capsule axes.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ClosestPoints {
     /// Parameter of `p1` on the first axis, in `[0, 1]`.
     pub s: f64,
@@ -61,24 +61,10 @@ pub struct ClosestPoints {
     pub t_free: bool,
     /// `w = p1 - p2`, m.
     pub w: Vector3<f64>,
-}
-
-impl ClosestPoints {
     /// Which side of the second axis the first passes: the sign of `w . (e1 x e2)` while both
     /// closest points are interior and the axes are not parallel, else 0. A sub-step that flips
     /// it from `+1` to `-1` (or back) carried one bar through the other.
-    pub fn side(&self, e1: &Vector3<f64>, e2: &Vector3<f64>) -> f64 {
-        if !(self.s_free && self.t_free) {
-            return 0.0;
-        }
-        let cross = e1.cross(e2);
-        let x = self.w.dot(&cross);
-        if x.abs() <= 1e-9 * self.w.norm() * cross.norm() {
-            0.0
-        } else {
-            x.signum()
-        }
-    }
+    pub side: f64,
 }
 
 /// The closest points of the axes `r_a + s (r_b - r_a)` and `r_c + t (r_d - r_c)`, both
@@ -117,7 +103,15 @@ pub fn closest_points(
         s = ((b - c) / a).clamp(0.0, 1.0);
     }
     let w = r_a + e1 * s - r_c - e2 * t;
-    ClosestPoints { s, t, s_free: !parallel && s > 0.0 && s < 1.0, t_free: t > 0.0 && t < 1.0, w }
+    let (s_free, t_free) = (!parallel && s > 0.0 && s < 1.0, t > 0.0 && t < 1.0);
+    let cross = e1.cross(&e2);
+    let across = w.dot(&cross);
+    let side = if !(s_free && t_free) || across.abs() <= 1e-9 * w.norm() * cross.norm() {
+        0.0
+    } else {
+        across.signum()
+    };
+    ClosestPoints { s, t, s_free, t_free, w, side }
 }
 
 /// Below this distance of their axes, m, two capsules' normal is not `w / |w|` but
@@ -191,14 +185,14 @@ fn pair_response(
 /// Evaluates the pair and adds its generalized force into `force` (length `model.dof_count`).
 /// The response's `friction` is the force on the first bar, its `normal` points from the second
 /// bar to the first, its `position` is the middle of the two closest points. Also returns the
-/// pair's `ClosestPoints::side`.
+/// closest points, for `add_collision_tangents` at the same state.
 pub fn add_collision_force(
     model: &Model,
     points: &[PointKinematics],
     pair: &StrutPair,
     material: &ContactMaterial,
     force: &mut DVector<f64>,
-) -> (ContactResponse, f64) {
+) -> (ContactResponse, ClosestPoints) {
     let (x, v) = ends(points, pair);
     let (response, cp) = pair_response(&x, &v, pair.radius, material);
     if response.normal_force > 0.0 {
@@ -209,18 +203,19 @@ pub fn add_collision_force(
             add_vector(model, kin.body, &(kin.jacobian.transpose() * f), share, force);
         }
     }
-    (response, cp.side(&(x[1] - x[0]), &(x[3] - x[2])))
+    (response, cp)
 }
 
-/// `df/dX` and `df/dV` of the end-point forces `f = G^T F` (module docs), or None while the
-/// pair exerts no force.
+/// `df/dX` and `df/dV` of the end-point forces `f = G^T F` (module docs) for the `response` and
+/// closest points `cp` that `pair_response` found at the ends' positions `x` and velocities `v`,
+/// or None while the pair exerts no force.
 fn end_force_derivatives(
     x: &[Vector3<f64>; 4],
     v: &[Vector3<f64>; 4],
-    radius: f64,
     m: &ContactMaterial,
+    response: &ContactResponse,
+    cp: &ClosestPoints,
 ) -> Option<(Mat12, Mat12, [Vector3<f64>; 4])> {
-    let (response, cp) = pair_response(x, v, radius, m);
     let f_n = response.normal_force;
     if f_n <= 0.0 || cp.w.norm() <= AXIS_DISTANCE_FLOOR {
         return None;
@@ -294,7 +289,9 @@ fn end_force_derivatives(
 }
 
 /// Adds the pair's tangent stiffness `K` and damping `C` (module docs) into `sink`, at the
-/// point kinematics `points` of the state `poses`, `v`. Nothing while the pair is apart.
+/// point kinematics `points` of the state `poses`, `v`, for the `response` and closest points
+/// `closest` that `add_collision_force` found there. Nothing while the pair is apart.
+#[allow(clippy::too_many_arguments)]
 pub fn add_collision_tangents<S: TangentSink + ?Sized>(
     model: &Model,
     poses: &[Pose],
@@ -302,10 +299,11 @@ pub fn add_collision_tangents<S: TangentSink + ?Sized>(
     points: &[PointKinematics],
     pair: &StrutPair,
     material: &ContactMaterial,
+    (response, closest): (&ContactResponse, &ClosestPoints),
     sink: &mut S,
 ) {
     let (x, vel) = ends(points, pair);
-    let Some((f_x, f_v, f)) = end_force_derivatives(&x, &vel, pair.radius, material) else {
+    let Some((f_x, f_v, f)) = end_force_derivatives(&x, &vel, material, response, closest) else {
         return;
     };
     let kin = pair.ends.map(|p| points[p.0]);

@@ -111,8 +111,7 @@ fn slip_reversal_limit(
             if c.normal_force <= 0.0 || c.slip.norm() <= SLIP_LIMIT_ZONE * m.stiction_speed {
                 continue;
             }
-            let x = pair.ends.map(|p| ws.points[p.0].position);
-            let cp = crate::forces::collision::closest_points(&x[0], &x[1], &x[2], &x[3]);
+            let cp = &ws.strut_closest[i];
             let mut dv = nalgebra::Vector3::zeros();
             for (p, share) in pair.ends.iter().zip([1.0 - cp.s, cp.s, cp.t - 1.0, -cp.t]) {
                 let kin = &ws.points[p.0];
@@ -387,7 +386,8 @@ pub fn assemble_newton_matrix(
 ) {
     assemble_mass_and_joints(model, ws, mass, kkt);
     let mut sink = kkt.tangents(1.0 / beta_p, gamma_p / beta_p);
-    add_tangents(model, state, &ws.points, &ws.cables, &ws.contacts, &mut ws.scratch, &mut sink);
+    let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
+    add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
     add_gyroscopic_damping(model, &state.velocities, &mut sink);
     if model.constraint_count > 0 {
         add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
