@@ -143,7 +143,7 @@ impl Tracer<'_> {
         }
         b[(n + nc, n + nc)] = self.time_weight * self.time_weight * tau[n + nc];
         if kr > 0 {
-            let mr = self.solver.mass() * rigid;
+            let mr = self.solver.mass(model) * rigid;
             b.view_mut((0, n + nc + 1), (n, kr)).copy_from(&mr);
             b.view_mut((n + nc + 1, 0), (kr, n)).copy_from(&mr.transpose());
         }

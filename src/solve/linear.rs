@@ -187,6 +187,17 @@ enum Storage {
     },
 }
 
+/// Counts of the negative, zero and positive eigenvalues of a symmetric matrix (its inertia).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Inertia {
+    /// Eigenvalues below zero.
+    pub negative: usize,
+    /// Eigenvalues exactly zero (a zero pivot; `KktSystem::symmetric_inertia` gives `None` then).
+    pub zero: usize,
+    /// Eigenvalues above zero.
+    pub positive: usize,
+}
+
 /// Which factorization the held factors are.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FactorKind {
@@ -216,6 +227,8 @@ struct SymmetricFactor {
     signs: Vec<i8>,
     /// Positions of the coordinates' diagonal entries in `values` (regularization scale).
     coordinate_diagonal: Vec<usize>,
+    /// Positions of the coordinates' diagonal entries in the upper-triangle values (shifts).
+    upper_diagonal: Vec<usize>,
     mem: MemBuffer,
 }
 
@@ -315,10 +328,14 @@ impl SymmetricFactor {
         let mut col_ptr = vec![0];
         let mut row_idx = Vec::with_capacity(nnz_upper);
         let mut from = Vec::with_capacity(nnz_upper);
+        let mut upper_diagonal = Vec::with_capacity(n);
         for j in 0..size {
             for k in index.col_ptr[j]..index.col_ptr[j + 1] {
                 let i = index.row_idx[k];
                 if i <= j {
+                    if i == j && j < n {
+                        upper_diagonal.push(row_idx.len());
+                    }
                     row_idx.push(i);
                     from.push([k, index.position(j, i)]);
                 }
@@ -340,6 +357,7 @@ impl SymmetricFactor {
             inv,
             signs,
             coordinate_diagonal,
+            upper_diagonal,
             mem,
         })
     }
@@ -397,6 +415,56 @@ impl SymmetricFactor {
         ok && self.l_values.iter().all(|v| v.is_finite())
     }
 
+    /// Factors the symmetric part of `full` with `shift` subtracted from every coordinate's
+    /// diagonal, exactly (no regularization, no pivoting: the joint rows' order makes every
+    /// pivot a Schur complement), and counts the signs of the pivots `D`: by Sylvester's law of
+    /// inertia, those of the shifted matrix. `None` when a pivot is zero or a value not finite.
+    fn inertia(&mut self, full: &[f64], shift: f64) -> Option<Inertia> {
+        use faer::sparse::linalg::cholesky::{supernodal::SupernodalLdltRef, SymbolicCholeskyRaw};
+        for (v, [a, b]) in self.values.iter_mut().zip(&self.from) {
+            *v = 0.5 * (full[*a] + full[*b]);
+        }
+        for &k in &self.upper_diagonal {
+            self.values[k] -= shift;
+        }
+        let size = self.col_ptr.len() - 1;
+        let sym = SymbolicSparseColMatRef::new_checked(size, size, &self.col_ptr, None, &self.row_idx);
+        let mat = SparseColMatRef::new(sym, &self.values);
+        self.symbolic
+            .factorize_numeric_ldlt(
+                &mut self.l_values,
+                mat,
+                Side::Upper,
+                LdltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut self.mem),
+                Default::default(),
+            )
+            .ok()?;
+        if !self.l_values.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        let SymbolicCholeskyRaw::Supernodal(symbolic) = self.symbolic.raw() else {
+            return None;
+        };
+        let factor = SupernodalLdltRef::new(symbolic, &self.l_values);
+        let mut inertia = Inertia::default();
+        for s in 0..symbolic.n_supernodes() {
+            let block = factor.supernode(s).val();
+            for j in 0..block.ncols() {
+                let d = block[(j, j)];
+                if d < 0.0 {
+                    inertia.negative += 1;
+                } else if d > 0.0 {
+                    inertia.positive += 1;
+                } else {
+                    inertia.zero += 1;
+                }
+            }
+        }
+        Some(inertia)
+    }
+
     fn solve(&mut self, x: MatMut<'_, f64>) {
         let ldlt = LdltRef::new(&self.symbolic, &self.l_values);
         ldlt.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(&mut self.mem));
@@ -424,6 +492,7 @@ impl Clone for SymmetricFactor {
             l_values: self.l_values.clone(),
             signs: self.signs.clone(),
             coordinate_diagonal: self.coordinate_diagonal.clone(),
+            upper_diagonal: self.upper_diagonal.clone(),
             mem,
         }
     }
@@ -915,6 +984,88 @@ impl KktSystem {
         true
     }
 
+    /// The inertia of the symmetric part of the assembled matrix with `shift` subtracted from
+    /// every coordinate's diagonal, `[[A_sym - shift I, Phi_q^T, G], [Phi_q, 0, 0], [G^T, 0, -1/k]]`
+    /// (`G` the bordered cables' length gradients, `k` their axial stiffnesses), from an exact
+    /// sparse `LDL^T` of it. By Sylvester's law, with `Z` an orthonormal basis of the null space
+    /// of `Phi_q` (full row rank) and `A_red = Z^T (A_sym + G diag(k) G^T) Z`, its negative count
+    /// is `nc + borders` plus the number of eigenvalues of `A_red` below `shift`: the stability
+    /// test of an equilibrium without forming `Z` (`crate::solve::statics`). The shifted factors
+    /// are then held (`solve_factored` solves with this matrix; `FactorKind::SymmetricLdlt`).
+    /// `None` on the dense backend, or when a pivot is zero (`shift` is an eigenvalue of a
+    /// leading block) or not finite.
+    pub fn symmetric_inertia(&mut self, shift: f64) -> Option<Inertia> {
+        let Storage::Sparse { values, symmetric: Some(sym), .. } = &mut self.storage else {
+            return None;
+        };
+        self.factored = false;
+        let inertia = sym.inertia(values, shift)?;
+        self.kind = FactorKind::SymmetricLdlt;
+        self.factored = true;
+        Some(inertia)
+    }
+
+    /// The symmetric coordinate part of the assembled matrix with the bordered cables folded
+    /// back in, `S = A_sym + G diag(k) G^T` (see `symmetric_inertia`), as the bilinear form
+    /// `x^T S y` (`x`, `y` of length `n`). `None` on the dense backend.
+    pub fn coordinate_form(&self, x: &[f64], y: &[f64]) -> Option<f64> {
+        let Storage::Sparse { index, values, .. } = &self.storage else { return None };
+        let n = self.n;
+        let mut sum = 0.0;
+        for j in 0..n {
+            for k in index.col_ptr[j]..index.col_ptr[j + 1] {
+                let i = index.row_idx[k];
+                if i < n {
+                    // x^T A_sym y = (x^T A y + y^T A x) / 2
+                    sum += 0.5 * values[k] * (x[i] * y[j] + y[i] * x[j]);
+                }
+            }
+        }
+        for b in self.n + self.nc..self.size {
+            let stiffness = -1.0 / values[index.diagonal[b]];
+            let (mut gx, mut gy) = (0.0, 0.0);
+            for k in index.col_ptr[b]..index.col_ptr[b + 1] {
+                let i = index.row_idx[k];
+                if i < n {
+                    let g = 0.5 * (values[k] + values[index.position(b, i)]);
+                    gx += g * x[i];
+                    gy += g * y[i];
+                }
+            }
+            sum += stiffness * gx * gy;
+        }
+        Some(sum)
+    }
+
+    /// A Gershgorin bound on the magnitude of every eigenvalue of `S = A_sym + G diag(k) G^T`
+    /// (`coordinate_form`): the largest row sum of `|S|` over the coordinates, which by
+    /// interlacing also bounds `A_red`'s (`symmetric_inertia`). `None` on the dense backend.
+    pub fn coordinate_bound(&self) -> Option<f64> {
+        let Storage::Sparse { index, values, .. } = &self.storage else { return None };
+        let n = self.n;
+        let mut rows = vec![0.0; n];
+        for j in 0..n {
+            for k in index.col_ptr[j]..index.col_ptr[j + 1] {
+                let i = index.row_idx[k];
+                if i < n {
+                    rows[i] += (0.5 * (values[k] + values[index.position(j, i)])).abs();
+                }
+            }
+        }
+        for b in self.n + self.nc..self.size {
+            let stiffness = (-1.0 / values[index.diagonal[b]]).abs();
+            let entries: Vec<(usize, f64)> = (index.col_ptr[b]..index.col_ptr[b + 1])
+                .filter(|&k| index.row_idx[k] < n)
+                .map(|k| (index.row_idx[k], 0.5 * (values[k] + values[index.position(b, index.row_idx[k])])))
+                .collect();
+            let total: f64 = entries.iter().map(|(_, g)| g.abs()).sum();
+            for (i, g) in entries {
+                rows[i] += stiffness * g.abs() * total;
+            }
+        }
+        Some(rows.into_iter().fold(0.0, f64::max))
+    }
+
     /// Which factorization the held factors are.
     pub fn factor_kind(&self) -> FactorKind {
         self.kind
@@ -964,6 +1115,25 @@ impl KktSystem {
             }
         }
         rhs.iter().all(|v| v.is_finite())
+    }
+
+    /// `out = A x` with the assembled matrix (before a factorization consumes it: call between
+    /// assembly and `factor`, or keep the assembly). `x` and `out` have `size()` rows.
+    pub fn multiply(&self, x: &DVector<f64>, out: &mut DVector<f64>) {
+        out.fill(0.0);
+        match &self.storage {
+            Storage::Dense { a, .. } => {
+                let m = nalgebra::DMatrixView::from_slice(a, self.size, self.size);
+                out.gemv(1.0, &m, x, 0.0);
+            }
+            Storage::Sparse { index, values, .. } => {
+                for j in 0..self.size {
+                    for k in index.col_ptr[j]..index.col_ptr[j + 1] {
+                        out[index.row_idx[k]] += values[k] * x[j];
+                    }
+                }
+            }
+        }
     }
 
     /// The assembled matrix as a dense `size x size` matrix (tests and diagnostics; allocates).

@@ -31,13 +31,20 @@
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
 //! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
 //! Neutral directions (free rigid motions, unstressed mechanisms) count as not stable.
+//!
+//! Size: from `SPARSE_STATICS_MIN` coordinates the solver works on the sparse KKT system of the
+//! dynamics (`crate::solve::linear::KktSystem`, clustered cables bordered): Newton steps by its
+//! sparse LU, and the stability test by the inertia of shifted sparse `LDL^T` factorizations
+//! (`sparse_stability`) instead of a dense eigenproblem over a null-space basis, so that `statics`
+//! and quasi-static deployment cost about linearly in the structure (docs/benchmarks.md).
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use crate::assembly::DenseTangents;
-use crate::constraints::add_multiplier_hessian;
-use crate::evaluate::{evaluate, Tangents, Workspace};
+use crate::constraints::{add_multiplier_hessian, add_multiplier_hessian_to, joint_points};
+use crate::evaluate::{add_tangents, evaluate, evaluate_forces, Tangents, Workspace};
 use crate::model::{CableId, Model, Pose, SolverSettings};
+use crate::solve::linear::{KktSystem, LinearBackend};
 use crate::state::{retract, State};
 
 /// Outcome of one equilibrium solve.
@@ -285,7 +292,13 @@ enum Start {
 /// Buffers for the Newton iteration, sized once per model.
 #[derive(Debug, Clone)]
 pub struct StaticSolver {
+    /// The dense KKT matrix (`assemble_kkt`), sized on first use.
     kkt: DMatrix<f64>,
+    /// The sparse KKT system of a model of at least `SPARSE_STATICS_MIN` coordinates: its
+    /// stability test (`sparse_stability`), and its Newton steps when `sparse_newton`.
+    sparse: Option<KktSystem>,
+    /// Newton steps on `sparse` (a model without stiff cables, solved in the displacement form).
+    sparse_newton: bool,
     rhs: DVector<f64>,
     dq: DVector<f64>,
     trial_poses: Vec<Pose>,
@@ -375,7 +388,7 @@ pub(crate) fn residual_of(
     let n = model.dof_count;
     let mut r = ws.force.clone_owned();
     if model.constraint_count > 0 {
-        r -= ws.constraint_jacobian.transpose() * &state.multipliers;
+        crate::constraints::add_reaction_force(model, &ws.points, &state.multipliers, -1.0, &mut r);
     }
     rhs.rows_mut(0, n).copy_from(&r);
     if model.constraint_count > 0 {
@@ -400,22 +413,63 @@ pub(crate) fn residual_of(
 }
 
 impl StaticSolver {
-    /// Buffers for `model`.
+    /// Buffers for `model`. A model of at least `SPARSE_STATICS_MIN` coordinates is solved on
+    /// the sparse KKT system (`KktSystem`, its symbolic analysis done here): its stability test,
+    /// and its Newton steps when it has no stiff cables, so that its cost grows with the
+    /// structure, not with its square or cube.
     pub fn new(model: &Model) -> Self {
         let size = model.dof_count + model.constraint_count;
         let poses: Vec<Pose> = model.bodies.iter().map(|b| b.initial_pose).collect();
-        Self {
-            kkt: DMatrix::zeros(size, size),
+        let stiff = stiff_cables(model, &mut Workspace::for_forces(model), body_size(model));
+        let large = model.dof_count >= SPARSE_STATICS_MIN;
+        let mut solver = Self {
+            kkt: DMatrix::zeros(0, 0),
+            sparse: None,
+            sparse_newton: false,
             rhs: DVector::zeros(size),
             dq: DVector::zeros(model.dof_count),
             trial_poses: poses.clone(),
             best_poses: poses,
-            mass: crate::solve::dynamics::mass_matrix(model),
+            mass: if model.dof_count > MAX_CONVEXITY_CHECK {
+                DMatrix::zeros(0, 0)
+            } else {
+                crate::solve::dynamics::mass_matrix(model)
+            },
             size: body_size(model),
             history: Vec::new(),
             stop: StopReason::Converged,
-            stiff: stiff_cables(model, &mut Workspace::for_forces(model), body_size(model)),
+            stiff,
+        };
+        if large {
+            solver = solver.with_sparse_kkt(model, true);
         }
+        solver
+    }
+
+    /// The same solver with its Newton steps and stability test on the sparse KKT system
+    /// (`sparse = true`) or on dense matrices, whatever the model's size: for comparing the two
+    /// (`tests/large_statics.rs`). A model without sparse structure stays dense; one with stiff
+    /// cables (`stiff_cables`, the mixed form) takes dense Newton steps either way.
+    pub fn with_sparse_kkt(mut self, model: &Model, sparse: bool) -> Self {
+        self.sparse = None;
+        self.sparse_newton = false;
+        if sparse {
+            let kkt = KktSystem::new(model, LinearBackend::Sparse);
+            if kkt.backend() == LinearBackend::Sparse {
+                self.sparse = Some(kkt);
+                self.sparse_newton = self.stiff.is_empty();
+            }
+        }
+        let checks = !self.sparse_newton || model.dof_count <= MAX_CONVEXITY_CHECK;
+        if checks && self.mass.nrows() != model.dof_count {
+            self.mass = crate::solve::dynamics::mass_matrix(model);
+        }
+        self
+    }
+
+    /// True when this solver's Newton steps are made on the sparse KKT system (`new`).
+    pub fn is_sparse(&self) -> bool {
+        self.sparse_newton
     }
 
     /// Fills the KKT matrix `[[K + H_lambda, Phi_q^T], [Phi_q, 0]]` at `state` from the tangents
@@ -423,6 +477,9 @@ impl StaticSolver {
     pub(crate) fn assemble_kkt(&mut self, model: &Model, state: &State, ws: &Workspace) {
         let n = model.dof_count;
         let nc = model.constraint_count;
+        if self.kkt.nrows() != n + nc {
+            self.kkt = DMatrix::zeros(n + nc, n + nc);
+        }
         self.kkt.fill(0.0);
         self.kkt.view_mut((0, 0), (n, n)).copy_from(&ws.stiffness);
         if nc > 0 {
@@ -450,7 +507,11 @@ impl StaticSolver {
         iterations: usize,
         best: &mut f64,
     ) -> Start {
-        evaluate(model, state, ws, Tangents::Stiffness);
+        if self.sparse_newton {
+            evaluate_forces(model, state, ws);
+        } else {
+            evaluate(model, state, ws, Tangents::Stiffness);
+        }
         let res = residual_of(model, state, ws, &mut self.rhs, self.size);
         self.history.push(res.force);
         if !res.force.is_finite() || !res.constraint.is_finite() {
@@ -494,8 +555,11 @@ impl StaticSolver {
         self.size
     }
 
-    /// The constant mass matrix in local coordinates.
-    pub(crate) fn mass(&self) -> &DMatrix<f64> {
+    /// The constant mass matrix in local coordinates (formed on first use for a large model).
+    pub(crate) fn mass(&mut self, model: &Model) -> &DMatrix<f64> {
+        if self.mass.nrows() != model.dof_count {
+            self.mass = crate::solve::dynamics::mass_matrix(model);
+        }
         &self.mass
     }
 
@@ -504,8 +568,11 @@ impl StaticSolver {
     /// rigid-body motion gets no component). `None` when the KKT matrix cannot be solved (a
     /// limit point). Leaves `ws` evaluated at `state` with its stiffness.
     pub fn path_tangent(&mut self, model: &Model, state: &State, ws: &mut Workspace) -> Option<DVector<f64>> {
-        evaluate(model, state, ws, Tangents::Stiffness);
-        self.assemble_kkt(model, state, ws);
+        if self.sparse_newton {
+            evaluate_forces(model, state, ws);
+        } else {
+            evaluate(model, state, ws, Tangents::Stiffness);
+        }
         let mut rates = vec![0.0; model.cables.len()];
         model.scheduled_rest_rates(state.time, &mut rates);
         let mut r_t = DVector::zeros(model.dof_count + model.constraint_count);
@@ -513,6 +580,11 @@ impl StaticSolver {
         if r_t.amax() == 0.0 {
             return Some(r_t);
         }
+        if let Some(kkt) = self.sparse.as_mut().filter(|_| self.sparse_newton) {
+            assemble_sparse(kkt, model, state, ws);
+            return solve_sparse(kkt, model, &r_t);
+        }
+        self.assemble_kkt(model, state, ws);
         solve_regularized(&self.kkt, &r_t, model.dof_count)
     }
 
@@ -538,7 +610,10 @@ impl StaticSolver {
         // a fresh start has no reactions yet; a continuation (deployment) keeps the last ones
         let fresh = state.multipliers.iter().all(|l| *l == 0.0);
         if fresh {
-            least_squares_multipliers(model, state, ws);
+            match self.sparse.as_mut().filter(|_| self.sparse_newton) {
+                Some(kkt) => sparse_least_squares_multipliers(kkt, model, state, ws),
+                None => least_squares_multipliers(model, state, ws),
+            }
         }
         let mut best = f64::INFINITY;
         let mut iterations = 0;
@@ -555,36 +630,27 @@ impl StaticSolver {
             };
             iterations += 1;
 
-            self.assemble_kkt(model, state, ws);
-            // where the reduced tangent is indefinite or singular (hanging masses, slack cables,
-            // a structure tilted past a maximum of its energy), shift it by mu M: the step then
-            // goes down the potential energy instead of towards the nearest stationary point
-            let tangent = self.kkt.view((0, 0), (n, n)).into_owned();
-            let residual_force = self.rhs.rows(0, n).into_owned();
             let mut energy_mode = false;
             let merit_now = res.merit(res.force_scale, res.length_scale);
             check_convexity |= merit_now > 0.25 * previous_merit;
             previous_merit = merit_now;
-            let correction = if check_convexity {
-                convexity_correction(
-                    model,
-                    &tangent,
-                    &ws.constraint_jacobian,
-                    &self.mass,
-                    &res,
-                    &residual_force,
-                )
-            } else {
-                None
+            // the sparse path takes plain Newton steps; up to `MAX_CONVEXITY_CHECK` coordinates an
+            // iteration that wants the convexity check (a fresh start, a step that had to be cut)
+            // takes the dense step with it
+            let dense_check = check_convexity && n <= MAX_CONVEXITY_CHECK;
+            let step = match self.sparse.as_mut().filter(|_| self.sparse_newton && !dense_check) {
+                Some(kkt) => {
+                    assemble_sparse(kkt, model, state, ws);
+                    solve_sparse(kkt, model, &self.rhs)
+                }
+                None => {
+                    if self.sparse_newton {
+                        evaluate(model, state, ws, Tangents::Stiffness);
+                    }
+                    self.dense_newton_step(model, state, ws, &res, &mut check_convexity, &mut energy_mode)
+                }
             };
-            check_convexity = false;
-            if let Some((correction, descent)) = correction {
-                check_convexity = true;
-                let mut top = self.kkt.view_mut((0, 0), (n, n));
-                top += &correction;
-                energy_mode = descent;
-            }
-            let Some(step) = solve_regularized(&self.kkt, &self.rhs, n) else {
+            let Some(step) = step else {
                 self.stop = StopReason::Singular;
                 break;
             };
@@ -616,7 +682,7 @@ impl StaticSolver {
                     // large rotation would otherwise hide a first-order energy decrease
                     project_onto_joints(model, state, ws, res.length_scale);
                 }
-                evaluate(model, state, ws, Tangents::None);
+                evaluate_forces(model, state, ws);
                 let residual_merit = residual_of(model, state, ws, &mut self.rhs, self.size)
                     .merit(res.force_scale, res.length_scale);
                 let trial = if energy_mode { energy_merit(ws) } else { residual_merit };
@@ -657,17 +723,55 @@ impl StaticSolver {
         Err((iterations, best))
     }
 
-    /// The report of a converged equilibrium: `res` its residual, stability from the tangents
-    /// last evaluated into `ws`.
-    pub(crate) fn report(
-        &self,
+    /// The Newton step of the dense displacement form at `state` (evaluated into `ws` with its
+    /// stiffness; `res` its residual, `self.rhs` its right-hand side): the KKT matrix, shifted
+    /// where the reduced tangent is not convex when `check_convexity` asks (then `energy_mode`
+    /// tells whether the step is a descent step of the energy), solved with regularization.
+    fn dense_newton_step(
+        &mut self,
         model: &Model,
         state: &State,
         ws: &Workspace,
         res: &Residual,
+        check_convexity: &mut bool,
+        energy_mode: &mut bool,
+    ) -> Option<DVector<f64>> {
+        let n = model.dof_count;
+        self.assemble_kkt(model, state, ws);
+        // where the reduced tangent is indefinite or singular (hanging masses, slack cables,
+        // a structure tilted past a maximum of its energy), shift it by mu M: the step then
+        // goes down the potential energy instead of towards the nearest stationary point
+        let correction = if *check_convexity {
+            let tangent = self.kkt.view((0, 0), (n, n)).into_owned();
+            let residual_force = self.rhs.rows(0, n).into_owned();
+            convexity_correction(model, &tangent, &ws.constraint_jacobian, &self.mass, res, &residual_force)
+        } else {
+            None
+        };
+        *check_convexity = false;
+        if let Some((correction, descent)) = correction {
+            *check_convexity = true;
+            let mut top = self.kkt.view_mut((0, 0), (n, n));
+            top += &correction;
+            *energy_mode = descent;
+        }
+        solve_regularized(&self.kkt, &self.rhs, n)
+    }
+
+    /// The report of a converged equilibrium: `res` its residual, stability from the tangents
+    /// last evaluated into `ws` (on a sparse solver, from `ws`'s kinematics and cable states).
+    pub(crate) fn report(
+        &mut self,
+        model: &Model,
+        state: &State,
+        ws: &mut Workspace,
+        res: &Residual,
         iterations: usize,
     ) -> EquilibriumReport {
-        let modes = self.stability(model, state, ws);
+        let modes = match &mut self.sparse {
+            Some(kkt) => sparse_stability(kkt, model, state, ws),
+            None => self.stability(model, state, ws),
+        };
         EquilibriumReport {
             iterations,
             residual: res.force,
@@ -686,36 +790,42 @@ impl StaticSolver {
     /// and zero eigenvalues (relative to the largest, `1e-9`). Uses the tangents last evaluated
     /// into `ws`.
     fn stability(&self, model: &Model, state: &State, ws: &Workspace) -> Modes {
-        let n = model.dof_count;
-        if n == 0 {
-            return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0, rigid: 0 };
-        }
-        let mut k = ws.stiffness.clone();
-        if model.constraint_count > 0 {
-            add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut k);
-        }
-        let k_sym = (&k + k.transpose()) * 0.5;
-        let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
-            return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0, rigid: 0 };
-        };
-        let reduced = z.transpose() * &k_sym * z;
-        let eig = SymmetricEigen::new(reduced).eigenvalues;
-        let tol = 1e-9 * eig.amax().max(1e-300);
-        // the free rigid motions, orthonormalized, and how many of them cost no energy
-        let motions = rigid_body_motions(model, state, ws);
-        let rigid = if motions.ncols() == 0 {
-            0
-        } else {
-            let q = motions.qr().q();
-            let on_rigid = SymmetricEigen::new(q.transpose() * &k_sym * &q).eigenvalues;
-            on_rigid.iter().filter(|e| e.abs() <= tol).count()
-        };
-        Modes {
-            min_eigenvalue: eig.min(),
-            negative: eig.iter().filter(|e| **e < -tol).count(),
-            zero: eig.iter().filter(|e| e.abs() <= tol).count(),
-            rigid,
-        }
+        dense_stability(model, state, ws)
+    }
+}
+
+/// `StaticSolver::stability` on the dense tangent last evaluated into `ws`: the reduced
+/// tangent `Z^T K_sym Z` over an orthonormal null-space basis `Z` of `Phi_q`, all its eigenvalues.
+fn dense_stability(model: &Model, state: &State, ws: &Workspace) -> Modes {
+    let n = model.dof_count;
+    if n == 0 {
+        return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0, rigid: 0 };
+    }
+    let mut k = ws.stiffness.clone();
+    if model.constraint_count > 0 {
+        add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut k);
+    }
+    let k_sym = (&k + k.transpose()) * 0.5;
+    let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
+        return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0, rigid: 0 };
+    };
+    let reduced = z.transpose() * &k_sym * z;
+    let eig = SymmetricEigen::new(reduced).eigenvalues;
+    let tol = 1e-9 * eig.amax().max(1e-300);
+    // the free rigid motions, orthonormalized, and how many of them cost no energy
+    let motions = rigid_body_motions(model, state, ws);
+    let rigid = if motions.ncols() == 0 {
+        0
+    } else {
+        let q = motions.qr().q();
+        let on_rigid = SymmetricEigen::new(q.transpose() * &k_sym * &q).eigenvalues;
+        on_rigid.iter().filter(|e| e.abs() <= tol).count()
+    };
+    Modes {
+        min_eigenvalue: eig.min(),
+        negative: eig.iter().filter(|e| **e < -tol).count(),
+        zero: eig.iter().filter(|e| e.abs() <= tol).count(),
+        rigid,
     }
 }
 
@@ -1269,6 +1379,38 @@ fn least_squares_multipliers(model: &Model, state: &mut State, ws: &mut Workspac
     fit_multipliers(model, &mut state.multipliers, ws);
 }
 
+/// `least_squares_multipliers` on the sparse `kkt`: the reactions from the symmetric
+/// quasi-definite system `[[I, Phi_q^T], [Phi_q, 0]] [x; lambda] = [Q; 0]`, whose solution has
+/// `Phi_q Phi_q^T lambda = Phi_q Q` (its exact sparse `LDL^T`, no dense `nc x nc` matrix).
+fn sparse_least_squares_multipliers(
+    kkt: &mut KktSystem,
+    model: &Model,
+    state: &mut State,
+    ws: &mut Workspace,
+) {
+    let (n, nc) = (model.dof_count, model.constraint_count);
+    if nc == 0 {
+        return;
+    }
+    evaluate_forces(model, state, ws);
+    kkt.clear();
+    let identity = nalgebra::Matrix6::<f64>::identity();
+    for b in 0..model.bodies.len() {
+        kkt.add_body_block(crate::model::BodyId(b), crate::model::BodyId(b), &identity, 1.0);
+    }
+    for (j, joint) in model.joints.iter().enumerate() {
+        for (side, (p, sign)) in joint_points(joint).enumerate() {
+            let point = &ws.points[p.0];
+            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
+        }
+    }
+    let mut x = DVector::zeros(kkt.size());
+    x.rows_mut(0, n).copy_from(&ws.force);
+    if kkt.factor_symmetric() && kkt.solve_factored(&mut x) {
+        state.multipliers.copy_from(&x.rows(n, nc));
+    }
+}
+
 /// `multipliers = argmin |Q - Phi_q^T lambda|` for the force `Q` and joint Jacobian evaluated
 /// into `ws` (the displacement form's, or a mixed evaluation's with the stiff cables' tensions
 /// held: those are not fitted, since a prestressed structure's self-stress is not decided by its
@@ -1315,6 +1457,13 @@ pub const STEP_CAP: f64 = 1.0;
 /// Largest system (coordinates) for which the reduced tangent's definiteness is checked each
 /// iteration (a dense eigenproblem); larger systems take plain Newton steps.
 pub const MAX_CONVEXITY_CHECK: usize = 600;
+
+/// Smallest system (coordinates) that `StaticSolver` solves on the sparse KKT system: its
+/// stability test by shifted sparse factorizations (`sparse_stability`) instead of a dense
+/// eigenproblem, and, without stiff cables, plain Newton steps (no convexity check) by a
+/// sparse LU instead of a dense one. `tensegrity bench scaling` put the dynamics' crossover
+/// between 100 and 200 unknowns; the dense statics path's eigenproblems cost more per unknown.
+pub const SPARSE_STATICS_MIN: usize = 200;
 
 /// A positive-definite modification of the tangent on the null space of `jacobian` (the joints'
 /// `Phi_q`, with the stiff cables' length gradients in the mixed iteration: "saddle-free"
@@ -1367,6 +1516,181 @@ fn convexity_correction(
     let ds = v * DMatrix::from_diagonal(&d) * v.transpose();
     let b = mass * &z * l_inv.transpose();
     Some((&b * ds * b.transpose(), descent))
+}
+
+/// Assembles the statics KKT matrix `[[K + H_lambda, Phi_q^T], [Phi_q, 0]]` into the sparse
+/// `kkt` at `state` (clustered cables bordered, `crate::solve::linear`), from the point
+/// kinematics, cable and contact responses last evaluated into `ws` (no dense tangent needed).
+fn assemble_sparse(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut Workspace) {
+    kkt.clear();
+    for (j, joint) in model.joints.iter().enumerate() {
+        for (side, (p, sign)) in joint_points(joint).enumerate() {
+            let point = &ws.points[p.0];
+            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
+        }
+    }
+    let mut sink = kkt.tangents(1.0, 0.0);
+    let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
+    add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
+    if model.constraint_count > 0 {
+        add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
+    }
+}
+
+/// `solve_regularized` on the sparse `kkt` (assembled by `assemble_sparse`): its exact sparse LU,
+/// with the Levenberg term `mu I` on the coordinates grown from `1e-14` of the Gershgorin bound
+/// (`KktSystem::coordinate_bound`) while the factorization fails or the solution is not finite
+/// or misses the equations by more than `1e-6` of the right-hand side.
+/// `rhs` has the `n + nc` rows of the unknowns `[dq; dlambda]`; so has the answer.
+fn solve_sparse(kkt: &mut KktSystem, model: &Model, rhs: &DVector<f64>) -> Option<DVector<f64>> {
+    let rows = rhs.len();
+    let scale = kkt.coordinate_bound()?.max(1e-12);
+    let mut mu = 1e-14 * scale;
+    let mut added = 0.0;
+    let identity = nalgebra::Matrix6::<f64>::identity();
+    let bodies: Vec<crate::model::BodyId> = (0..model.bodies.len()).map(crate::model::BodyId).collect();
+    let (mut x, mut b, mut check) =
+        (DVector::zeros(kkt.size()), DVector::zeros(kkt.size()), DVector::zeros(kkt.size()));
+    for _ in 0..8 {
+        for &body in &bodies {
+            kkt.add_body_block(body, body, &identity, mu - added);
+        }
+        added = mu;
+        b.fill(0.0);
+        b.rows_mut(0, rows).copy_from(rhs);
+        x.copy_from(&b);
+        if kkt.factor() && kkt.solve_factored(&mut x) {
+            kkt.multiply(&x, &mut check);
+            if (&check - &b).amax() <= 1e-6 * b.amax().max(1e-300) {
+                return Some(x.rows(0, rows).into_owned());
+            }
+        }
+        mu *= 1000.0;
+    }
+    None
+}
+
+/// `StaticSolver::stability` without forming the null space or any dense matrix: the inertia of
+/// the sparse statics KKT matrix shifted by `sigma` (`KktSystem::symmetric_inertia`) counts the
+/// reduced tangent's eigenvalues below `sigma`. With `B` the Gershgorin bound of the tangent
+/// (`KktSystem::coordinate_bound`, which bounds every reduced eigenvalue) and `tol = 1e-9 B`
+/// (the dense test's `1e-9` of the largest eigenvalue, with the bound in its place): negative
+/// modes are those below `-tol`, zero modes those in `[-tol, tol]`. The smallest eigenvalue is
+/// bracketed by bisection on the counts (geometric where the bracket has one sign) to 1e-3 and
+/// then found by inverse iteration from the bracket's lower end (to 1e-12). Rigid-body modes are
+/// counted on the 6 x 6 (at most) tangent over `rigid_body_motions`. Every factorization is a
+/// sparse `LDL^T` of the same pattern, so the cost grows with the structure. Falls back to the
+/// dense test when a shift hits a zero pivot.
+fn sparse_stability(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut Workspace) -> Modes {
+    let n = model.dof_count;
+    if n == 0 {
+        return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0, rigid: 0 };
+    }
+    assemble_sparse(kkt, model, state, ws);
+    let offset = model.constraint_count + kkt.bordered_cables();
+    let bound = kkt.coordinate_bound().unwrap_or(0.0).max(1e-300);
+    let tol = 1e-9 * bound;
+    // eigenvalues of the reduced tangent below `shift`; a shift on an eigenvalue of a leading
+    // block (a zero pivot) is moved by a part in 1e6 of the bracket scale
+    let below = |kkt: &mut KktSystem, shift: f64| -> Option<usize> {
+        for k in 0..4 {
+            let nudged = shift + k as f64 * 1e-6 * tol;
+            if let Some(i) = kkt.symmetric_inertia(nudged) {
+                return Some(i.negative.saturating_sub(offset));
+            }
+        }
+        None
+    };
+    let counts = below(kkt, -tol).zip(below(kkt, tol)).zip(below(kkt, 2.0 * bound + tol));
+    let Some(((negative, not_positive), reduced)) = counts else {
+        return dense_stability_fallback(model, state, ws);
+    };
+    let zero = not_positive - negative;
+    if reduced == 0 {
+        // every coordinate is held by a joint
+        return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0, rigid: 0 };
+    }
+    // bracket the smallest eigenvalue: nothing below `lo`, something below `hi`
+    let (mut lo, mut hi) = if negative > 0 {
+        (-2.0 * bound - tol, -tol)
+    } else if zero > 0 {
+        (-tol, tol)
+    } else {
+        (tol, 2.0 * bound + tol)
+    };
+    for _ in 0..80 {
+        if hi - lo <= 1e-3 * lo.abs().max(hi.abs()) {
+            break;
+        }
+        let mid = if lo > 0.0 {
+            (lo * hi).sqrt()
+        } else if hi < 0.0 {
+            -(lo * hi).sqrt()
+        } else {
+            0.5 * (lo + hi)
+        };
+        match below(kkt, mid) {
+            Some(0) => lo = mid,
+            Some(_) => hi = mid,
+            None => break,
+        }
+    }
+    // inverse iteration with the shift `lo`, below every eigenvalue: converges to the smallest
+    let mut min_eigenvalue = 0.5 * (lo + hi);
+    if kkt.symmetric_inertia(lo).is_some() {
+        let mut x = DVector::zeros(kkt.size());
+        let mut v: DVector<f64> = DVector::from_iterator(
+            n,
+            (0..n).map(|i| 1.0 + 0.5 * ((i as f64 * 0.618_033_988_7).fract() - 0.5)),
+        );
+        v /= v.norm();
+        for _ in 0..30 {
+            x.fill(0.0);
+            x.rows_mut(0, n).copy_from(&v);
+            if !kkt.solve_factored(&mut x) {
+                break;
+            }
+            let y = x.rows(0, n).into_owned();
+            let (theta, norm) = (v.dot(&y), y.norm());
+            if !(norm > 0.0 && theta.is_finite()) {
+                break;
+            }
+            let estimate = lo + 1.0 / theta;
+            let settled = (estimate - min_eigenvalue).abs() <= 1e-12 * estimate.abs().max(tol);
+            min_eigenvalue = estimate;
+            v = y / norm;
+            if settled {
+                break;
+            }
+        }
+        min_eigenvalue = min_eigenvalue.clamp(lo, hi);
+    }
+    // the free rigid motions, orthonormalized, and how many of them cost no energy
+    let motions = rigid_body_motions(model, state, ws);
+    let rigid = if motions.ncols() == 0 {
+        0
+    } else {
+        let q = motions.qr().q();
+        let g = q.ncols();
+        let mut on_rigid = DMatrix::zeros(g, g);
+        for i in 0..g {
+            for j in 0..=i {
+                let (a, b) = (q.column(i), q.column(j));
+                let v = kkt.coordinate_form(a.as_slice(), b.as_slice()).unwrap_or(0.0);
+                on_rigid[(i, j)] = v;
+                on_rigid[(j, i)] = v;
+            }
+        }
+        SymmetricEigen::new(on_rigid).eigenvalues.iter().filter(|e| e.abs() <= tol).count()
+    };
+    Modes { min_eigenvalue, negative, zero, rigid }
+}
+
+/// The dense stability test for a sparse solver whose shifted factorizations failed: evaluates
+/// the dense tangent at `state` first.
+fn dense_stability_fallback(model: &Model, state: &State, ws: &mut Workspace) -> Modes {
+    evaluate(model, state, ws, Tangents::Stiffness);
+    dense_stability(model, state, ws)
 }
 
 /// Solves the KKT system with a Levenberg term `mu I` on the coordinate block, starting from

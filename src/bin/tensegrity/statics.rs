@@ -36,7 +36,7 @@ struct StaticsJson {
 pub fn run(scene: &Path, json: bool) -> Result<(), String> {
     let model = load_for_statics(scene)?;
     let mut state = State::initial(&model);
-    let mut ws = Workspace::new(&model);
+    let mut ws = Workspace::for_forces(&model);
     evaluate(&model, &state, &mut ws, Tangents::None);
     let reference = report::all_pulley_coordinates(&model, &state, &ws);
     let mut solver = StaticSolver::new(&model);
