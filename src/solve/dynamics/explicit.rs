@@ -190,8 +190,8 @@ pub(super) struct ExplicitBuffers {
     k: Vec<EmbeddedState>,
     /// `k_last` of the previous step at the state it committed, valid for first-same-as-last.
     fsal_valid: bool,
-    /// Constraint right-hand side and the KKT solution.
-    work: DVector<f64>,
+    /// Right-hand side and solution of `Dynamics::solve_mass_and_joints`.
+    pub(super) work: DVector<f64>,
 }
 
 impl ExplicitBuffers {
@@ -263,16 +263,32 @@ impl Dynamics {
     /// Solves `[M, Phi_q^T; Phi_q, 0] x = work` in place of `self.explicit.work` at the point
     /// kinematics in `self.ws`.
     fn solve_mass_and_joints(&mut self, model: &Model) -> bool {
+        self.factor_mass_and_joints(model) && self.solve_factored_mass_and_joints(model)
+    }
+
+    /// Factors `[M, Phi_q^T; Phi_q, 0]` at the point kinematics in `self.ws` for
+    /// `solve_factored_mass_and_joints` (the sparse backend's factors replace the Newton
+    /// matrix's: the next implicit step refactors).
+    pub(super) fn factor_mass_and_joints(&mut self, model: &Model) -> bool {
         if self.kkt.backend() == LinearBackend::Dense {
-            return self.schur.solve(model, &self.ws, &mut self.explicit.work);
+            return self.schur.factor(model, &self.ws);
         }
         assemble_mass_and_joints(model, &self.ws, &self.mass, &mut self.kkt);
         self.factored_for = None;
+        self.kkt.factor_symmetric()
+    }
+
+    /// Solves `[M, Phi_q^T; Phi_q, 0] x = work` in place of `self.explicit.work` with the
+    /// factors of the last `factor_mass_and_joints`.
+    pub(super) fn solve_factored_mass_and_joints(&mut self, model: &Model) -> bool {
+        if self.kkt.backend() == LinearBackend::Dense {
+            return self.schur.solve_factored(model, &self.ws, &mut self.explicit.work);
+        }
         let size = self.kkt.size();
         self.rhs.fill(0.0);
         let m = self.explicit.work.len().min(size);
         self.rhs.rows_mut(0, m).copy_from(&self.explicit.work.rows(0, m));
-        if !(self.kkt.factor_symmetric() && self.kkt.solve_factored(&mut self.rhs)) {
+        if !self.kkt.solve_factored(&mut self.rhs) {
             return false;
         }
         self.explicit.work.rows_mut(0, m).copy_from(&self.rhs.rows(0, m));

@@ -96,6 +96,66 @@ impl JointSchur {
     /// Solves `[M, Phi_q^T; Phi_q, 0] x = rhs` in place at the point kinematics in `ws`. False
     /// when `S` is not positive definite or the result is not finite.
     pub(super) fn solve(&mut self, model: &Model, ws: &Workspace, rhs: &mut DVector<f64>) -> bool {
+        self.factor(model, ws) && self.solve_factored(model, ws, rhs)
+    }
+
+    /// Forms `S = Phi_q M^-1 Phi_q^T` at the point kinematics in `ws` (from the 3 x 3 blocks of
+    /// the joint sides that share a body) and its Cholesky factor, for `solve_factored`. False
+    /// when `S` is not positive definite.
+    pub(super) fn factor(&mut self, model: &Model, ws: &Workspace) -> bool {
+        use faer::linalg::cholesky::llt;
+        let nc = model.constraint_count;
+        if nc == 0 {
+            return true;
+        }
+        let rows = model.joint_rows();
+        self.s.fill(0.0);
+        let mut w = 0;
+        for (b, body) in model.bodies.iter().enumerate() {
+            let k = body.dof_count;
+            let first = w;
+            for &(_, p, sign) in &self.sides[b] {
+                let jac = &ws.points[p.0].jacobian;
+                let mut m = nalgebra::Matrix6x3::zeros();
+                for r in 0..k {
+                    for c in 0..rows {
+                        m[(r, c)] =
+                            sign * (0..k).map(|i| self.mass_inverse[b][(r, i)] * jac[(c, i)]).sum::<f64>();
+                    }
+                }
+                self.weighted[w] = m;
+                w += 1;
+            }
+            for &(ja, pa, sa) in &self.sides[b] {
+                let jac = &ws.points[pa.0].jacobian;
+                let ra = model.joints[ja].row_offset;
+                for (y, &(jb, _, _)) in self.sides[b].iter().enumerate() {
+                    let rb = model.joints[jb].row_offset;
+                    let wb = &self.weighted[first + y];
+                    for r in 0..rows {
+                        for c in 0..rows {
+                            let v: f64 = (0..k).map(|i| jac[(r, i)] * wb[(i, c)]).sum();
+                            self.s[(rb + c) * nc + ra + r] += sa * v;
+                        }
+                    }
+                }
+            }
+        }
+        let s = faer::MatMut::from_column_major_slice_mut(&mut self.s, nc, nc);
+        llt::factor::cholesky_in_place(
+            s,
+            Default::default(),
+            faer::Par::Seq,
+            faer::dyn_stack::MemStack::new(&mut self.mem),
+            Default::default(),
+        )
+        .is_ok()
+    }
+
+    /// Solves `[M, Phi_q^T; Phi_q, 0] x = rhs` in place with the factor of the last `factor`
+    /// (made at the same point kinematics `ws`): `S mu = Phi_q M^-1 p - c`, then
+    /// `v = M^-1 (p - Phi_q^T mu)`. False when the result is not finite.
+    pub(super) fn solve_factored(&mut self, model: &Model, ws: &Workspace, rhs: &mut DVector<f64>) -> bool {
         use faer::linalg::cholesky::llt;
         let n = model.dof_count;
         let nc = model.constraint_count;
@@ -108,59 +168,23 @@ impl JointSchur {
             }
         }
         if nc > 0 {
-            // b = Phi_q u - c; S from the 3 x 3 blocks of the joint sides that share a body
+            // b = Phi_q u - c
             self.b.copy_from(&rhs.rows(n, nc));
             self.b.neg_mut();
-            self.s.fill(0.0);
-            let mut w = 0;
             for (b, body) in model.bodies.iter().enumerate() {
                 let (o, k) = (body.dof_offset, body.dof_count);
-                let first = w;
                 for &(j, p, sign) in &self.sides[b] {
                     let jac = &ws.points[p.0].jacobian;
-                    let mut m = nalgebra::Matrix6x3::zeros();
-                    for r in 0..k {
-                        for c in 0..rows {
-                            m[(r, c)] = sign
-                                * (0..k).map(|i| self.mass_inverse[b][(r, i)] * jac[(c, i)]).sum::<f64>();
-                        }
-                    }
-                    self.weighted[w] = m;
                     let row0 = model.joints[j].row_offset;
                     for r in 0..rows {
                         self.b[row0 + r] += sign * (0..k).map(|c| jac[(r, c)] * self.u[o + c]).sum::<f64>();
                     }
-                    w += 1;
-                }
-                for &(ja, pa, sa) in &self.sides[b] {
-                    let jac = &ws.points[pa.0].jacobian;
-                    let ra = model.joints[ja].row_offset;
-                    for (y, &(jb, _, _)) in self.sides[b].iter().enumerate() {
-                        let rb = model.joints[jb].row_offset;
-                        let wb = &self.weighted[first + y];
-                        for r in 0..rows {
-                            for c in 0..rows {
-                                let v: f64 = (0..k).map(|i| jac[(r, i)] * wb[(i, c)]).sum();
-                                self.s[(rb + c) * nc + ra + r] += sa * v;
-                            }
-                        }
-                    }
                 }
             }
-            let mut s = faer::MatMut::from_column_major_slice_mut(&mut self.s, nc, nc);
-            let factored = llt::factor::cholesky_in_place(
-                s.as_mut(),
-                Default::default(),
-                faer::Par::Seq,
-                faer::dyn_stack::MemStack::new(&mut self.mem),
-                Default::default(),
-            );
-            if factored.is_err() {
-                return false;
-            }
+            let s = faer::MatRef::from_column_major_slice(&self.s, nc, nc);
             let mu = faer::MatMut::from_column_major_slice_mut(self.b.as_mut_slice(), nc, 1);
             llt::solve::solve_in_place_with_conj(
-                s.as_ref(),
+                s,
                 faer::Conj::No,
                 mu,
                 faer::Par::Seq,

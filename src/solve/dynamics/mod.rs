@@ -205,6 +205,9 @@ pub struct Dynamics {
     largest_decay_rate: f64,
     /// The jerk of the last generalized-alpha attempt (scratch of `jerk_decay_rate`).
     jerk: DVector<f64>,
+    /// The three accelerations of the error estimate projected onto the joints' tangent space
+    /// (scratch of generalized-alpha under error control with joints).
+    tangent_accelerations: [DVector<f64>; 3],
     // generalized-alpha iterates, preallocated so that a step never allocates
     vdot: DVector<f64>,
     a_next: DVector<f64>,
@@ -323,6 +326,7 @@ impl Dynamics {
             held_envelope: 0.0,
             largest_decay_rate: 0.0,
             jerk: DVector::zeros(n),
+            tangent_accelerations: [DVector::zeros(n), DVector::zeros(n), DVector::zeros(n)],
             vdot: DVector::zeros(n),
             a_next: DVector::zeros(n),
             v: DVector::zeros(n),
