@@ -78,6 +78,40 @@ fn a_bar_held_over_a_pulley_by_a_counterweight_costs_the_same_at_every_stiffness
     });
 }
 
+/// Quasi-static deployment with stiff cables: a winch hauls in the bar-over-a-pulley mechanism's
+/// rope from 2.0 to 1.6 m in 20 load steps (the bar swings up from 30 degrees, the weight rises)
+/// at every EA from 1e2 to 1e9 N: no load step is cut, none takes more than `BUDGET` iterations.
+#[test]
+fn quasi_static_deployment_cuts_no_load_step_at_any_stiffness() {
+    use tensegrity::solve::deploy::deploy_quasi_static;
+    let mut worst = [0; 8];
+    for (e, ea) in STIFFNESSES.into_iter().enumerate() {
+        let (bx, bz) = (30f64.to_radians().sin(), -30f64.to_radians().cos());
+        let weight_z = -(2.0 - (1.0 - bx).hypot(bz));
+        let text = format!(
+            "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"ground\"\nkind = \"fixed\"\npoints = {{ pulley = [1.0, 0.0, 0.0] }}\n[[bodies]]\nname = \"arm\"\nkind = \"bar\"\nmass = 2.0\nends = [[0.0, 0.0, 0.0], [{bx}, 0.0, {bz}]]\n[[bodies]]\nname = \"weight\"\nkind = \"node\"\nmass = 0.6\nposition = [1.0, 0.0, {weight_z}]\n[[joints]]\nkind = \"pin\"\na = \"arm.a\"\n[[cables]]\nname = \"rope\"\nroute = [\"arm.b\", \"ground.pulley\", \"weight\"]\nea = {ea}\nrest_length = 2.0\n[[actuators]]\nname = \"winch\"\ncable = \"rope\"\nmin_rest_length = 1.0\nmax_rest_length = 2.0\nmax_rate = 1.0\n[deployment]\nsteps = 20\n[[deployment.ramps]]\nactuator = \"winch\"\nstart = 0.0\nduration = 1.0\nrest_length = 1.6\n"
+        );
+        let case = format!("winch on the bar over a pulley, EA {ea:e} N");
+        let model = tensegrity::scene::from_toml(&text, &case).unwrap_or_else(|e| panic!("{e}"));
+        let mut state = State::initial(&model);
+        let mut ws = Workspace::new(&model);
+        let path = deploy_quasi_static(&model, &mut state, &mut ws, |_, _, _| {})
+            .unwrap_or_else(|e| panic!("{case}: {e}"));
+        assert!(path.snaps.is_empty(), "{case}: {:?}", path.snaps);
+        let rows: Vec<_> = path.output_steps().collect();
+        assert_eq!(rows.len(), 21, "{case}");
+        for row in rows {
+            assert_eq!(row.cuts, 0, "{case}: load step {} was cut", row.index);
+            assert!(row.report.iterations <= BUDGET, "{case}: load step {}: {:?}", row.index, row.report);
+            assert!(row.report.stable, "{case}: load step {}: {:?}", row.index, row.report);
+            worst[e] = worst[e].max(row.report.iterations);
+        }
+    }
+    println!(
+        "winch on the bar over a pulley: worst Newton iterations per load step at EA 1e2..1e9 N: {worst:?}"
+    );
+}
+
 #[test]
 fn a_mass_hung_on_a_cable_costs_the_same_at_every_stiffness_slack_or_overstretched() {
     // a 1 kg point mass on a 1 m cable from a hook, started at `r` m from the hook at 40 degrees
