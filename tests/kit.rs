@@ -359,6 +359,11 @@ fn an_interrupted_test_leaves_no_child_behind_not_even_a_stopped_one() {
         std::thread::sleep(Duration::from_millis(10));
     };
     let _ = std::fs::remove_file(&pid_file);
+    // SIGSTOP is delivered asynchronously: `kill` returns before the child shows as stopped
+    let start = std::time::Instant::now();
+    while process_state(child) != Some('T') && start.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
     assert_eq!(process_state(child), Some('T'), "the role's child is stopped");
     // Ctrl-C reaches the test process; its stopped child cannot act on any signal but SIGKILL
     let interrupted = std::process::Command::new("kill").args(["-INT", &role.id().to_string()]).status();
