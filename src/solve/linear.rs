@@ -187,13 +187,12 @@ enum Storage {
     },
 }
 
-/// Counts of the negative, zero and positive eigenvalues of a symmetric matrix (its inertia).
+/// Counts of the negative and positive eigenvalues of a regular symmetric matrix (its inertia;
+/// a singular one has no factorization here, `KktSystem::symmetric_inertia`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Inertia {
     /// Eigenvalues below zero.
     pub negative: usize,
-    /// Eigenvalues exactly zero (a zero pivot; `KktSystem::symmetric_inertia` gives `None` then).
-    pub zero: usize,
     /// Eigenvalues above zero.
     pub positive: usize,
 }
@@ -389,9 +388,7 @@ impl SymmetricFactor {
     /// Pivots of the wrong sign, or below `1e-14` of the largest coordinate diagonal, become
     /// that sign times `1e-10` of it. False when the factorization fails.
     fn factor(&mut self, full: &[f64]) -> bool {
-        for (v, [a, b]) in self.values.iter_mut().zip(&self.from) {
-            *v = 0.5 * (full[*a] + full[*b]);
-        }
+        self.symmetrize(full);
         let size = self.col_ptr.len() - 1;
         let scale = self.coordinate_diagonal.iter().map(|&k| full[k].abs()).fold(0.0, f64::max).max(1e-300);
         let sym = SymbolicSparseColMatRef::new_checked(size, size, &self.col_ptr, None, &self.row_idx);
@@ -421,9 +418,7 @@ impl SymmetricFactor {
     /// inertia, those of the shifted matrix. `None` when a pivot is zero or a value not finite.
     fn inertia(&mut self, full: &[f64], shift: f64) -> Option<Inertia> {
         use faer::sparse::linalg::cholesky::{supernodal::SupernodalLdltRef, SymbolicCholeskyRaw};
-        for (v, [a, b]) in self.values.iter_mut().zip(&self.from) {
-            *v = 0.5 * (full[*a] + full[*b]);
-        }
+        self.symmetrize(full);
         for &k in &self.upper_diagonal {
             self.values[k] -= shift;
         }
@@ -458,11 +453,19 @@ impl SymmetricFactor {
                 } else if d > 0.0 {
                     inertia.positive += 1;
                 } else {
-                    inertia.zero += 1;
+                    return None;
                 }
             }
         }
         Some(inertia)
+    }
+
+    /// The upper triangle of the symmetric part `(A + A^T) / 2` of the full matrix `full`
+    /// (values in `SparseIndex` layout) into `values`.
+    fn symmetrize(&mut self, full: &[f64]) {
+        for (v, [a, b]) in self.values.iter_mut().zip(&self.from) {
+            *v = 0.5 * (full[*a] + full[*b]);
+        }
     }
 
     fn solve(&mut self, x: MatMut<'_, f64>) {
@@ -919,6 +922,34 @@ impl KktSystem {
         }
     }
 
+    /// Adds every joint's rows `Phi_q` and columns `Phi_q^T` at the point kinematics `points`
+    /// (`add_joint_jacobian` for each side of each joint of `model`).
+    pub fn add_joints(&mut self, model: &Model, points: &[PointKinematics]) {
+        for (j, joint) in model.joints.iter().enumerate() {
+            for (side, (p, sign)) in joint_points(joint).enumerate() {
+                let point = &points[p.0];
+                self.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
+            }
+        }
+    }
+
+    /// `A[i, i] += value` for every coordinate `i` (a Levenberg term, or the identity block).
+    pub fn add_to_coordinate_diagonal(&mut self, value: f64) {
+        match &mut self.storage {
+            Storage::Dense { a, .. } => {
+                let size = self.n + self.nc;
+                for i in 0..self.n {
+                    a[i * size + i] += value;
+                }
+            }
+            Storage::Sparse { values, index, .. } => {
+                for i in 0..self.n {
+                    values[index.diagonal[i]] += value;
+                }
+            }
+        }
+    }
+
     /// Solves `A x = b` in place of `rhs` (length `size()`) with a fresh factorization of the
     /// assembled `A`. False when `A` is singular or `x` is not finite.
     pub fn solve(&mut self, rhs: &mut DVector<f64>) -> bool {
@@ -1024,13 +1055,9 @@ impl KktSystem {
         for b in self.n + self.nc..self.size {
             let stiffness = -1.0 / values[index.diagonal[b]];
             let (mut gx, mut gy) = (0.0, 0.0);
-            for k in index.col_ptr[b]..index.col_ptr[b + 1] {
-                let i = index.row_idx[k];
-                if i < n {
-                    let g = 0.5 * (values[k] + values[index.position(b, i)]);
-                    gx += g * x[i];
-                    gy += g * y[i];
-                }
+            for (i, g) in border_gradient(index, values, n, b) {
+                gx += g * x[i];
+                gy += g * y[i];
             }
             sum += stiffness * gx * gy;
         }
@@ -1054,12 +1081,8 @@ impl KktSystem {
         }
         for b in self.n + self.nc..self.size {
             let stiffness = (-1.0 / values[index.diagonal[b]]).abs();
-            let entries: Vec<(usize, f64)> = (index.col_ptr[b]..index.col_ptr[b + 1])
-                .filter(|&k| index.row_idx[k] < n)
-                .map(|k| (index.row_idx[k], 0.5 * (values[k] + values[index.position(b, index.row_idx[k])])))
-                .collect();
-            let total: f64 = entries.iter().map(|(_, g)| g.abs()).sum();
-            for (i, g) in entries {
+            let total: f64 = border_gradient(index, values, n, b).map(|(_, g)| g.abs()).sum();
+            for (i, g) in border_gradient(index, values, n, b) {
                 rows[i] += stiffness * g.abs() * total;
             }
         }
@@ -1157,6 +1180,20 @@ impl KktSystem {
     pub fn tangents(&mut self, stiffness_scale: f64, damping_scale: f64) -> NewtonTangents<'_> {
         NewtonTangents { kkt: self, stiffness_scale, damping_scale }
     }
+}
+
+/// The coordinate entries `(row, g_i)` of border `b`'s symmetric column: the bordered cable's
+/// length gradient `G` (module docs; `n` coordinates).
+fn border_gradient<'a>(
+    index: &'a SparseIndex,
+    values: &'a [f64],
+    n: usize,
+    b: usize,
+) -> impl Iterator<Item = (usize, f64)> + 'a {
+    (index.col_ptr[b]..index.col_ptr[b + 1])
+        .map(|k| (k, index.row_idx[k]))
+        .filter(move |&(_, i)| i < n)
+        .map(move |(k, i)| (i, 0.5 * (values[k] + values[index.position(b, i)])))
 }
 
 /// The symbolic settings of every sparse LU here: COLAMD ordering, with rows and columns of more

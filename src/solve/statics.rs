@@ -41,7 +41,7 @@
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use crate::assembly::DenseTangents;
-use crate::constraints::{add_multiplier_hessian, add_multiplier_hessian_to, joint_points};
+use crate::constraints::{add_multiplier_hessian, add_multiplier_hessian_to};
 use crate::evaluate::{add_tangents, evaluate, evaluate_forces, Tangents, Workspace};
 use crate::model::{CableId, Model, Pose, SolverSettings};
 use crate::solve::linear::{KktSystem, LinearBackend};
@@ -460,10 +460,6 @@ impl StaticSolver {
                 self.sparse_newton = self.stiff.is_empty();
             }
         }
-        let checks = !self.sparse_newton || model.dof_count <= MAX_CONVEXITY_CHECK;
-        if checks && self.mass.nrows() != model.dof_count {
-            self.mass = crate::solve::dynamics::mass_matrix(model);
-        }
         self
     }
 
@@ -582,7 +578,7 @@ impl StaticSolver {
         }
         if let Some(kkt) = self.sparse.as_mut().filter(|_| self.sparse_newton) {
             assemble_sparse(kkt, model, state, ws);
-            return solve_sparse(kkt, model, &r_t);
+            return solve_sparse(kkt, &r_t);
         }
         self.assemble_kkt(model, state, ws);
         solve_regularized(&self.kkt, &r_t, model.dof_count)
@@ -641,7 +637,7 @@ impl StaticSolver {
             let step = match self.sparse.as_mut().filter(|_| self.sparse_newton && !dense_check) {
                 Some(kkt) => {
                     assemble_sparse(kkt, model, state, ws);
-                    solve_sparse(kkt, model, &self.rhs)
+                    solve_sparse(kkt, &self.rhs)
                 }
                 None => {
                     if self.sparse_newton {
@@ -770,7 +766,7 @@ impl StaticSolver {
     ) -> EquilibriumReport {
         let modes = match &mut self.sparse {
             Some(kkt) => sparse_stability(kkt, model, state, ws),
-            None => self.stability(model, state, ws),
+            None => dense_stability(model, state, ws),
         };
         EquilibriumReport {
             iterations,
@@ -785,17 +781,12 @@ impl StaticSolver {
             potential_energy: ws.energies.elastic + ws.energies.gravitational,
         }
     }
-
-    /// The symmetric reduced tangent stiffness's smallest eigenvalue and its counts of negative
-    /// and zero eigenvalues (relative to the largest, `1e-9`). Uses the tangents last evaluated
-    /// into `ws`.
-    fn stability(&self, model: &Model, state: &State, ws: &Workspace) -> Modes {
-        dense_stability(model, state, ws)
-    }
 }
 
-/// `StaticSolver::stability` on the dense tangent last evaluated into `ws`: the reduced
-/// tangent `Z^T K_sym Z` over an orthonormal null-space basis `Z` of `Phi_q`, all its eigenvalues.
+/// The symmetric reduced tangent stiffness's smallest eigenvalue and its counts of negative and
+/// zero eigenvalues (relative to the largest, `1e-9`), from the dense tangent last evaluated into
+/// `ws`: the reduced tangent `Z^T K_sym Z` over an orthonormal null-space basis `Z` of `Phi_q`,
+/// all its eigenvalues (`sparse_stability` counts them without forming `Z`).
 fn dense_stability(model: &Model, state: &State, ws: &Workspace) -> Modes {
     let n = model.dof_count;
     if n == 0 {
@@ -1394,16 +1385,8 @@ fn sparse_least_squares_multipliers(
     }
     evaluate_forces(model, state, ws);
     kkt.clear();
-    let identity = nalgebra::Matrix6::<f64>::identity();
-    for b in 0..model.bodies.len() {
-        kkt.add_body_block(crate::model::BodyId(b), crate::model::BodyId(b), &identity, 1.0);
-    }
-    for (j, joint) in model.joints.iter().enumerate() {
-        for (side, (p, sign)) in joint_points(joint).enumerate() {
-            let point = &ws.points[p.0];
-            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
-        }
-    }
+    kkt.add_to_coordinate_diagonal(1.0);
+    kkt.add_joints(model, &ws.points);
     let mut x = DVector::zeros(kkt.size());
     x.rows_mut(0, n).copy_from(&ws.force);
     if kkt.factor_symmetric() && kkt.solve_factored(&mut x) {
@@ -1523,12 +1506,7 @@ fn convexity_correction(
 /// kinematics, cable and contact responses last evaluated into `ws` (no dense tangent needed).
 fn assemble_sparse(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut Workspace) {
     kkt.clear();
-    for (j, joint) in model.joints.iter().enumerate() {
-        for (side, (p, sign)) in joint_points(joint).enumerate() {
-            let point = &ws.points[p.0];
-            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
-        }
-    }
+    kkt.add_joints(model, &ws.points);
     let mut sink = kkt.tangents(1.0, 0.0);
     let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
     add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
@@ -1542,19 +1520,15 @@ fn assemble_sparse(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut W
 /// (`KktSystem::coordinate_bound`) while the factorization fails or the solution is not finite
 /// or misses the equations by more than `1e-6` of the right-hand side.
 /// `rhs` has the `n + nc` rows of the unknowns `[dq; dlambda]`; so has the answer.
-fn solve_sparse(kkt: &mut KktSystem, model: &Model, rhs: &DVector<f64>) -> Option<DVector<f64>> {
+fn solve_sparse(kkt: &mut KktSystem, rhs: &DVector<f64>) -> Option<DVector<f64>> {
     let rows = rhs.len();
     let scale = kkt.coordinate_bound()?.max(1e-12);
     let mut mu = 1e-14 * scale;
     let mut added = 0.0;
-    let identity = nalgebra::Matrix6::<f64>::identity();
-    let bodies: Vec<crate::model::BodyId> = (0..model.bodies.len()).map(crate::model::BodyId).collect();
     let (mut x, mut b, mut check) =
         (DVector::zeros(kkt.size()), DVector::zeros(kkt.size()), DVector::zeros(kkt.size()));
     for _ in 0..8 {
-        for &body in &bodies {
-            kkt.add_body_block(body, body, &identity, mu - added);
-        }
+        kkt.add_to_coordinate_diagonal(mu - added);
         added = mu;
         b.fill(0.0);
         b.rows_mut(0, rows).copy_from(rhs);
@@ -1570,7 +1544,7 @@ fn solve_sparse(kkt: &mut KktSystem, model: &Model, rhs: &DVector<f64>) -> Optio
     None
 }
 
-/// `StaticSolver::stability` without forming the null space or any dense matrix: the inertia of
+/// `dense_stability` without forming the null space or any dense matrix: the inertia of
 /// the sparse statics KKT matrix shifted by `sigma` (`KktSystem::symmetric_inertia`) counts the
 /// reduced tangent's eigenvalues below `sigma`. With `B` the Gershgorin bound of the tangent
 /// (`KktSystem::coordinate_bound`, which bounds every reduced eigenvalue) and `tol = 1e-9 B`

@@ -214,7 +214,7 @@ impl Dynamics {
                 error_ratio: None,
             };
             if r_norm <= (newton.tolerance * scale).max(force_floor(model, &self.ws))
-                && phi_norm <= 1e-12 * length_scale
+                && phi_norm <= JOINT_TOLERANCE * length_scale
             {
                 break;
             }
@@ -291,11 +291,12 @@ impl Dynamics {
         // misfit puts under the estimate (`2 |beta - 1/6| / beta 1e-12 L`, below), the
         // accelerations are taken along the joints (`project_onto_joint_tangents`): the misfit
         // lies across them, and so does its noise
-        let floor = 2.0 * (c.beta - 1.0 / 6.0).abs() / c.beta * 1e-12 * length_scale;
+        let floor = 2.0 * (c.beta - 1.0 / 6.0).abs() / c.beta * JOINT_TOLERANCE * length_scale;
         let tangent = nc > 0
             && tolerance.is_some_and(|tol| floor > JOINT_NOISE_MARGIN * tol)
             && self.project_onto_joint_tangents(model);
-        let joint_noise = if nc > 0 && !tangent { 1e-12 * length_scale / (c.beta * h * h) } else { 0.0 };
+        let joint_noise =
+            if nc > 0 && !tangent { JOINT_TOLERANCE * length_scale / (c.beta * h * h) } else { 0.0 };
         let mut largest: f64 = 0.0;
         for (b, body) in model.bodies.iter().enumerate() {
             for k in 0..body.dof_count {
@@ -422,6 +423,10 @@ impl Dynamics {
         self.a_next /= 1.0 - c.alpha_m;
     }
 }
+
+/// How closely Newton holds the joints at position level, `|Phi|_inf`, relative to the length
+/// scale (the longest cable).
+pub const JOINT_TOLERANCE: f64 = 1e-12;
 
 /// Generalized-alpha takes its error estimate's accelerations along the joints
 /// (`Dynamics::project_onto_joint_tangents`) when the floor the joints' misfit puts under the

@@ -15,7 +15,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, SymmetricEigen, Vector3, Vect
 
 use crate::assembly::TangentSink;
 use crate::assembly::{add_block, add_vector};
-use crate::constraints::{evaluate_rates, joint_points};
+use crate::constraints::evaluate_rates;
 use crate::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
 use crate::model::{BodyId, BodyKind, Model};
 use crate::solve::linear::{KktSystem, LinearBackend};
@@ -471,12 +471,7 @@ pub fn assemble_mass_and_joints(model: &Model, ws: &Workspace, mass: &[Matrix6<f
     for (b, m) in mass.iter().enumerate() {
         kkt.add_body_block(BodyId(b), BodyId(b), m, 1.0);
     }
-    for (j, joint) in model.joints.iter().enumerate() {
-        for (side, (p, sign)) in joint_points(joint).enumerate() {
-            let point = &ws.points[p.0];
-            kkt.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
-        }
-    }
+    kkt.add_joints(model, &ws.points);
 }
 
 /// Largest stable step of an explicit integrator at `state` (infinite for generalized-alpha):
