@@ -5,8 +5,8 @@
 //! (`TENSEGRITY_SOAK_CHURN_SECS`). At the end
 //! the node is alive; its counts add up (`received = accepted + rejected`, no more received than
 //! sent, no more accepted than valid ones sent, no more rejected than malformed ones sent); its
-//! resident memory floor grew by less than 16 MB over the last third of the flood (the median of
-//! its last 10 s against the median of the 10 s that end two thirds into it: the node's bounded
+//! resident memory floor grew by less than 16 MB over the last third of the flood (the least RSS
+//! of its last 10 s against the least of the 10 s that end two thirds into it: the node's bounded
 //! buffers and the killed subscribers' discovery data fill up in the first part of the run, at a
 //! pace the machine's load sets; transient buffers come and go; a leak raises the floor) and its
 //! peak stayed under 256 MB; no subscriber saw a non-finite number;
@@ -167,24 +167,20 @@ fn soak(test: &str, domain: u16, default_secs: u64) {
     rtf.retain(|x| x.is_finite());
     rtf.sort_by(f64::total_cmp);
     let median_rtf = rtf.get(rtf.len() / 2).copied().unwrap_or(f64::NAN);
-    // growth of the resident-memory floor: the median of 10 s windows, so that transient buffers
-    // (a burst of 100 kB names) do not count as growth, while a leak raises every later window.
-    // The first window ends two thirds into the flood, not at 20 s: the node's bounded buffers
-    // (the frozen reader's, the killed subscribers' discovery data) fill up over the first part
-    // of the run at a pace set by the machine's load (one fresh-clone CI run still rose by 35 MB
-    // after 20 s, to the same peak as runs that had risen before 10 s), and a window taken before
-    // they are full measures that pace, not a leak.
-    let median = |w: &[u64]| {
-        let mut w = w.to_vec();
-        w.sort_unstable();
-        w[w.len() / 2]
-    };
+    // growth of the resident-memory floor: the least RSS of 10 s windows. Transient buffers
+    // (a burst of 100 kB names, the frozen reader's queue) come and go within seconds and raise a
+    // window's median when they last half of it (one fresh-clone CI run read 98 MB for the last
+    // 10 s against a floor of 68 MB that it returned to between bursts), while a leak raises every
+    // later sample, the least included. The first window ends two thirds into the flood, not at
+    // 20 s: the node's bounded buffers (the killed subscribers' discovery data) fill up over the
+    // first part of the run at a pace set by the machine's load.
+    let floor = |w: &[u64]| w.iter().min().copied().unwrap_or(0);
     let settled = (rss.len() * 2 / 3).max(20);
-    let (early, late) = (median(&rss[settled - 10..settled]), median(&rss[rss.len() - 10..]));
+    let (early, late) = (floor(&rss[settled - 10..settled]), floor(&rss[rss.len() - 10..]));
     let growth = late as i64 - early as i64;
     let peak = rss.iter().max().copied().unwrap_or(0);
     println!(
-        "soak {secs} s: sent {sent_valid} valid + {sent_malformed} malformed; node received {received}, accepted {accepted}, rejected {rejected}; RSS median {early} kB over {}-{settled} s, {late} kB over the last 10 s ({growth:+} kB), peak {peak} kB; real-time factor median {median_rtf:.3} over {} reports",
+        "soak {secs} s: sent {sent_valid} valid + {sent_malformed} malformed; node received {received}, accepted {accepted}, rejected {rejected}; RSS floor {early} kB over {}-{settled} s, {late} kB over the last 10 s ({growth:+} kB), peak {peak} kB; real-time factor median {median_rtf:.3} over {} reports",
         settled - 10,
         rtf.len()
     );
