@@ -180,8 +180,7 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
         let response = add_cable_force(
             model,
             route,
-            cable.axial_stiffness,
-            cable.damping,
+            cable,
             state.rest_lengths[c],
             &ws.points,
             &mut ws.scratch,
@@ -245,7 +244,7 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     }
     for (c, cable) in model.cables.iter().enumerate() {
         let t = cables[c].tension;
-        if t <= 0.0 {
+        if !cable::is_engaged(cable, state.rest_lengths[c], t) {
             continue;
         }
         let route = model.route(CableId(c));

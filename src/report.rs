@@ -271,8 +271,10 @@ pub struct ModelSummary {
     pub coordinates: usize,
     /// Constraint equations.
     pub constraints: usize,
-    /// Cables (all).
+    /// Cables (tension only).
     pub cables: usize,
+    /// Elastic members (and cables with `tension_only = false`): they push as well as pull.
+    pub members: usize,
     /// Sliding cables (with at least one pulley).
     pub sliding_cables: usize,
     /// Pulleys over all cables.
@@ -298,7 +300,8 @@ pub fn summary(model: &Model) -> ModelSummary {
         bodies: [count(BodyKind::Node), count(BodyKind::Bar), count(BodyKind::Rigid), count(BodyKind::Fixed)],
         coordinates: model.dof_count,
         constraints: model.constraint_count,
-        cables: model.cables.len(),
+        cables: model.cables.iter().filter(|c| c.tension_only).count(),
+        members: model.cables.iter().filter(|c| !c.tension_only).count(),
         sliding_cables: model.cables.iter().filter(|c| c.pulley_count() > 0).count(),
         pulleys: model.pulley_count(),
         actuators: model.actuators.len(),

@@ -247,6 +247,7 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
             rest_length: Some(rest[c % rest.len()]),
             prestress: None,
             force_density: None,
+            tension_only: true,
         });
     }
     let mut joints = vec![JointSpec { kind: JointKindSpec::Pin, a: pool[0].clone(), b: None, at: None }];

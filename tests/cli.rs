@@ -24,6 +24,14 @@ fn bundled_scenes_match_their_generators() {
             "prism3.toml",
             generate::prism(&generate::PrismParams { cluster_top_ring: true, ..Default::default() }),
         ),
+        (
+            "prism3_nodal.toml",
+            generate::prism(&generate::PrismParams {
+                cluster_top_ring: true,
+                nodal_strut_ea: Some(1e7),
+                ..Default::default()
+            }),
+        ),
         ("tbar.toml", generate::tbar(&Default::default())),
         ("tower.toml", generate::tower(&Default::default())),
         ("atwood.toml", generate::atwood(&Default::default())),

@@ -2,7 +2,8 @@
 //! along the same group retraction — cable length gradient `g`, generalized force, tangent
 //! stiffness `K = -dQ/dq` (elastic, geometric and damping parts), damping matrix `C = -dQ/dv`,
 //! joint Jacobian `Phi_q` and multiplier Hessian — for every body kind, arbitrary rotations, and
-//! classical and sliding cables with 1 to 5 pulleys.
+//! classical and sliding cables with 1 to 5 pulleys, and elastic members (`tension_only = false`)
+//! in tension and in compression.
 
 mod common;
 
@@ -53,6 +54,7 @@ fn scene(p: &Params, route: &[usize], planar: bool) -> SceneSpec {
         rest_length: Some(0.5),
         prestress: None,
         force_density: None,
+        tension_only: true,
     };
     SceneSpec { planar, bodies: vec![g, n, b, r], cables: vec![cable], ..Default::default() }
 }
@@ -82,7 +84,31 @@ fn params() -> impl Strategy<Value = Params> {
 }
 
 fn check(p: &Params, route: &[usize], planar: bool) -> Result<(), TestCaseError> {
-    let model = model_of(&scene(p, route, planar));
+    check_element(p, route, planar, None)
+}
+
+/// `check` for a cable, or with `member = Some(r)` for a two-point member (`tension_only =
+/// false`) whose rest length is `r` times its initial length (compressed when `r > 1`).
+fn check_element(
+    p: &Params,
+    route: &[usize],
+    planar: bool,
+    member: Option<f64>,
+) -> Result<(), TestCaseError> {
+    let mut spec = scene(p, route, planar);
+    if let Some(ratio) = member {
+        prop_assume!(spec.cables[0].route.len() == 2);
+        let length = {
+            let model = model_of(&spec);
+            let mut ws = Workspace::new(&model);
+            evaluate(&model, &State::initial(&model), &mut ws, Tangents::None);
+            ws.cables[0].length
+        };
+        prop_assume!(length > 0.05);
+        spec.cables[0].tension_only = false;
+        spec.cables[0].rest_length = Some(length * ratio);
+    }
+    let model = model_of(&spec);
     let mut state = State::initial(&model);
     for (j, v) in state.velocities.iter_mut().enumerate() {
         *v = p.vel[j];
@@ -90,7 +116,8 @@ fn check(p: &Params, route: &[usize], planar: bool) -> Result<(), TestCaseError>
     let mut ws = Workspace::new(&model);
     evaluate(&model, &state, &mut ws, Tangents::StiffnessAndDamping);
     let cable = ws.cables[0];
-    prop_assume!(cable.tension > 1.0);
+    prop_assume!(cable.tension > 1.0 || (member.is_some() && cable.tension.abs() > 1.0));
+    prop_assert!(!(member.is_some() && cable.slack), "a member is never slack");
     prop_assume!(ws.segment_lengths.iter().all(|l| *l > 0.05));
     let h = 1e-6;
 
@@ -109,7 +136,7 @@ fn check(p: &Params, route: &[usize], planar: bool) -> Result<(), TestCaseError>
     prop_assert!((g.dot(&state.velocities) - cable.length_rate).abs() < 1e-9);
 
     let k_fd = fd_stiffness(&model, &state, 1e-5);
-    let ek = rel_err(&ws.stiffness, &k_fd, cable.tension);
+    let ek = rel_err(&ws.stiffness, &k_fd, cable.tension.abs());
     prop_assert!(
         ek < 1e-6,
         "stiffness rel err {ek} damping {} T {} v {:?}\nK-K_fd = {:.3e}",
@@ -135,6 +162,11 @@ proptest! {
     #[test]
     fn sliding_cable_derivatives_match_finite_differences(p in params(), route in proptest::collection::vec(0usize..7, 2..=6)) {
         check(&p, &route, false)?;
+    }
+
+    #[test]
+    fn member_derivatives_match_finite_differences_in_tension_and_compression(p in params(), ends in [0usize..7, 0usize..7], ratio in 0.6..1.4f64, planar in proptest::bool::ANY) {
+        check_element(&p, &ends, planar, Some(ratio))?;
     }
 
     #[test]

@@ -10,12 +10,17 @@
 //! - `Ldot = g^T v = sum_i n_i . rdot_i`;
 //! - tension (Kelvin-Voigt, tension only): `T = max(0, (EA/L0)(L - L0) + c Ldot)` if `L > L0`,
 //!   else `T = 0`; elastic energy `V = EA/(2 L0) (L - L0)^2` while taut;
+//! - an elastic member (`CableModel::tension_only` false, two points) keeps the law unclamped:
+//!   `T = (EA/L0)(L - L0) + c Ldot` pushes (`T < 0`) when compressed, `V = EA/(2 L0) (L - L0)^2`
+//!   always, and the matrices below hold at every `T`, negative and zero included;
 //! - `K = (EA/L0) g g^T + T [sum_k G_k^T P_k G_k + sum_i d(J_i^T n_i)/dq] + c g h^T`, with
 //!   `G_k = J_k - J_(k-1)`, `P_k = (I - e_k e_k^T)/l_k`, and
 //!   `h = dLdot/dq = sum_k G_k^T P_k (rdot_k - rdot_(k-1)) + sum_i (d rdot_i/dq)^T n_i`;
 //! - `C = c g g^T`.
 //!
-//! While `T = 0` (slack, or the damper would push) the cable gives no force and no matrices.
+//! While `T = 0` (slack, or the damper would push) a cable gives no force and no matrices; a
+//! member always gives both. A rest length of `DISENGAGED` takes either out (no force, no energy):
+//! form finding and the mixed statics put their unknown elements' forces in by other means.
 //! A segment shorter than `SEGMENT_LENGTH_FLOOR` has no direction: it contributes its length but
 //! no force direction and no geometric stiffness, so coincident points never produce NaN.
 
@@ -24,23 +29,41 @@ use nalgebra::{DVector, Matrix3, Vector3, Vector6};
 use crate::assembly::{add_vector, TangentSink};
 
 use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointKinematics};
-use crate::model::{CableId, Model, PointId, Pose};
+use crate::model::{CableId, CableModel, Model, PointId, Pose};
 
 /// Segments shorter than this (m) are treated as a point: no direction, no geometric stiffness.
 pub const SEGMENT_LENGTH_FLOOR: f64 = 1e-9;
 
+/// The rest length that disengages an element, cable or member: no force, no energy.
+pub const DISENGAGED: f64 = f64::MAX;
+
 /// Tension law of docs/architecture.md ("The classical and the sliding cable"). `ea` (N), `rest_length` (m, > 0), `damping` (N s/m),
-/// `length` (m), `length_rate` (m/s). Returns the tension (N, >= 0).
-pub fn tension(ea: f64, damping: f64, rest_length: f64, length: f64, length_rate: f64) -> f64 {
+/// `length` (m), `length_rate` (m/s). Returns the tension (N): `>= 0` for a cable
+/// (`tension_only`), of either sign for a member; 0 at a `DISENGAGED` rest length.
+pub fn tension(
+    ea: f64,
+    damping: f64,
+    rest_length: f64,
+    length: f64,
+    length_rate: f64,
+    tension_only: bool,
+) -> f64 {
+    if rest_length == DISENGAGED {
+        return 0.0;
+    }
+    if !tension_only {
+        return (ea / rest_length) * (length - rest_length) + damping * length_rate;
+    }
     if length <= rest_length {
         return 0.0;
     }
     ((ea / rest_length) * (length - rest_length) + damping * length_rate).max(0.0)
 }
 
-/// Elastic energy `EA/(2 L0) (L - L0)^2` while taut, else 0 (J).
-pub fn elastic_energy(ea: f64, rest_length: f64, length: f64) -> f64 {
-    if length <= rest_length {
+/// Elastic energy `EA/(2 L0) (L - L0)^2` (J): a cable's while taut (else 0), a member's always;
+/// 0 at a `DISENGAGED` rest length.
+pub fn elastic_energy(ea: f64, rest_length: f64, length: f64, tension_only: bool) -> f64 {
+    if rest_length == DISENGAGED || (tension_only && length <= rest_length) {
         0.0
     } else {
         0.5 * ea / rest_length * (length - rest_length).powi(2)
@@ -56,9 +79,9 @@ pub struct CableResponse {
     pub length_rate: f64,
     /// Rest length used, m.
     pub rest_length: f64,
-    /// Tension, N (>= 0).
+    /// Tension, N (>= 0 for a cable; a member's is negative in compression).
     pub tension: f64,
-    /// True when `L <= L0`.
+    /// True when a cable is no longer than its rest length (`L <= L0`); never for a member.
     pub slack: bool,
     /// Elastic energy, J.
     pub energy: f64,
@@ -161,25 +184,24 @@ pub fn length_gradient_entries(
     }
 }
 
-/// Evaluates one cable (route geometry, tension, energy) and adds its generalized force
-/// `-T g` into `force`; leaves the route's geometry in `scratch` for `add_cable_tangents`.
+/// Evaluates one cable or member (route geometry, tension, energy) and adds its generalized
+/// force `-T g` into `force`; leaves the route's geometry in `scratch` for `add_cable_tangents`.
 ///
-/// `kin` holds every point's kinematics; `ea` (N), `damping_coeff` (N s/m) and `rest_length`
-/// (m, > 0) describe the cable.
-#[allow(clippy::too_many_arguments)]
+/// `kin` holds every point's kinematics; `cable` gives EA (N), damping (N s/m) and the law
+/// (`tension_only`), `rest_length` (m, > 0) the current rest length.
 pub fn add_cable_force(
     model: &Model,
     route: &[PointId],
-    ea: f64,
-    damping_coeff: f64,
+    cable: &CableModel,
     rest_length: f64,
     kin: &[PointKinematics],
     scratch: &mut CableScratch,
     force: &mut DVector<f64>,
 ) -> CableResponse {
+    let (ea, only) = (cable.axial_stiffness, cable.tension_only);
     let (length, length_rate) = route_geometry(route, kin, scratch);
-    let t = tension(ea, damping_coeff, rest_length, length, length_rate);
-    if t > 0.0 {
+    let t = tension(ea, cable.damping, rest_length, length, length_rate, only);
+    if t != 0.0 {
         add_length_gradient(model, route, kin, scratch, -t, force);
     }
     CableResponse {
@@ -187,14 +209,25 @@ pub fn add_cable_force(
         length_rate,
         rest_length,
         tension: t,
-        slack: length <= rest_length,
-        energy: elastic_energy(ea, rest_length, length),
+        slack: only && length <= rest_length,
+        energy: elastic_energy(ea, rest_length, length, only),
+    }
+}
+
+/// True when the element gives matrices at tension `t` (N) and rest length `rest_length` (m):
+/// a taut cable (`t > 0`), or a member at any tension (not `DISENGAGED`).
+pub fn is_engaged(cable: &CableModel, rest_length: f64, t: f64) -> bool {
+    if cable.tension_only {
+        t > 0.0
+    } else {
+        rest_length != DISENGAGED
     }
 }
 
 /// Adds one cable's tangent stiffness `K` and damping matrix `C` (module docs) into `sink`, for
 /// the tension `t` (N) found by `add_cable_force` and the route geometry it left in `scratch`
-/// (call `route_geometry` again when the scratch was reused since). Nothing while `t <= 0`.
+/// (call `route_geometry` again when the scratch was reused since). The caller skips elements
+/// that are not engaged (`is_engaged`); the geometric terms take `t` of either sign.
 #[allow(clippy::too_many_arguments)]
 pub fn add_cable_tangents<S: TangentSink + ?Sized>(
     model: &Model,
@@ -210,9 +243,6 @@ pub fn add_cable_tangents<S: TangentSink + ?Sized>(
     scratch: &mut CableScratch,
     sink: &mut S,
 ) {
-    if t <= 0.0 {
-        return;
-    }
     let m = route.len() - 1;
     let body_of = |i: usize| kin[route[i].0].body;
     // T sum_k G_k^T P_k G_k

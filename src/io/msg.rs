@@ -74,7 +74,7 @@ pub struct CableStates {
     pub header: Header,
     /// Cable names, in structure order.
     pub name: Vec<String>,
-    /// Tensions, N.
+    /// Tensions, N (an elastic member's is negative in compression).
     pub tension: Vec<f64>,
     /// Lengths, m.
     pub length: Vec<f64>,
@@ -806,7 +806,9 @@ impl MarkerArray {
         for c in 0..model.cables.len() {
             let r = &ws.cables[c];
             let s = (r.tension / t_max) as f32;
-            let color = if r.tension > 0.0 {
+            let color = if !model.cables[c].tension_only {
+                ColorRgba { r: 0.35, g: 0.35, b: 0.35, a: 1.0 } // an elastic member: a strut's grey
+            } else if r.tension > 0.0 {
                 ColorRgba { r: s, g: 0.1, b: 1.0 - s, a: 1.0 }
             } else {
                 ColorRgba { r: 0.8, g: 0.8, b: 0.8, a: 0.6 }

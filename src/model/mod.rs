@@ -137,7 +137,9 @@ pub struct PointModel {
     pub local: Vector3<f64>,
 }
 
-/// Cable damping law (Kelvin-Voigt): tension gains `c * Ldot` while taut.
+/// A cable, or an elastic member (`tension_only = false`), along a route of points: the
+/// Kelvin-Voigt law `T = (EA/L0)(L - L0) + c Ldot` (`crate::forces::cable::tension`), clamped at
+/// zero for a cable and not for a member, which pushes as well as pulls.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CableModel {
     /// Index of the first point of the route in `Model::route_points`.
@@ -148,6 +150,10 @@ pub struct CableModel {
     pub axial_stiffness: f64,
     /// Viscous damping coefficient c, N s/m (>= 0).
     pub damping: f64,
+    /// True for a cable (goes slack below its rest length, never pushes); false for an elastic
+    /// member between two points (`[[members]]`, or a cable with `tension_only = false`), whose
+    /// law holds in compression too. A member's route has exactly two points.
+    pub tension_only: bool,
 }
 
 impl CableModel {

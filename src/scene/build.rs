@@ -5,7 +5,7 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 
-use super::{limits, BodyKindSpec, CollisionPairsSpec, JointKindSpec, PointSpec, SceneSpec};
+use super::{limits, BodyKindSpec, CableSpec, CollisionPairsSpec, JointKindSpec, PointSpec, SceneSpec};
 use crate::error::{readable_number, SceneError};
 use crate::model::{
     ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, ContactMaterial, ContactSphere, GroundModel,
@@ -105,6 +105,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let grounds = build_grounds(spec, &cx, &bodies, &points)?;
     let (strut_pairs, strut_material) =
         build_strut_pairs(spec, &cx, &bodies, &points, &point_names, &joints)?;
+    let mut bodies = bodies;
+    lump_member_masses(spec, &cx, &mut bodies, &points, &point_names)?;
     let mut model = Model {
         name: if spec.name.is_empty() { file.to_string() } else { spec.name.clone() },
         bodies,
@@ -124,7 +126,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         planar: spec.planar,
         dof_count: dof,
         constraint_count: spec.joints.len() * rows,
-        initial_rest_lengths: vec![1.0; spec.cables.len()],
+        initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
         solver,
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
@@ -139,7 +141,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     check_redundant_joints(&model, &cx)?;
     check_contacts(spec, &model, &cx)?;
 
-    set_rest_lengths(&mut model, &rest_specs, &damping_ratios, &cx)?;
+    set_rest_lengths(&mut model, &rest_specs, &damping_ratios, spec.cables.len(), &cx)?;
     model.schedule = build_schedule(spec, &model, &cx)?;
     Ok(model)
 }
@@ -181,7 +183,14 @@ fn build_bodies(spec: &SceneSpec, cx: &Ctx) -> Result<Bodies, SceneError> {
         let mut local_points: Vec<(String, Vector3<f64>)> = Vec::new();
         let (kind, mass, inertia, pose, bar_len) = match b.kind {
             BodyKindSpec::Node => {
-                let mass = mass(b.mass).map_err(|r| e("mass", r))?;
+                // a node may take all its mass from the members that end on it
+                let lumped = spec.members.iter().any(|m| {
+                    m.mass.is_some() && m.ends.iter().any(|p| p.split('.').next() == Some(b.name.as_str()))
+                });
+                let mass = match b.mass {
+                    None if lumped => 0.0,
+                    given => mass(given).map_err(|r| e("mass", r))?,
+                };
                 let x = position.ok_or_else(|| e("position", "missing (required for a node)".into()))?;
                 if b.rotation.is_some() || b.ends.is_some() || b.inertia.is_some() || !b.points.is_empty() {
                     return Err(e(
@@ -810,6 +819,43 @@ fn check_contacts(spec: &SceneSpec, model: &Model, cx: &Ctx) -> Result<(), Scene
     Ok(())
 }
 
+/// Adds half of each member's mass to each of its ends' bodies: nodes take it, fixed bodies
+/// carry it to the ground; a member with mass may not end on a bar or rigid body (its lumped
+/// mass would move their centre of mass and inertia).
+fn lump_member_masses(
+    spec: &SceneSpec,
+    cx: &Ctx,
+    bodies: &mut [BodyModel],
+    points: &[PointModel],
+    point_names: &BTreeMap<String, PointId>,
+) -> Result<(), SceneError> {
+    for (i, m) in spec.members.iter().enumerate() {
+        let Some(mass) = m.mass else { continue };
+        let e = |field: &str, reason: String| cx.err("members", i, field, reason);
+        let mass = in_range(mass, limits::MASS, "kg").map_err(|r| e("mass", r))?;
+        for end in &m.ends {
+            // unknown points are reported by `build_cables` with the route's wording
+            let Some(pid) = point_names.get(end) else { continue };
+            let body = &mut bodies[points[pid.0].body.0];
+            match body.kind {
+                BodyKind::Node => body.mass += 0.5 * mass,
+                BodyKind::Fixed => {}
+                kind => {
+                    return Err(e(
+                        "mass",
+                        format!(
+                            "a member's mass is lumped on its ends, which must be nodes or fixed; '{end}' is on the {} '{}'",
+                            kind.as_str(),
+                            body.name
+                        ),
+                    ))
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The cables, their routes, and what sets their rest lengths and damping (`build_cables`).
 struct Cables {
     cables: Vec<CableModel>,
@@ -819,8 +865,24 @@ struct Cables {
     damping_ratios: Vec<Option<f64>>,
 }
 
-/// Checks and builds `cables` (names, routes through known points, EA, rest length or prestress
-/// or force density, damping or damping ratio).
+/// A member as the two-point cable that pushes, and whether it asks for form finding.
+fn member_as_cable(m: &super::MemberSpec) -> (CableSpec, bool) {
+    let cable = CableSpec {
+        name: m.name.clone(),
+        route: m.ends.to_vec(),
+        ea: m.ea,
+        damping: m.damping,
+        damping_ratio: m.damping_ratio,
+        rest_length: m.rest_length,
+        prestress: m.force,
+        force_density: None,
+        tension_only: false,
+    };
+    (cable, m.form_find)
+}
+
+/// Checks and builds `cables` and then `members` (names, routes through known points, EA, rest
+/// length or prestress (a member's force) or force density, damping or damping ratio).
 fn build_cables(
     spec: &SceneSpec,
     cx: &Ctx,
@@ -833,16 +895,33 @@ fn build_cables(
     let mut route_points = Vec::new();
     let mut rest_specs = Vec::new();
     let mut damping_ratios = Vec::new();
-    for (i, c) in spec.cables.iter().enumerate() {
-        let e = |field: &str, reason: String| cx.err("cables", i, field, reason);
+    // members are cables that push: one list, cables first
+    let members: Vec<(CableSpec, bool)> = spec.members.iter().map(member_as_cable).collect();
+    let elements = spec
+        .cables
+        .iter()
+        .enumerate()
+        .map(|(i, c)| ("cables", i, c, false))
+        .chain(members.iter().enumerate().map(|(i, (c, form_find))| ("members", i, c, *form_find)));
+    for (array, i, c, form_find) in elements {
+        let e = |field: &str, reason: String| cx.err(array, i, field, reason);
+        let member = array == "members";
+        let route_field = if member { "ends" } else { "route" };
         if c.name.is_empty() {
             return Err(e("name", "must not be empty".into()));
         }
         if cable_names.contains(&c.name) {
-            return Err(e("name", format!("duplicate cable name '{}'", c.name)));
+            let what = if member { "member name (members and cables share one list)" } else { "cable name" };
+            return Err(e("name", format!("duplicate {what} '{}'", c.name)));
+        }
+        if !c.tension_only && c.route.len() != 2 {
+            return Err(e(
+                "tension_only",
+                format!("only a two-point cable may push; this route has {} points (pulleys)", c.route.len()),
+            ));
         }
         if c.route.len() < 2 {
-            return Err(e("route", format!("a cable needs at least two points, got {}", c.route.len())));
+            return Err(e(route_field, format!("a cable needs at least two points, got {}", c.route.len())));
         }
         if c.route.len() > limits::MAX_ROUTE_POINTS {
             return Err(e(
@@ -855,13 +934,13 @@ fn build_cables(
             let p = lookup(pname).ok_or_else(|| {
                 let body = pname.split('.').next().unwrap_or("");
                 if spec.bodies.iter().any(|b| b.name == body) {
-                    e("route", format!("body '{body}' has no point '{pname}'"))
+                    e(route_field, format!("body '{body}' has no point '{pname}'"))
                 } else {
-                    e("route", format!("unknown body in '{pname}'"))
+                    e(route_field, format!("unknown body in '{pname}'"))
                 }
             })?;
             if k > 0 && route_points[start + k - 1] == p {
-                return Err(e("route", format!("the route visits '{pname}' twice in a row")));
+                return Err(e(route_field, format!("the route visits '{pname}' twice in a row")));
             }
             route_points.push(p);
         }
@@ -870,24 +949,47 @@ fn build_cables(
         if given.iter().filter(|g| **g).count() > 1 {
             let field = if c.force_density.is_some() { "force_density" } else { "prestress" };
             return Err(e(
-                field,
-                "give at most one of rest_length, prestress and force_density, not both".into(),
+                if member { "force" } else { field },
+                if member {
+                    "give at most one of rest_length and force, not both".into()
+                } else {
+                    "give at most one of rest_length, prestress and force_density, not both".into()
+                },
             ));
         }
+        if form_find && given.iter().any(|g| *g) {
+            return Err(e(
+                "form_find",
+                "form_find sets the rest length: give no rest_length or force".into(),
+            ));
+        }
+        let prestress_field = if member { "force" } else { "prestress" };
         let rest = match (c.rest_length, c.prestress, c.force_density) {
             (Some(l), _, _) => {
                 RestLengthSpec::Given(in_range(l, limits::LENGTH, "m").map_err(|r| e("rest_length", r))?)
             }
-            (_, Some(t), _) if t.is_finite() && t > limits::PRESTRESS.1 => {
-                return Err(e("prestress", in_range(t, limits::PRESTRESS, "N").unwrap_err()))
+            (_, Some(t), _) if t.is_finite() && t.abs() > limits::PRESTRESS.1 => {
+                return Err(e(prestress_field, in_range(t.abs(), limits::PRESTRESS, "N").unwrap_err()))
             }
             (_, _, Some(q)) if q.is_finite() && q > limits::FORCE_DENSITY.1 => {
                 return Err(e("force_density", in_range(q, limits::FORCE_DENSITY, "N/m").unwrap_err()))
             }
-            (_, Some(t), _) if t.is_finite() && t >= 0.0 => RestLengthSpec::Prestress(t),
-            (_, Some(t), _) => {
-                return Err(e("prestress", format!("a cable can only pull: prestress must be >= 0, got {t}")))
+            (_, Some(t), _) if t.is_finite() && (t >= 0.0 || !c.tension_only) => {
+                if t <= -c.ea {
+                    return Err(e(
+                        prestress_field,
+                        format!("a compression of {} N is at least EA ({} N): no rest length gives it", -t, c.ea),
+                    ));
+                }
+                RestLengthSpec::Prestress(t)
             }
+            (_, Some(t), _) if t.is_finite() => {
+                return Err(e(
+                    "prestress",
+                    format!("a cable can only pull: prestress must be >= 0, got {t} (tension_only = false lets a two-point cable push)"),
+                ))
+            }
+            (_, Some(t), _) => return Err(e(prestress_field, format!("must be a finite number, got {t}"))),
             (_, _, Some(q)) if q.is_finite() && q >= 0.0 => RestLengthSpec::ForceDensity(q),
             (_, _, Some(q)) => {
                 return Err(e(
@@ -895,6 +997,7 @@ fn build_cables(
                     format!("a cable can only pull: force density must be >= 0, got {q}"),
                 ))
             }
+            (None, None, None) if member && !form_find => RestLengthSpec::Unstressed,
             (None, None, None) => RestLengthSpec::Free,
         };
         let (damping, ratio) = match (c.damping, c.damping_ratio) {
@@ -914,6 +1017,7 @@ fn build_cables(
             route_len: c.route.len(),
             axial_stiffness: c.ea,
             damping,
+            tension_only: c.tension_only,
         });
         cable_names.push(c.name.clone());
     }
@@ -989,15 +1093,17 @@ fn build_solver(spec: &SceneSpec, cx: &Ctx) -> Result<SolverSettings, SceneError
 
 /// Sets the initial rest lengths (form finding where a cable gives a prestress or a force
 /// density), the damping of cables given a damping ratio, and checks each actuator's cable
-/// starts within its limits.
+/// starts within its limits. Elements from `spec_cables` on are the scene's members.
 fn set_rest_lengths(
     model: &mut Model,
     rest_specs: &[RestLengthSpec],
     damping_ratios: &[Option<f64>],
+    spec_cables: usize,
     cx: &Ctx,
 ) -> Result<(), SceneError> {
     model.initial_rest_lengths =
         find_rest_lengths(model, rest_specs).map_err(|(cable, reason)| match cable {
+            Some(c) if c >= spec_cables => cx.err("members", c - spec_cables, "force", reason),
             Some(c) => cx.err("cables", c, "prestress", reason),
             None => cx.top("cables", reason),
         })?;

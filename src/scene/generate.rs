@@ -39,6 +39,9 @@ pub struct PrismParams {
     pub damping_ratio: f64,
     /// Fraction by which the deployment schedule shortens the clustered ring (0 = no schedule).
     pub deploy_shortening: f64,
+    /// The nodal (finite-element) form: every bar an elastic member of this EA (N) between two
+    /// nodes (`nodal_struts`). `None`: rigid bars.
+    pub nodal_strut_ea: Option<f64>,
 }
 
 impl Default for PrismParams {
@@ -53,6 +56,7 @@ impl Default for PrismParams {
             cluster_top_ring: true,
             damping_ratio: 0.05,
             deploy_shortening: 0.1,
+            nodal_strut_ea: None,
         }
     }
 }
@@ -71,6 +75,7 @@ fn cable(name: String, route: Vec<String>, ea: f64, zeta: f64) -> CableSpec {
         rest_length: None,
         prestress: None,
         force_density: None,
+        tension_only: true,
     }
 }
 
@@ -85,7 +90,7 @@ pub fn prism_twist(n: usize) -> f64 {
 
 /// The regular n-prism on pinned supports; see the module docs.
 pub fn prism(p: &PrismParams) -> SceneSpec {
-    tower(&TowerParams {
+    let mut spec = tower(&TowerParams {
         n: p.n,
         stages: 1,
         radius: p.radius,
@@ -98,7 +103,65 @@ pub fn prism(p: &PrismParams) -> SceneSpec {
         cluster_top_ring: p.cluster_top_ring,
         damping_ratio: p.damping_ratio,
         deploy_shortening: p.deploy_shortening,
-    })
+    });
+    if let Some(ea) = p.nodal_strut_ea {
+        nodal_struts(&mut spec, ea);
+        spec.name = format!("{}_nodal", spec.name);
+        spec.description = format!(
+            "{} (nodal: struts as elastic members of EA {ea} N between point masses)",
+            spec.description
+        );
+    }
+    spec
+}
+
+/// Turns `spec` into its nodal (finite-element) form: every bar `B` becomes the nodes `B_a` and
+/// `B_b` at its ends and an elastic member `B` between them of axial stiffness `strut_ea` (N),
+/// the bar's mass lumped half on each node, its axial force whatever makes the initial geometry
+/// an equilibrium (`form_find`); references to `B.a` and `B.b` (routes, joints, ramps) move to
+/// the nodes. A bar with other points keeps them nowhere: only its ends are carried over.
+/// Lumped mass gives a strut the transverse inertia of its two end masses, `m l^2 / 4` about
+/// its middle, where the uniform rigid bar has `m l^2 / 12`.
+pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64) {
+    let mut bodies = Vec::new();
+    let mut renamed = std::collections::BTreeMap::new();
+    for b in std::mem::take(&mut spec.bodies) {
+        let (BodyKindSpec::Bar, Some([a, e])) = (b.kind, b.ends) else {
+            bodies.push(b);
+            continue;
+        };
+        for (end, at) in [("a", a), ("b", e)] {
+            let node = format!("{}_{end}", b.name);
+            renamed.insert(format!("{}.{end}", b.name), node.clone());
+            bodies.push(BodySpec { position: Some(at), ..BodySpec::new(&node, BodyKindSpec::Node) });
+        }
+        spec.members.push(super::MemberSpec {
+            name: b.name.clone(),
+            ends: [format!("{}_a", b.name), format!("{}_b", b.name)],
+            ea: strut_ea,
+            damping: None,
+            damping_ratio: None,
+            rest_length: None,
+            force: None,
+            form_find: true,
+            mass: b.mass,
+        });
+    }
+    spec.bodies = bodies;
+    let rename = |p: &mut String| {
+        if let Some(n) = renamed.get(p.as_str()) {
+            *p = n.clone();
+        }
+    };
+    for c in &mut spec.cables {
+        c.route.iter_mut().for_each(rename);
+    }
+    for j in &mut spec.joints {
+        rename(&mut j.a);
+        if let Some(b) = &mut j.b {
+            rename(b);
+        }
+    }
 }
 
 /// Parameters of a tower of stacked prisms.
@@ -457,6 +520,7 @@ pub fn atwood(p: &AtwoodParams) -> SceneSpec {
             rest_length: Some(rest),
             prestress: None,
             force_density: None,
+            tension_only: true,
         }],
         ..Default::default()
     }
@@ -582,6 +646,7 @@ pub fn sixbar(p: &SixbarParams) -> SceneSpec {
                 rest_length: Some(rest_length),
                 prestress: None,
                 force_density: None,
+                tension_only: true,
             });
         }
     }

@@ -131,6 +131,10 @@ pub struct SceneSpec {
     /// Cables, classical (2 points) and sliding (more).
     #[serde(default)]
     pub cables: Vec<CableSpec>,
+    /// Elastic members between two points: they push as well as pull (struts of a nodal,
+    /// finite-element model between point masses).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub members: Vec<MemberSpec>,
     /// Actuators.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub actuators: Vec<ActuatorSpec>,
@@ -216,6 +220,12 @@ fn is_zero3(v: &[f64; 3]) -> bool {
 }
 fn is_false(b: &bool) -> bool {
     !*b
+}
+fn is_true(b: &bool) -> bool {
+    *b
+}
+fn yes() -> bool {
+    true
 }
 
 /// Body kinds as written in scene files.
@@ -352,6 +362,47 @@ pub struct CableSpec {
     /// the rest length. Excludes `rest_length` and `prestress`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force_density: Option<f64>,
+    /// True (default): the cable goes slack and never pushes. False: a two-point cable keeps its
+    /// law in compression (a modelling choice, like a finite-element code whose strings may push;
+    /// see `[[members]]`). Refused on a route with pulleys.
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    pub tension_only: bool,
+}
+
+/// An elastic member between two points: the cable law `T = (EA/L0)(L - L0) + c Ldot` without
+/// the clamp at zero, so it pushes when compressed (`T < 0`); its mass, if any, lumped half on
+/// each end. It appears among the cables (name, length, force) with a negative tension in
+/// compression.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MemberSpec {
+    /// Unique name among cables and members.
+    pub name: String,
+    /// The two points it joins.
+    pub ends: [String; 2],
+    /// Axial stiffness EA, N (> 0).
+    pub ea: f64,
+    /// Damping coefficient c, N s/m (>= 0), Kelvin-Voigt.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping: Option<f64>,
+    /// Damping ratio, as a cable's (`c = 2 zeta sqrt((EA/L0) m_eff)`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping_ratio: Option<f64>,
+    /// Rest length, m (> 0). Default: the ends' initial distance (unstressed), unless `force`
+    /// or `form_find` is given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rest_length: Option<f64>,
+    /// Axial force at the initial geometry, N (negative: compression, above `-EA`); form
+    /// finding sets the rest length.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force: Option<f64>,
+    /// True: the force is whatever makes the initial geometry an equilibrium (form finding, as
+    /// for a cable given neither rest length nor prestress).
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub form_find: bool,
+    /// Mass, kg, lumped half on each end; the ends must then be nodes or fixed points.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mass: Option<f64>,
 }
 
 /// An actuator: sets one cable's rest length within limits.
@@ -418,6 +469,7 @@ pub struct SolverSpec {
 pub const BUNDLED: &[(&str, &str)] = &[
     ("atwood", include_str!("../../config/scenes/atwood.toml")),
     ("prism3", include_str!("../../config/scenes/prism3.toml")),
+    ("prism3_nodal", include_str!("../../config/scenes/prism3_nodal.toml")),
     ("tbar", include_str!("../../config/scenes/tbar.toml")),
     ("tower", include_str!("../../config/scenes/tower.toml")),
     ("sixbar", include_str!("../../config/scenes/sixbar.toml")),

@@ -25,11 +25,12 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 10] = [
+pub const TABLES: [(&str, &str); 11] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
     ("[[cables]]", "cables"),
+    ("[[members]]", "members"),
     ("[[actuators]]", "actuators"),
     ("[solver]", "solver"),
     ("[deployment]", "deployment"),
@@ -54,9 +55,9 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     };
     let coord = format!("each within +-{}", readable_number(limits::MAX_COORDINATE));
     let top = TABLES[0].0;
-    let (bodies, joints, cables, actuators) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
-    let (solver, deployment, ramps, grounds) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
-    let collisions = TABLES[9].0;
+    let (bodies, joints, cables, members) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
+    let (actuators, solver, deployment, ramps) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
+    let (grounds, collisions) = (TABLES[9].0, TABLES[10].0);
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -184,6 +185,47 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "N/m",
             "none",
             format!("target T/L at the initial geometry (form finding), {}", range(limits::FORCE_DENSITY)),
+        ),
+        f(
+            cables,
+            "tension_only",
+            "boolean",
+            "-",
+            "true",
+            "false: a two-point cable keeps its law in compression and pushes (no pulleys)".into(),
+        ),
+        f(members, "name", "string", "-", "required", "unique among cables and members".into()),
+        f(members, "ends", "[a, b]", "-", "required", "the two points it joins".into()),
+        f(members, "ea", "number", "N", "required", format!("axial stiffness EA, {}", range(limits::EA))),
+        f(members, "damping", "number", "N s/m", "0", format!("{}; excludes `damping_ratio`", range(limits::DAMPING))),
+        f(members, "damping_ratio", "number", "-", "none", format!("{}; as a cable's", range(limits::DAMPING_RATIO))),
+        f(
+            members,
+            "rest_length",
+            "number",
+            "m",
+            "initial length",
+            format!("{}; default: unstressed at the initial geometry", range(limits::LENGTH)),
+        ),
+        f(
+            members,
+            "force",
+            "number",
+            "N",
+            "none",
+            format!(
+                "axial force at the initial geometry (negative: compression, above -EA), |force| up to {}",
+                readable_number(limits::PRESTRESS.1)
+            ),
+        ),
+        f(members, "form_find", "boolean", "-", "false", "true: the force that makes the initial geometry an equilibrium".into()),
+        f(
+            members,
+            "mass",
+            "number",
+            "kg",
+            "0",
+            format!("{}; lumped half on each end (ends on nodes or fixed bodies)", range(limits::MASS)),
         ),
         f(actuators, "name", "string", "-", "required", "unique".into()),
         f(actuators, "cable", "string", "-", "required", "the cable whose rest length it sets".into()),

@@ -8,7 +8,8 @@
 //! `A = [-g_U, -Phi_q^T]`. Among its solutions we take the one closest (least squares) to the
 //! targets (a prestress `T*`, or a force density `q*` meaning `T* = q* L`). The result is refused
 //! when the geometry admits no equilibrium, when a target cannot be met, when a cable would have to
-//! push, or when some tension is left undetermined.
+//! push, or when some tension is left undetermined. An elastic member (`CableModel::tension_only`
+//! false) is an unknown like a cable whose force may be negative (compression, down to `-EA`).
 //! Rest lengths then follow from the tension law: `L0 = EA L / (EA + T)`.
 //!
 //! Small systems (`n + p <= DENSE_FORM_FINDING_MAX`) are solved with a dense SVD (rank decisions
@@ -35,7 +36,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use crate::evaluate::{evaluate_forces, Workspace};
-use crate::forces::cable::{length_gradient_entries, route_geometry, tension, CableScratch};
+use crate::forces::cable::{length_gradient_entries, route_geometry, tension, CableScratch, DISENGAGED};
 use crate::model::{CableId, Model};
 use crate::solve::linear::{SparseLdlt, ThinSvd};
 use crate::state::State;
@@ -51,6 +52,8 @@ pub enum RestLengthSpec {
     ForceDensity(f64),
     /// To be determined by equilibrium.
     Free,
+    /// The initial length: unstressed at the initial geometry (a member's default).
+    Unstressed,
 }
 
 /// Which linear algebra form finding uses (see the module documentation).
@@ -96,10 +99,8 @@ pub fn find_rest_lengths_with(
     specs: &[RestLengthSpec],
     method: FormFindingMethod,
 ) -> Result<FormFound, FormFindingError> {
-    let unknown: Vec<usize> =
-        (0..specs.len()).filter(|&c| !matches!(specs[c], RestLengthSpec::Given(_))).collect();
     let mut state = State::initial(model);
-    state.rest_lengths.iter_mut().for_each(|l| *l = f64::MAX);
+    state.rest_lengths.iter_mut().for_each(|l| *l = DISENGAGED);
     let mut ws = Workspace::for_forces(model);
     evaluate_forces(model, &state, &mut ws);
     let lengths: Vec<f64> = ws.cables.iter().map(|c| c.length).collect();
@@ -108,6 +109,14 @@ pub fn find_rest_lengths_with(
             return Err((Some(c), "the cable has zero length at the initial geometry".into()));
         }
     }
+    let resolved: Vec<RestLengthSpec> = specs
+        .iter()
+        .zip(&lengths)
+        .map(|(s, l)| if *s == RestLengthSpec::Unstressed { RestLengthSpec::Given(*l) } else { *s })
+        .collect();
+    let specs = &resolved[..];
+    let unknown: Vec<usize> =
+        (0..specs.len()).filter(|&c| !matches!(specs[c], RestLengthSpec::Given(_))).collect();
     if unknown.is_empty() {
         let rest_lengths = specs
             .iter()
@@ -137,13 +146,24 @@ pub fn find_rest_lengths_with(
     }
     for (col, &c) in sys.unknown.iter().enumerate() {
         let t = x[col];
+        let ea = model.cables[c].axial_stiffness;
+        if !model.cables[c].tension_only {
+            // a member: any force whose rest length stays positive and finite
+            if ea + t <= 0.0 || t.is_nan() {
+                return Err((
+                    Some(c),
+                    format!("equilibrium needs a compression of {:.6} N in this member, at least its EA {ea} N: no rest length gives it", -t),
+                ));
+            }
+            out[c] = ea * lengths[c] / (ea + t);
+            continue;
+        }
         if t < -1e-9 * sys.scale {
             return Err((
                 Some(c),
                 format!("equilibrium needs this cable to push (T = {t:.6} N); a cable can only pull"),
             ));
         }
-        let ea = model.cables[c].axial_stiffness;
         out[c] = ea * lengths[c] / (ea + t.max(0.0));
     }
     Ok(FormFound { rest_lengths: out, unknowns: sys.columns.len(), dense, factor_entries })
@@ -186,7 +206,8 @@ impl EquilibriumSystem {
             entries.clear();
             length_gradient_entries(model, route, &ws.points, &scratch, &mut entries);
             if let RestLengthSpec::Given(l0) = spec {
-                let t = tension(model.cables[c].axial_stiffness, 0.0, *l0, lengths[c], 0.0);
+                let cable = &model.cables[c];
+                let t = tension(cable.axial_stiffness, 0.0, *l0, lengths[c], 0.0, cable.tension_only);
                 for &(r, g) in &entries {
                     b[r] += t * g;
                 }

@@ -26,7 +26,8 @@
 //! force-per-length scale, in a structure loaded by its weights rather than held by prestress)
 //! have their tensions as unknowns (`equilibrate_mixed`): Newton then measures their misfit as a
 //! length, not as `EA/L0` times it, and its iteration count does not grow with EA
-//! (`tests/stiff_statics.rs`: 1e2 to 1e9 N at the same cost).
+//! (`tests/stiff_statics.rs`: 1e2 to 1e9 N at the same cost). Elastic members (they push) stay in
+//! the displacement form.
 //!
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
 //! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
@@ -348,8 +349,8 @@ pub fn load_rate(model: &Model, state: &State, ws: &mut Workspace, rates: &[f64]
     let mut dq = DVector::zeros(model.dof_count);
     for (c, cable) in model.cables.iter().enumerate() {
         let response = &ws.cables[c];
-        if rates[c] == 0.0 || response.length <= response.rest_length {
-            continue;
+        if rates[c] == 0.0 || (cable.tension_only && response.length <= response.rest_length) {
+            continue; // a member's force changes with its rest length in compression too
         }
         let route = model.route(crate::model::CableId(c));
         crate::forces::cable::route_geometry(route, &ws.points, &mut ws.scratch);
@@ -395,7 +396,7 @@ pub(crate) fn residual_of(
         rhs.rows_mut(n, model.constraint_count).copy_from(&(-&ws.constraint));
     }
     let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
-    let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+    let tension = ws.cables.iter().map(|c| c.tension.abs()).fold(0.0, f64::max);
     let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max);
     let force_floor = model
         .cables
@@ -854,7 +855,7 @@ pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> 
     let mut initial = State::initial(model);
     evaluate(model, &initial, ws, Tangents::None);
     fit_multipliers(model, &mut initial.multipliers, ws);
-    let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+    let tension = ws.cables.iter().map(|c| c.tension.abs()).fold(0.0, f64::max);
     let mut residual = ws.force.clone_owned();
     if model.constraint_count > 0 {
         residual -= ws.constraint_jacobian.transpose() * &initial.multipliers;
@@ -869,7 +870,8 @@ pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> 
     let reference = force.max(1e-12) / length;
     (0..model.cables.len())
         .filter(|&c| {
-            model.cables[c].axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
+            model.cables[c].tension_only
+                && model.cables[c].axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
         })
         .collect()
 }
@@ -1051,7 +1053,7 @@ impl StaticSolver {
         // the work state: the stiff cables made slack, their forces added from the unknowns
         let mut work = state.clone();
         for &c in &ids {
-            work.rest_lengths[c] = f64::MAX;
+            work.rest_lengths[c] = crate::forces::cable::DISENGAGED;
         }
         evaluate(model, state, ws, Tangents::None);
         let m = ids.len();
@@ -1103,7 +1105,7 @@ impl StaticSolver {
                 .bodies
                 .iter()
                 .map(|b| b.mass * model.gravity.norm())
-                .chain(ws.cables.iter().map(|c| c.tension))
+                .chain(ws.cables.iter().map(|c| c.tension.abs()))
                 .chain(stiff.tension.iter().copied())
                 .fold(1e-12, f64::max);
             let l_scale = res.length_scale;

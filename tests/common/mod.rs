@@ -167,6 +167,7 @@ pub fn free_prism_spec() -> SceneSpec {
             prestress: None,
             rest_length: None,
             force_density: None,
+            tension_only: true,
             ..template.clone()
         });
     }

@@ -24,6 +24,12 @@ pub fn run(scene: &Path) -> Result<(), String> {
     say!("coordinates: {}", s.coordinates);
     say!("constraints: {}", s.constraints);
     say!("cables: {} ({} sliding)", s.cables, s.sliding_cables);
+    if s.members > 0 {
+        say!(
+            "members: {} (elastic: push and pull; in the cable lists, negative tension is compression)",
+            s.members
+        );
+    }
     say!("pulleys: {}", s.pulleys);
     say!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));
     if s.planar {

@@ -22,6 +22,10 @@ pub enum GenerateKind {
         /// Side-string prestress, N.
         #[arg(long, allow_hyphen_values = true, default_value_t = 100.0)]
         prestress: f64,
+        /// The nodal (finite-element) form: struts as elastic members of this EA (N) between
+        /// point masses, instead of rigid bars.
+        #[arg(long, allow_hyphen_values = true)]
+        nodal_strut_ea: Option<f64>,
     },
     /// Tower of stacked prisms with clustered side cables.
     Tower {
@@ -57,7 +61,7 @@ pub enum GenerateKind {
 /// Runs `generate`, to `out` or standard output.
 pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
     let spec = match kind {
-        GenerateKind::Prism { n, cluster, prestress } => {
+        GenerateKind::Prism { n, cluster, prestress, nodal_strut_ea } => {
             if n < 3 {
                 return Err("a prism needs n >= 3".into());
             }
@@ -66,6 +70,7 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
                 cluster_top_ring: cluster,
                 side_prestress: prestress,
                 deploy_shortening: if cluster { 0.1 } else { 0.0 },
+                nodal_strut_ea,
                 ..Default::default()
             })
         }

@@ -284,7 +284,7 @@ fn constraint_curvature(model: &Model, state: &State, ws: &mut Workspace) -> DVe
 
 fn force_scale(model: &Model, ws: &Workspace, inertial: f64) -> f64 {
     let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
-    let tension = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
+    let tension = ws.cables.iter().map(|c| c.tension.abs()).fold(0.0, f64::max);
     weight.max(tension).max(inertial).max(1e-9)
 }
 
@@ -535,7 +535,8 @@ pub fn spectral_bounds(model: &Model, state: &State) -> (f64, f64) {
 }
 
 /// `model` and `state` with every slack or just-taut cable (`L <= L0`, lengths from `ws`
-/// evaluated at `state`) made taut by a part in 1e9 with its material stiffness kept: rest length
+/// evaluated at `state`; members, which have their stiffness at every length, are left)
+/// made taut by a part in 1e9 with its material stiffness kept: rest length
 /// `L0' = L (1 - 1e-9)` and `EA' = EA L0' / L0`, so `EA'/L0' = EA/L0` and its tension is about
 /// zero. Taut cables are left as they are. For stability limits (`spectral_bounds`).
 pub fn taut_stiffness_model(model: &Model, state: &State, ws: &Workspace) -> (Model, State) {
@@ -543,7 +544,7 @@ pub fn taut_stiffness_model(model: &Model, state: &State, ws: &Workspace) -> (Mo
     let mut taut_state = state.clone();
     for (c, response) in ws.cables.iter().enumerate() {
         let l0 = state.rest_lengths[c];
-        if response.length <= l0 && response.length > 0.0 {
+        if model.cables[c].tension_only && response.length <= l0 && response.length > 0.0 {
             let shorter = response.length * (1.0 - 1e-9);
             taut_model.cables[c].axial_stiffness *= shorter / l0;
             taut_state.rest_lengths[c] = shorter;
@@ -576,8 +577,8 @@ pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f
     let mut actuator = 0.0;
     let mut loss = ws.contact_loss_power;
     for (c, r) in ws.cables.iter().enumerate() {
-        if r.length <= r.rest_length {
-            continue;
+        if r.slack || (model.cables[c].tension_only && r.length <= r.rest_length) {
+            continue; // a member works in compression too
         }
         let ea = model.cables[c].axial_stiffness;
         let t_el = ea / r.rest_length * (r.length - r.rest_length);
