@@ -1,5 +1,5 @@
 //! The evaluation stage: takes a `Model`, a `State` and a preallocated `Workspace`, gives every
-//! point's kinematics, the total applied force `Q` (cables, contacts and gravity, `crate::forces`), its
+//! point's kinematics, the total applied force `Q` (cables, contacts, gravity and Rayleigh damping, `crate::forces`), its
 //! tangents `K = -dQ/dq` and `C = -dQ/dv` (through an `assembly::TangentSink`), the joints'
 //! values and Jacobian (`crate::constraints`), every cable's response and the energies. The
 //! solvers read everything from the workspace.
@@ -173,6 +173,22 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
         add_vector(model, BodyId(b), &(body.basis.transpose() * f6), 1.0, &mut ws.force);
     }
 
+    // Rayleigh's mass-proportional damping: -alpha M_b v_b on every body
+    let alpha = model.rayleigh.alpha;
+    if alpha > 0.0 {
+        for (b, body) in model.bodies.iter().enumerate() {
+            if body.dof_count == 0 {
+                continue;
+            }
+            let m = body.mass_matrix();
+            let mut local = Vector6::zeros();
+            for r in 0..body.dof_count {
+                local[r] = v[body.dof_offset + r];
+            }
+            add_vector(model, BodyId(b), &(m * local), -alpha, &mut ws.force);
+        }
+    }
+
     // cables
     let mut elastic = 0.0;
     for (c, cable) in model.cables.iter().enumerate() {
@@ -230,6 +246,13 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     scratch: &mut CableScratch,
     sink: &mut S,
 ) {
+    if model.rayleigh.alpha > 0.0 {
+        for (b, body) in model.bodies.iter().enumerate() {
+            if body.dof_count > 0 {
+                sink.damping(BodyId(b), BodyId(b), &body.mass_matrix(), model.rayleigh.alpha);
+            }
+        }
+    }
     for (k, sphere, ground) in model.contact_pair_list() {
         let (poses, v, kin) = (&state.poses, &state.velocities, &points[sphere.point.0]);
         add_contact_tangents(model, poses, v, ground, sphere, kin, &contacts[k], sink);

@@ -317,6 +317,22 @@ impl Schedule {
     }
 }
 
+/// Rayleigh (structural) damping `C = alpha M + beta K0`, declared per scene (`[damping]`):
+/// `alpha M` acts on every body's velocity (its local mass matrix, rotations included), and
+/// `beta K0` is each cable's and member's material stiffness `EA/L0`, with `L0` its initial rest
+/// length, added to its Kelvin-Voigt damping (`c += beta EA / L0`, done when the scene is built).
+/// A mode whose stiffness is material has the damping ratio `(alpha / omega + beta omega) / 2`;
+/// a mode held by prestress alone (the prism's twist) is damped by `alpha` only: the geometric
+/// stiffness is left out of `K0` because, element by element, it would damp rigid rotations
+/// too. `alpha` also damps rigid-body motion, like a drag against the world frame.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct RayleighDamping {
+    /// Mass-proportional coefficient `alpha`, 1/s (>= 0).
+    pub alpha: f64,
+    /// Stiffness-proportional coefficient `beta`, s (>= 0).
+    pub beta: f64,
+}
+
 /// Numerical settings of the quasi-static solver.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SolverSettings {
@@ -377,6 +393,8 @@ pub struct Model {
     pub initial_rest_lengths: Vec<f64>,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
+    /// Rayleigh damping (zero: none, and it costs nothing).
+    pub rayleigh: RayleighDamping,
     /// Physics step the scene asks for, s (None: the tool's default).
     pub physics_dt: Option<f64>,
     /// The scene text this model was built from (for a generated scene, its TOML), so that a

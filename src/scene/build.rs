@@ -128,6 +128,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         constraint_count: spec.joints.len() * rows,
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
         solver,
+        rayleigh: build_rayleigh(spec, &cx)?,
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
             None => None,
@@ -1067,6 +1068,20 @@ fn build_actuators(
     Ok((actuators, actuator_names))
 }
 
+/// The `[damping]` coefficients, checked.
+fn build_rayleigh(spec: &SceneSpec, cx: &Ctx) -> Result<crate::model::RayleighDamping, SceneError> {
+    let Some(d) = &spec.damping else { return Ok(Default::default()) };
+    let alpha = match d.alpha {
+        Some(a) => in_range(a, limits::RAYLEIGH_ALPHA, "1/s").map_err(|r| cx.top("damping.alpha", r))?,
+        None => 0.0,
+    };
+    let beta = match d.beta {
+        Some(b) => in_range(b, limits::RAYLEIGH_BETA, "s").map_err(|r| cx.top("damping.beta", r))?,
+        None => 0.0,
+    };
+    Ok(crate::model::RayleighDamping { alpha, beta })
+}
+
 /// The `[solver]` settings, checked.
 fn build_solver(spec: &SceneSpec, cx: &Ctx) -> Result<SolverSettings, SceneError> {
     let mut solver = SolverSettings::default();
@@ -1092,7 +1107,7 @@ fn build_solver(spec: &SceneSpec, cx: &Ctx) -> Result<SolverSettings, SceneError
 }
 
 /// Sets the initial rest lengths (form finding where a cable gives a prestress or a force
-/// density), the damping of cables given a damping ratio, and checks each actuator's cable
+/// density), the damping of cables given a damping ratio plus Rayleigh's `beta EA / L0`, and checks each actuator's cable
 /// starts within its limits. Elements from `spec_cables` on are the scene's members.
 fn set_rest_lengths(
     model: &mut Model,
@@ -1122,6 +1137,13 @@ fn set_rest_lengths(
                 let k = model.cables[c].axial_stiffness / model.initial_rest_lengths[c];
                 model.cables[c].damping = 2.0 * zeta * (k / inv_m).sqrt();
             }
+        }
+    }
+    // Rayleigh's stiffness-proportional part: each element's material stiffness EA / L0
+    let beta = model.rayleigh.beta;
+    if beta > 0.0 {
+        for (c, cable) in model.cables.iter_mut().enumerate() {
+            cable.damping += beta * cable.axial_stiffness / model.initial_rest_lengths[c];
         }
     }
     for (i, a) in model.actuators.iter().enumerate() {

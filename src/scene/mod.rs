@@ -41,6 +41,10 @@ pub mod limits {
     pub const DAMPING: (f64, f64) = (0.0, 1e9);
     /// Damping ratio.
     pub const DAMPING_RATIO: (f64, f64) = (0.0, 100.0);
+    /// Rayleigh mass-proportional coefficient alpha, 1/s.
+    pub const RAYLEIGH_ALPHA: (f64, f64) = (0.0, 1e6);
+    /// Rayleigh stiffness-proportional coefficient beta, s.
+    pub const RAYLEIGH_BETA: (f64, f64) = (0.0, 1e3);
     /// Rest lengths and actuator limits, m.
     pub const LENGTH: (f64, f64) = (1e-9, 1e6);
     /// Prestress, N.
@@ -122,6 +126,9 @@ pub struct SceneSpec {
     /// Quasi-static solver settings.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub solver: Option<SolverSpec>,
+    /// Structural (Rayleigh) damping.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping: Option<DampingSpec>,
     /// Bodies.
     #[serde(default)]
     pub bodies: Vec<BodySpec>,
@@ -462,6 +469,19 @@ pub struct SolverSpec {
     /// Newton iterations per load step (default 60).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_iterations: Option<usize>,
+}
+
+/// Structural damping of a scene (`crate::model::RayleighDamping`): `C = alpha M + beta K0`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DampingSpec {
+    /// Mass-proportional coefficient, 1/s (default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub alpha: Option<f64>,
+    /// Stiffness-proportional coefficient, s (default 0): adds `beta EA / L0` to every cable's
+    /// and member's damping.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beta: Option<f64>,
 }
 
 /// The scenes bundled with the crate (the files of `config/scenes/`, compiled into the library):

@@ -25,7 +25,7 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 11] = [
+pub const TABLES: [(&str, &str); 12] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
@@ -33,6 +33,7 @@ pub const TABLES: [(&str, &str); 11] = [
     ("[[members]]", "members"),
     ("[[actuators]]", "actuators"),
     ("[solver]", "solver"),
+    ("[damping]", "damping"),
     ("[deployment]", "deployment"),
     ("[[deployment.ramps]]", "deployment.ramps"),
     ("[[grounds]]", "grounds"),
@@ -56,8 +57,8 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     let coord = format!("each within +-{}", readable_number(limits::MAX_COORDINATE));
     let top = TABLES[0].0;
     let (bodies, joints, cables, members) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
-    let (actuators, solver, deployment, ramps) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
-    let (grounds, collisions) = (TABLES[9].0, TABLES[10].0);
+    let (actuators, solver, damping, deployment) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
+    let (ramps, grounds, collisions) = (TABLES[9].0, TABLES[10].0, TABLES[11].0);
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -240,6 +241,22 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "-",
             "60",
             format!("Newton iterations per load step, 1 to {}", limits::MAX_SOLVER_ITERATIONS),
+        ),
+        f(
+            damping,
+            "alpha",
+            "number",
+            "1/s",
+            "0",
+            format!("{}; Rayleigh alpha M on every body (damps rigid motion too, like a drag)", range(limits::RAYLEIGH_ALPHA)),
+        ),
+        f(
+            damping,
+            "beta",
+            "number",
+            "s",
+            "0",
+            format!("{}; Rayleigh beta K0: adds beta EA/L0 to each cable's and member's damping", range(limits::RAYLEIGH_BETA)),
         ),
         f(
             deployment,

@@ -24,6 +24,13 @@ pub fn run(scene: &Path) -> Result<(), String> {
     say!("coordinates: {}", s.coordinates);
     say!("constraints: {}", s.constraints);
     say!("cables: {} ({} sliding)", s.cables, s.sliding_cables);
+    if model.rayleigh != Default::default() {
+        say!(
+            "damping: Rayleigh alpha {} 1/s (on every body's mass), beta {} s (on each cable's and member's EA/L0)",
+            model.rayleigh.alpha,
+            model.rayleigh.beta
+        );
+    }
     if s.members > 0 {
         say!(
             "members: {} (elastic: push and pull; in the cable lists, negative tension is compression)",
