@@ -3,25 +3,27 @@
 //! `d(Phi_q^T lambda)/dq` that the statics and implicit dynamics tangents need.
 //!
 //! A ball joint holds point `a` on point `b` (or on a world position): `Phi = r_a - r_b`, 3 rows,
-//! or the x and y rows only in planar scenes (where z is not a coordinate).
+//! or the x and y rows only in planar scenes (where z is not a coordinate). A roller or slider
+//! support holds only some world directions `D` (`JointModel::directions`): `Phi = D (r_a - x0)`,
+//! `Phi_q = D J`, and its multipliers push along `D^T lambda`.
 
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
-use crate::kinematics::{force_jacobian_derivative, PointKinematics};
+use crate::kinematics::{force_jacobian_derivative, PointJacobian, PointKinematics};
 use crate::model::{JointModel, JointTarget, Model, PointId, Pose};
 
 /// Fills `phi` (rows, m) for all joints.
 pub fn evaluate_values(model: &Model, kin: &[PointKinematics], phi: &mut DVector<f64>) {
-    let rows = model.joint_rows();
     for joint in &model.joints {
         let ra = kin[joint.point.0].position;
         let rb = match joint.target {
             JointTarget::Point(p) => kin[p.0].position,
             JointTarget::World(x) => x,
         };
-        for r in 0..rows {
-            phi[joint.row_offset + r] = ra[r] - rb[r];
+        let gap = joint.project(&(ra - rb));
+        for r in 0..joint.rows {
+            phi[joint.row_offset + r] = gap[r];
         }
     }
 }
@@ -38,7 +40,7 @@ pub fn evaluate_jacobian(model: &Model, kin: &[PointKinematics], phi_q: &mut DMa
 }
 
 /// Calls `add(row, coordinate, value)` for each term of `joint`'s rows of `Phi_q` at the point
-/// kinematics `kin` (`row` counted from the joint's first, `0..model.joint_rows()`; a coordinate
+/// kinematics `kin` (`row` counted from the joint's first, `0..joint.rows`; a coordinate
 /// may come twice, once per point, and the terms add up), so that a caller can assemble them
 /// into any layout (`evaluate_jacobian`'s dense matrix, a block of some joints and bodies).
 pub fn add_jacobian_entries(
@@ -50,11 +52,20 @@ pub fn add_jacobian_entries(
     for (pid, sign) in joint_points(joint) {
         let p = &kin[pid.0];
         let body = &model.bodies[p.body.0];
-        for r in 0..model.joint_rows() {
+        let jacobian = joint_jacobian(joint, &p.jacobian);
+        for r in 0..joint.rows {
             for c in 0..body.dof_count {
-                add(r, body.dof_offset + c, sign * p.jacobian[(r, c)]);
+                add(r, body.dof_offset + c, sign * jacobian[(r, c)]);
             }
         }
+    }
+}
+
+/// The joint's rows of a point Jacobian: `D J` (`J` itself for ball joints and pins).
+pub fn joint_jacobian(joint: &JointModel, jacobian: &PointJacobian) -> PointJacobian {
+    match &joint.directions {
+        None => *jacobian,
+        Some(d) => d * jacobian,
     }
 }
 
@@ -68,13 +79,13 @@ pub fn joint_points(joint: &JointModel) -> impl Iterator<Item = (PointId, f64)> 
     std::iter::once((joint.point, 1.0)).chain(b)
 }
 
-/// A joint's multipliers as a world vector (N; z is 0 in planar scenes, which have 2 rows).
-fn joint_reaction(joint: &JointModel, rows: usize, lambda: &DVector<f64>) -> Vector3<f64> {
+/// A joint's multipliers as a world force `D^T lambda` (N; z is 0 in planar scenes).
+pub fn joint_reaction(joint: &JointModel, lambda: &DVector<f64>) -> Vector3<f64> {
     let mut f = Vector3::zeros();
-    for r in 0..rows {
+    for r in 0..joint.rows {
         f[r] = lambda[joint.row_offset + r];
     }
-    f
+    joint.force(&f)
 }
 
 /// `out += scale * Phi_q^T lambda` (N, N m): the joint reactions as generalized forces, without
@@ -86,9 +97,8 @@ pub fn add_reaction_force(
     scale: f64,
     out: &mut DVector<f64>,
 ) {
-    let rows = model.joint_rows();
     for joint in &model.joints {
-        let f = joint_reaction(joint, rows, lambda);
+        let f = joint_reaction(joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let p = &kin[pid.0];
             add_vector(model, p.body, &(p.jacobian.transpose() * f), sign * scale, out);
@@ -98,13 +108,13 @@ pub fn add_reaction_force(
 
 /// `Phi_q v` (m/s): each joint's relative velocity, from the point velocities in `kin`.
 pub fn evaluate_rates(model: &Model, kin: &[PointKinematics], out: &mut DVector<f64>) {
-    let rows = model.joint_rows();
     for joint in &model.joints {
         let mut rate = Vector3::zeros();
         for (pid, sign) in joint_points(joint) {
             rate += kin[pid.0].velocity * sign;
         }
-        for r in 0..rows {
+        let rate = joint.project(&rate);
+        for r in 0..joint.rows {
             out[joint.row_offset + r] = rate[r];
         }
     }
@@ -124,9 +134,8 @@ pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
     scale: f64,
     sink: &mut S,
 ) {
-    let rows = model.joint_rows();
     for joint in &model.joints {
-        let f = joint_reaction(joint, rows, lambda);
+        let f = joint_reaction(joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let body = model.points[pid.0].body;
             if model.bodies[body.0].dof_count == 0 {

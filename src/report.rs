@@ -201,6 +201,37 @@ pub fn body_reports(model: &Model, state: &State) -> Vec<BodyReport> {
         .collect()
 }
 
+/// What a joint does to the structure at a state, for output.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct JointReport {
+    /// `ball`, `pin`, `roller` or `slider`.
+    pub kind: &'static str,
+    /// The joint's point `a`.
+    pub point: String,
+    /// For a ball joint, the point `b` it holds `a` on (empty for supports).
+    pub other: String,
+    /// The force the joint exerts on the body of `a`, N, world frame (`-D^T lambda`): for a
+    /// support, its reaction; a roller's has no part along its line, a slider's none in its plane.
+    pub force_n: [f64; 3],
+}
+
+/// Every joint's force on its first point's body at `state` (its multipliers).
+pub fn joint_reports(model: &Model, state: &State) -> Vec<JointReport> {
+    model
+        .joints
+        .iter()
+        .map(|j| JointReport {
+            kind: j.kind.as_str(),
+            point: model.points[j.point.0].name.clone(),
+            other: match j.target {
+                crate::model::JointTarget::Point(p) => model.points[p.0].name.clone(),
+                crate::model::JointTarget::World(_) => String::new(),
+            },
+            force_n: (-crate::constraints::joint_reaction(j, &state.multipliers)).into(),
+        })
+        .collect()
+}
+
 /// Named point positions (every point of every body), m.
 pub fn point_positions(model: &Model, ws: &Workspace) -> Vec<(String, [f64; 3])> {
     model.points.iter().zip(&ws.points).map(|(p, k)| (p.name.clone(), k.position.into())).collect()

@@ -250,13 +250,22 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
             tension_only: true,
         });
     }
-    let mut joints = vec![JointSpec { kind: JointKindSpec::Pin, a: pool[0].clone(), b: None, at: None }];
+    let mut joints = vec![JointSpec {
+        kind: JointKindSpec::Pin,
+        a: pool[0].clone(),
+        b: None,
+        at: None,
+        direction: None,
+        normal: None,
+    }];
     if kinds.len() > 2 {
         joints.push(JointSpec {
             kind: JointKindSpec::Pin,
             a: pool[pool.len() - 1].clone(),
             b: None,
             at: None,
+            direction: None,
+            normal: None,
         });
     }
     SceneSpec { bodies, cables, joints, ..Default::default() }

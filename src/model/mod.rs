@@ -230,7 +230,35 @@ pub enum JointTarget {
     World(Vector3<f64>),
 }
 
-/// A ball joint: `r_a(q) - r_b(q) = 0`, 3 equations (2 in planar scenes: x and y).
+/// What a joint holds (`JointModel`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JointKind {
+    /// Two points coincide (a ball joint between bodies).
+    Ball,
+    /// A point held at a world position.
+    Pin,
+    /// A point held on a world line (a roller support): free along the line.
+    Roller,
+    /// A point held on a world plane (a slider support): free in the plane.
+    Slider,
+}
+
+impl JointKind {
+    /// Lower-case name as used in scene files.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JointKind::Ball => "ball",
+            JointKind::Pin => "pin",
+            JointKind::Roller => "roller",
+            JointKind::Slider => "slider",
+        }
+    }
+}
+
+/// A joint: `Phi = D (r_a(q) - r_b(q)) = 0`, one equation per row of `D` (world directions).
+/// A ball joint or a pin holds every direction: `D = I`, 3 rows (2 in planar scenes: x and y);
+/// a roller holds the 2 directions across its line (1 in a planar scene), a slider the normal of
+/// its plane (1).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JointModel {
     /// Point on the first body.
@@ -239,6 +267,32 @@ pub struct JointModel {
     pub target: JointTarget,
     /// Index of this joint's first row in the constraint vector.
     pub row_offset: usize,
+    /// Number of rows (equations), 1 to 3.
+    pub rows: usize,
+    /// The held world directions as the rows of `D` (unit, orthogonal; the first `rows` count);
+    /// `None`: the coordinate axes (ball joints and pins), so `Phi` is `r_a - r_b` itself.
+    pub directions: Option<Matrix3<f64>>,
+    /// What the joint is.
+    pub kind: JointKind,
+}
+
+impl JointModel {
+    /// `D v` for a world vector `v` (its first `rows` entries are the joint's rows).
+    pub fn project(&self, v: &Vector3<f64>) -> Vector3<f64> {
+        match &self.directions {
+            None => *v,
+            Some(d) => d * v,
+        }
+    }
+
+    /// `D^T lambda` for the joint's multipliers `lambda` (its first `rows` entries): the world
+    /// force the rows carry.
+    pub fn force(&self, lambda: &Vector3<f64>) -> Vector3<f64> {
+        match &self.directions {
+            None => *lambda,
+            Some(d) => d.transpose() * lambda,
+        }
+    }
 }
 
 /// An actuator owns one cable and sets its rest length within limits (docs/architecture.md, "Actuation").
@@ -444,7 +498,8 @@ impl Model {
             })
     }
 
-    /// Number of constraint rows a ball joint has in this model (3, or 2 when planar).
+    /// Number of constraint rows a ball joint or pin has in this model (3, or 2 when planar); the
+    /// most any joint has (`JointModel::rows`).
     pub fn joint_rows(&self) -> usize {
         if self.planar {
             2

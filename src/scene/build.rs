@@ -97,6 +97,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let Bodies { bodies, points, point_names, dof } = build_bodies(spec, &cx)?;
     let rows = if spec.planar { 2 } else { 3 };
     let joints = build_joints(spec, &cx, &bodies, &points, &point_names, rows)?;
+    let constraint_count = joints.iter().map(|j| j.rows).sum();
     let Cables { cables, cable_names, route_points, rest_specs, damping_ratios } =
         build_cables(spec, &cx, &point_names)?;
     let (actuators, actuator_names) = build_actuators(spec, &cx, &cable_names)?;
@@ -125,7 +126,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         gravity: Vector3::from(spec.gravity),
         planar: spec.planar,
         dof_count: dof,
-        constraint_count: spec.joints.len() * rows,
+        constraint_count,
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
@@ -372,6 +373,74 @@ fn build_bodies(spec: &SceneSpec, cx: &Ctx) -> Result<Bodies, SceneError> {
     Ok(Bodies { bodies, points, point_names, dof })
 }
 
+/// A joint's kind, its held world directions (`JointModel::directions`) and its rows.
+type HeldDirections = (crate::model::JointKind, Option<Matrix3<f64>>, usize);
+
+/// A joint's kind, held world directions (`JointModel::directions`) and rows: ball joints and
+/// pins hold every direction (`rows`: 3, or 2 in a planar scene); a roller the directions
+/// across its line, a slider its plane's normal. On error, the field and the reason.
+fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirections, (&'static str, String)> {
+    use crate::model::JointKind;
+    let planar = rows == 2;
+    let unit = |v: Option<[f64; 3]>,
+                field: &'static str,
+                what: &str|
+     -> Result<Vector3<f64>, (&'static str, String)> {
+        let v = v.ok_or_else(|| (field, format!("missing: a {what} needs its {field}")))?;
+        bounded3(&v, limits::MAX_COORDINATE, "").map_err(|r| (field, r))?;
+        let v = Vector3::from(v);
+        if v.norm() <= 1e-12 {
+            return Err((field, format!("must not be zero, got {v:?}")));
+        }
+        if planar && v.z != 0.0 {
+            return Err((field, "a planar scene moves in the xy plane: z must be 0".into()));
+        }
+        Ok(v.normalize())
+    };
+    let stray = |field: &'static str, given: bool| -> Result<(), (&'static str, String)> {
+        if given {
+            Err((
+                field,
+                format!("only a {} takes `{field}`", if field == "normal" { "slider" } else { "roller" }),
+            ))
+        } else {
+            Ok(())
+        }
+    };
+    match j.kind {
+        super::JointKindSpec::Ball | super::JointKindSpec::Pin => {
+            stray("direction", j.direction.is_some())?;
+            stray("normal", j.normal.is_some())?;
+            let kind = if j.kind == super::JointKindSpec::Ball { JointKind::Ball } else { JointKind::Pin };
+            Ok((kind, None, rows))
+        }
+        super::JointKindSpec::Slider => {
+            stray("direction", j.direction.is_some())?;
+            let n = unit(j.normal, "normal", "slider")?;
+            let mut d = Matrix3::zeros();
+            d.set_row(0, &n.transpose());
+            Ok((JointKind::Slider, Some(d), 1))
+        }
+        super::JointKindSpec::Roller => {
+            stray("normal", j.normal.is_some())?;
+            let t = unit(j.direction, "direction", "roller")?;
+            let mut d = Matrix3::zeros();
+            if planar {
+                // the line's normal in the plane
+                d.set_row(0, &Vector3::new(-t.y, t.x, 0.0).transpose());
+                return Ok((JointKind::Roller, Some(d), 1));
+            }
+            // two unit vectors across the line
+            let helper = if t.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+            let u = t.cross(&helper).normalize();
+            let w = t.cross(&u);
+            d.set_row(0, &u.transpose());
+            d.set_row(1, &w.transpose());
+            Ok((JointKind::Roller, Some(d), 2))
+        }
+    }
+}
+
 /// Checks and builds `joints` (points that coincide at the start, no repeated constraint);
 /// `rows` is 2 in planar scenes, else 3.
 fn build_joints(
@@ -391,6 +460,7 @@ fn build_joints(
         points.iter().enumerate().map(|(i, _)| point_pos(PointId(i)).norm()).fold(1.0, f64::max);
 
     let mut joints = Vec::new();
+    let mut row_offset = 0;
     let mut joint_keys: BTreeMap<(usize, usize), usize> = BTreeMap::new();
     for (i, j) in spec.joints.iter().enumerate() {
         let e = |field: &str, reason: String| cx.err("joints", i, field, reason);
@@ -406,18 +476,18 @@ fn build_joints(
                     return Err(e("b", "both points are on the same body".into()));
                 }
                 if j.at.is_some() {
-                    return Err(e("at", "only pins take `at`".into()));
+                    return Err(e("at", "only supports (pin, roller, slider) take `at`".into()));
                 }
                 if bodies[body_a.0].dof_count == 0 && bodies[points[b.0].body.0].dof_count == 0 {
                     return Err(e("a", "both bodies are fixed: the joint holds nothing".into()));
                 }
                 JointTarget::Point(b)
             }
-            JointKindSpec::Pin => {
+            JointKindSpec::Pin | JointKindSpec::Roller | JointKindSpec::Slider => {
                 if j.b.is_some() {
                     return Err(e(
                         "b",
-                        "a pin holds one point to the ground; use kind = \"ball\" to join two bodies".into(),
+                        "a pin, roller or slider holds one point to the ground; use kind = \"ball\" to join two bodies".into(),
                     ));
                 }
                 if bodies[body_a.0].dof_count == 0 {
@@ -433,29 +503,46 @@ fn build_joints(
                 JointTarget::World(at)
             }
         };
+        let (kind, directions, joint_rows) = support_directions(j, rows).map_err(|(f, r)| e(f, r))?;
         let gap = match target {
             JointTarget::Point(b) => point_pos(a) - point_pos(b),
             JointTarget::World(x) => point_pos(a) - x,
         };
-        if gap.norm() > 1e-9 * length_scale {
-            return Err(e(
-                "a",
-                format!("the joint's points are {:.3e} m apart at the start; they must coincide", gap.norm()),
-            ));
+        // a roller or slider needs its point on its line or plane, not at `at`
+        let held_gap = match &directions {
+            None => gap.norm(),
+            Some(d) => (d * gap).rows(0, joint_rows).norm(),
+        };
+        if held_gap > 1e-9 * length_scale {
+            let reason = match kind {
+                crate::model::JointKind::Roller => format!(
+                    "the point is {held_gap:.3e} m off the roller's line at the start; it must lie on it"
+                ),
+                crate::model::JointKind::Slider => format!(
+                    "the point is {held_gap:.3e} m off the slider's plane at the start; it must lie in it"
+                ),
+                _ => {
+                    format!("the joint's points are {held_gap:.3e} m apart at the start; they must coincide")
+                }
+            };
+            return Err(e("a", reason));
         }
         // the same pin, or the same pair of points joined again, only repeats constraint rows: the
         // equations become singular (and a long list of repeats makes every solve slow)
-        let key = match target {
-            JointTarget::Point(b) => (a.0.min(b.0), a.0.max(b.0)),
-            JointTarget::World(_) => (a.0, usize::MAX),
+        // (a roller and a slider on one point may be meant; the rank test below judges them)
+        let key = match (target, j.kind) {
+            (JointTarget::Point(b), _) => Some((a.0.min(b.0), a.0.max(b.0))),
+            (JointTarget::World(_), JointKindSpec::Pin) => Some((a.0, usize::MAX)),
+            _ => None,
         };
-        if let Some(first) = joint_keys.insert(key, i) {
+        if let Some(first) = key.and_then(|key| joint_keys.insert(key, i)) {
             return Err(e(
                 "a",
                 format!("joints[{first}] already holds these points: the constraint would be repeated (redundant)"),
             ));
         }
-        joints.push(JointModel { point: a, target, row_offset: i * rows });
+        joints.push(JointModel { point: a, target, row_offset, rows: joint_rows, directions, kind });
+        row_offset += joint_rows;
     }
 
     Ok(joints)
@@ -1269,7 +1356,6 @@ pub const MAX_REDUNDANCY_CHECK_ROWS: usize = 4000;
 /// joints are one block, as before. On failure, the joints of every deficient group, in scene
 /// order.
 fn joints_independent(model: &Model, kin: &[crate::kinematics::PointKinematics]) -> Result<(), Vec<usize>> {
-    let rows_per_joint = model.joint_rows();
     let mut parent: Vec<usize> = (0..model.bodies.len()).collect();
     fn root(parent: &mut [usize], mut b: usize) -> usize {
         while parent[b] != b {
@@ -1321,11 +1407,14 @@ fn joints_independent(model: &Model, kin: &[crate::kinematics::PointKinematics])
                     column_of.insert(body.dof_offset + c, column_of.len());
                 }
             }
-            let mut block = faer::Mat::<f64>::zeros(column_of.len(), joints.len() * rows_per_joint);
-            for (k, &j) in joints.iter().enumerate() {
+            let total: usize = joints.iter().map(|&j| model.joints[j].rows).sum();
+            let mut block = faer::Mat::<f64>::zeros(column_of.len(), total);
+            let mut first = 0;
+            for &j in joints {
                 crate::constraints::add_jacobian_entries(model, kin, &model.joints[j], |r, c, x| {
-                    block[(column_of[&c], k * rows_per_joint + r)] += x;
+                    block[(column_of[&c], first + r)] += x;
                 });
+                first += model.joints[j].rows;
             }
             block
         })
@@ -1382,11 +1471,17 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
         .collect();
     let Err(suspects) = joints_independent(model, &kin) else { return Ok(()) };
     // the deficient groups' rows only (other groups share no coordinate with them)
-    let rows = model.joint_rows();
-    let mut phi_q = DMatrix::zeros(suspects.len() * rows, n);
+    // each row's joint (its index in `suspects`) and each joint's first row
+    let mut row_joint = Vec::new();
+    let mut first_row = Vec::new();
+    for (k, &j) in suspects.iter().enumerate() {
+        first_row.push(row_joint.len());
+        row_joint.extend(std::iter::repeat_n(k, model.joints[j].rows));
+    }
+    let mut phi_q = DMatrix::zeros(row_joint.len(), n);
     for (k, &j) in suspects.iter().enumerate() {
         crate::constraints::add_jacobian_entries(model, &kin, &model.joints[j], |r, c, x| {
-            phi_q[(k * rows + r, c)] += x;
+            phi_q[(first_row[k] + r, c)] += x;
         });
     }
     let scale = phi_q.row_iter().map(|r| r.norm()).fold(0.0, f64::max).max(1e-300);
@@ -1413,11 +1508,13 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
         }
         // report the first joint with a dependent equation once all its rows are seen
         if let Some(&first) = dependent.first() {
-            let local = first / rows;
+            let local = row_joint[first];
             let joint = suspects[local];
-            if r + 1 == (local + 1) * rows {
-                let own: Vec<usize> = dependent.iter().copied().filter(|d| d / rows == local).collect();
-                let earlier: Vec<usize> = independent.iter().copied().filter(|&i| i / rows < local).collect();
+            let rows = model.joints[joint].rows;
+            if r + 1 == first_row[local] + rows {
+                let own: Vec<usize> = dependent.iter().copied().filter(|&d| row_joint[d] == local).collect();
+                let earlier: Vec<usize> =
+                    independent.iter().copied().filter(|&i| row_joint[i] < local).collect();
                 // which earlier joints the dependent equations are combinations of
                 let mut named = BTreeSet::new();
                 if !earlier.is_empty() {
@@ -1428,7 +1525,7 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
                             let big = c.amax();
                             for (k, &e) in earlier.iter().enumerate() {
                                 if c[k].abs() > 1e-8 * big {
-                                    named.insert(suspects[e / rows]);
+                                    named.insert(suspects[row_joint[e]]);
                                 }
                             }
                         }
@@ -1440,7 +1537,9 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
                     1 => names[0].clone(),
                     _ => format!("{} and {}", names[..names.len() - 1].join(", "), names[names.len() - 1]),
                 };
-                let what = if own.len() == 1 {
+                let what = if own.len() == 1 && rows == 1 {
+                    "its equation is".to_string()
+                } else if own.len() == 1 {
                     format!("1 of its {rows} equations is")
                 } else {
                     format!("{} of its {rows} equations are", own.len())

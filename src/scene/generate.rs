@@ -260,7 +260,14 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
         }
     }
     for i in 0..n {
-        spec.joints.push(JointSpec { kind: JointKindSpec::Pin, a: point(0, i), b: None, at: None });
+        spec.joints.push(JointSpec {
+            kind: JointKindSpec::Pin,
+            a: point(0, i),
+            b: None,
+            at: None,
+            direction: None,
+            normal: None,
+        });
     }
     for l in 1..s {
         for i in 0..n {
@@ -269,6 +276,8 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
                 a: format!("bar{}_{i}.b", l - 1),
                 b: Some(point(l, i)),
                 at: None,
+                direction: None,
+                normal: None,
             });
         }
     }
@@ -427,8 +436,22 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
         planar: true,
         bodies: vec![ground, mast, cross],
         joints: vec![
-            JointSpec { kind: JointKindSpec::Pin, a: "mast.a".into(), b: None, at: None },
-            JointSpec { kind: JointKindSpec::Ball, a: "cross".into(), b: Some("mast.mid".into()), at: None },
+            JointSpec {
+                kind: JointKindSpec::Pin,
+                a: "mast.a".into(),
+                b: None,
+                at: None,
+                direction: None,
+                normal: None,
+            },
+            JointSpec {
+                kind: JointKindSpec::Ball,
+                a: "cross".into(),
+                b: Some("mast.mid".into()),
+                at: None,
+                direction: None,
+                normal: None,
+            },
         ],
         cables: vec![
             string("upper", &["cross.a", "mast.b", "cross.b"], p.prestress),

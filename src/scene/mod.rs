@@ -323,6 +323,12 @@ pub enum JointKindSpec {
     Ball,
     /// Point `a` held at a fixed world position (`at`, default its initial position).
     Pin,
+    /// Point `a` held on a world line through `at` (default its initial position) along
+    /// `direction`: a roller support, free to roll along the line.
+    Roller,
+    /// Point `a` held on a world plane through `at` (default its initial position) with
+    /// `normal`: a slider support, free to slide in the plane.
+    Slider,
 }
 
 /// A ball joint or a pin to the ground.
@@ -336,9 +342,16 @@ pub struct JointSpec {
     /// Point on the second body (ball joints).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub b: Option<String>,
-    /// World position of a pin, m (default: where `a` starts).
+    /// World position of a pin, or a point of a roller's line or a slider's plane, m (default:
+    /// where `a` starts).
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub at: Option<[f64; 3]>,
+    /// A roller's line direction, world frame (any length).
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
+    pub direction: Option<[f64; 3]>,
+    /// A slider's plane normal, world frame (any length).
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
+    pub normal: Option<[f64; 3]>,
 }
 
 /// A cable through an ordered route of points: anchors at both ends, pulleys between.

@@ -215,13 +215,13 @@ impl EquilibriumSystem {
                 columns.push(merged(entries.iter().map(|&(r, g)| (r, -g))));
             }
         }
-        let rows = model.joint_rows();
         for joint in &model.joints {
-            for r in 0..rows {
+            for r in 0..joint.rows {
                 let column = crate::constraints::joint_points(joint).flat_map(|(pid, sign)| {
                     let p = &ws.points[pid.0];
                     let body = &model.bodies[p.body.0];
-                    (0..body.dof_count).map(move |k| (body.dof_offset + k, -sign * p.jacobian[(r, k)]))
+                    let jacobian = crate::constraints::joint_jacobian(joint, &p.jacobian);
+                    (0..body.dof_count).map(move |k| (body.dof_offset + k, -sign * jacobian[(r, k)]))
                 });
                 columns.push(merged(column));
             }

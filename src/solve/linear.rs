@@ -508,7 +508,8 @@ pub struct KktSystem {
     n: usize,
     nc: usize,
     size: usize,
-    joint_rows: usize,
+    /// Rows of each joint (`JointModel::rows`).
+    joint_rows: Vec<usize>,
     offsets: Vec<(usize, usize)>,
     slots: CableSlots,
     /// Per cable: index of its border unknown among the borders.
@@ -599,7 +600,7 @@ impl KktSystem {
             n,
             nc,
             size,
-            joint_rows: model.joint_rows(),
+            joint_rows: model.joints.iter().map(|j| j.rows).collect(),
             offsets,
             slots,
             border,
@@ -640,7 +641,7 @@ impl KktSystem {
             n: self.n,
             nc: self.nc,
             size: self.size,
-            joint_rows: self.joint_rows,
+            joint_rows: self.joint_rows.clone(),
             offsets: self.offsets.clone(),
             slots: self.slots.clone(),
             border: self.border.clone(),
@@ -707,10 +708,9 @@ impl KktSystem {
         for pair in &model.strut_pairs {
             couple(pair.bars[0], pair.bars[1], &mut cols);
         }
-        let rows = model.joint_rows();
         for joint in &model.joints {
             for (p, _) in joint_points(joint) {
-                for r in 0..rows {
+                for r in 0..joint.rows {
                     tie(n + joint.row_offset + r, model.points[p.0].body, &mut cols);
                 }
             }
@@ -769,7 +769,7 @@ impl KktSystem {
                 for c in 0..body.dof_count {
                     jc[side][c] = index.position(n + joint.row_offset, body.dof_offset + c);
                 }
-                for r in 0..rows {
+                for r in 0..joint.rows {
                     jr[side][r] = index.position(body.dof_offset, n + joint.row_offset + r);
                 }
             }
@@ -801,7 +801,7 @@ impl KktSystem {
                 .map(|(p, _)| dofs(model.points[p.0].body))
                 .filter(|r| !r.is_empty())
                 .collect();
-            for r in 0..rows {
+            for r in 0..joint.rows {
                 row_bodies[joint.row_offset + r] = ranges.clone();
             }
         }
@@ -884,7 +884,8 @@ impl KktSystem {
         }
     }
 
-    /// Adds `sign * J` (the joint's rows of the point Jacobian `jac`) at joint `joint`'s rows and
+    /// Adds `sign * J` (the joint's rows of the point Jacobian `jac`, `D J` for a support that
+    /// holds some directions only: `constraints::joint_jacobian`) at joint `joint`'s rows and
     /// the `side` point's body columns, and its transpose (`Phi_q` and `Phi_q^T`).
     pub fn add_joint_jacobian(
         &mut self,
@@ -896,7 +897,7 @@ impl KktSystem {
         sign: f64,
     ) {
         let (off, k) = self.offsets[body.0];
-        let rows = self.joint_rows;
+        let rows = self.joint_rows[joint];
         let row0 = self.n + row_offset;
         match &mut self.storage {
             Storage::Dense { a: m, .. } => {
@@ -928,7 +929,15 @@ impl KktSystem {
         for (j, joint) in model.joints.iter().enumerate() {
             for (side, (p, sign)) in joint_points(joint).enumerate() {
                 let point = &points[p.0];
-                self.add_joint_jacobian(j, joint.row_offset, side, point.body, &point.jacobian, sign);
+                let projected: PointJacobian;
+                let jacobian = match &joint.directions {
+                    None => &point.jacobian,
+                    Some(d) => {
+                        projected = d * point.jacobian;
+                        &projected
+                    }
+                };
+                self.add_joint_jacobian(j, joint.row_offset, side, point.body, jacobian, sign);
             }
         }
     }

@@ -157,18 +157,25 @@ pub fn rigid_body_motions(model: &Model, state: &State, ws: &Workspace) -> DMatr
             }
         }
     }
-    for joint in &model.joints {
-        match joint.target {
-            crate::model::JointTarget::World(x) => anchors.push(x),
-            crate::model::JointTarget::Point(q) if !moving(q.0) => anchors.push(ws.points[q.0].position),
-            crate::model::JointTarget::Point(_) => {}
-        }
-    }
     let mut row = [0.0; 6];
     for anchor in &anchors {
         for axis in 0..3 {
             for (i, (t, w)) in generators.iter().enumerate() {
                 row[i] = (t + w.cross(&(anchor - c)))[axis];
+            }
+            add(&mut broken, &row[..g]);
+        }
+    }
+    // a joint to the ground holds its point along its held directions only (a roller, a slider)
+    for joint in &model.joints {
+        let anchor = match joint.target {
+            crate::model::JointTarget::World(x) => x,
+            crate::model::JointTarget::Point(q) if !moving(q.0) => ws.points[q.0].position,
+            crate::model::JointTarget::Point(_) => continue,
+        };
+        for r in 0..joint.rows {
+            for (i, (t, w)) in generators.iter().enumerate() {
+                row[i] = joint.project(&(t + w.cross(&(anchor - c))))[r];
             }
             add(&mut broken, &row[..g]);
         }

@@ -24,6 +24,15 @@ pub fn run(scene: &Path) -> Result<(), String> {
     say!("coordinates: {}", s.coordinates);
     say!("constraints: {}", s.constraints);
     say!("cables: {} ({} sliding)", s.cables, s.sliding_cables);
+    let rollers = model.joints.iter().filter(|j| j.kind == tensegrity::model::JointKind::Roller).count();
+    let sliders = model.joints.iter().filter(|j| j.kind == tensegrity::model::JointKind::Slider).count();
+    if rollers + sliders > 0 {
+        say!(
+            "supports: {} (free along a line), {} (free in a plane)",
+            counted(rollers, "roller"),
+            counted(sliders, "slider")
+        );
+    }
     if model.rayleigh != Default::default() {
         say!(
             "damping: Rayleigh alpha {} 1/s (on every body's mass), beta {} s (on each cable's and member's EA/L0)",

@@ -30,6 +30,7 @@ struct StaticsJson {
     cables: Vec<report::CableReport>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     contacts: Vec<report::ContactReport>,
+    joints: Vec<report::JointReport>,
 }
 
 /// Runs `statics` on `scene`, as JSON when `json`.
@@ -79,6 +80,7 @@ pub fn run(scene: &Path, json: bool) -> Result<(), String> {
             points: report::point_positions(&model, &ws),
             cables,
             contacts: report::contact_reports(&model, &ws),
+            joints: report::joint_reports(&model, &state),
         };
         emit(&(serde_json::to_string_pretty(&out).map_err(|e| e.to_string())? + "\n"));
     } else {
@@ -178,6 +180,28 @@ fn format_statics(
     let _ = writeln!(out, "\n{:<20} {:>12} {:>12} {:>12}", "point", "x m", "y m", "z m");
     for (name, p) in report::point_positions(model, ws) {
         let _ = writeln!(out, "{:<20} {:>12.6} {:>12.6} {:>12.6}", name, Num(p[0]), Num(p[1]), Num(p[2]));
+    }
+    let joints = report::joint_reports(model, state);
+    if !joints.is_empty() {
+        let _ = writeln!(
+            out,
+            "\n{:<8} {:<20} {:<20} {:>12} {:>12} {:>12}",
+            "joint", "point", "on", "Fx N", "Fy N", "Fz N"
+        );
+        for j in joints {
+            let on = if j.other.is_empty() { "(ground)" } else { j.other.as_str() };
+            let f = j.force_n;
+            let _ = writeln!(
+                out,
+                "{:<8} {:<20} {:<20} {:>12.6} {:>12.6} {:>12.6}",
+                j.kind,
+                j.point,
+                on,
+                Num(f[0]),
+                Num(f[1]),
+                Num(f[2])
+            );
+        }
     }
     let contacts = report::contact_reports(model, ws);
     if !contacts.is_empty() {

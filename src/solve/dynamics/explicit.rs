@@ -235,13 +235,13 @@ impl Dynamics {
             work[i] = self.ws.force[i] - self.residual[i];
         }
         if nc > 0 {
-            let rows = model.joint_rows();
             for joint in &model.joints {
                 let mut bias = Vector3::zeros();
                 for (p, sign) in crate::constraints::joint_points(joint) {
                     bias += centripetal(model, &state.poses, &state.velocities, p) * sign;
                 }
-                for r in 0..rows {
+                let bias = joint.project(&bias);
+                for r in 0..joint.rows {
                     work[n + joint.row_offset + r] = -bias[r];
                 }
             }

@@ -5,6 +5,7 @@ use nalgebra::{DVector, Matrix6};
 
 use crate::constraints::joint_points;
 use crate::evaluate::Workspace;
+use crate::kinematics::PointJacobian;
 use crate::model::Model;
 
 /// The explicit integrator's velocity step by the joints' Schur complement (dense backend): with
@@ -108,17 +109,24 @@ impl JointSchur {
         if nc == 0 {
             return true;
         }
-        let rows = model.joint_rows();
         self.s.fill(0.0);
         let mut w = 0;
         for (b, body) in model.bodies.iter().enumerate() {
             let k = body.dof_count;
             let first = w;
-            for &(_, p, sign) in &self.sides[b] {
-                let jac = &ws.points[p.0].jacobian;
+            for &(j, p, sign) in &self.sides[b] {
+                let joint = &model.joints[j];
+                let projected: PointJacobian;
+                let jac = match &joint.directions {
+                    None => &ws.points[p.0].jacobian,
+                    Some(d) => {
+                        projected = d * ws.points[p.0].jacobian;
+                        &projected
+                    }
+                };
                 let mut m = nalgebra::Matrix6x3::zeros();
                 for r in 0..k {
-                    for c in 0..rows {
+                    for c in 0..joint.rows {
                         m[(r, c)] =
                             sign * (0..k).map(|i| self.mass_inverse[b][(r, i)] * jac[(c, i)]).sum::<f64>();
                     }
@@ -127,13 +135,20 @@ impl JointSchur {
                 w += 1;
             }
             for &(ja, pa, sa) in &self.sides[b] {
-                let jac = &ws.points[pa.0].jacobian;
-                let ra = model.joints[ja].row_offset;
+                let projected: PointJacobian;
+                let jac = match &model.joints[ja].directions {
+                    None => &ws.points[pa.0].jacobian,
+                    Some(d) => {
+                        projected = d * ws.points[pa.0].jacobian;
+                        &projected
+                    }
+                };
+                let (ra, rows_a) = (model.joints[ja].row_offset, model.joints[ja].rows);
                 for (y, &(jb, _, _)) in self.sides[b].iter().enumerate() {
-                    let rb = model.joints[jb].row_offset;
+                    let (rb, rows_b) = (model.joints[jb].row_offset, model.joints[jb].rows);
                     let wb = &self.weighted[first + y];
-                    for r in 0..rows {
-                        for c in 0..rows {
+                    for r in 0..rows_a {
+                        for c in 0..rows_b {
                             let v: f64 = (0..k).map(|i| jac[(r, i)] * wb[(i, c)]).sum();
                             self.s[(rb + c) * nc + ra + r] += sa * v;
                         }
@@ -159,7 +174,6 @@ impl JointSchur {
         use faer::linalg::cholesky::llt;
         let n = model.dof_count;
         let nc = model.constraint_count;
-        let rows = model.joint_rows();
         // u = M^-1 p
         for (b, body) in model.bodies.iter().enumerate() {
             let (o, k) = (body.dof_offset, body.dof_count);
@@ -174,9 +188,16 @@ impl JointSchur {
             for (b, body) in model.bodies.iter().enumerate() {
                 let (o, k) = (body.dof_offset, body.dof_count);
                 for &(j, p, sign) in &self.sides[b] {
-                    let jac = &ws.points[p.0].jacobian;
+                    let projected: PointJacobian;
+                    let jac = match &model.joints[j].directions {
+                        None => &ws.points[p.0].jacobian,
+                        Some(d) => {
+                            projected = d * ws.points[p.0].jacobian;
+                            &projected
+                        }
+                    };
                     let row0 = model.joints[j].row_offset;
-                    for r in 0..rows {
+                    for r in 0..model.joints[j].rows {
                         self.b[row0 + r] += sign * (0..k).map(|c| jac[(r, c)] * self.u[o + c]).sum::<f64>();
                     }
                 }
@@ -195,7 +216,7 @@ impl JointSchur {
             for (b, body) in model.bodies.iter().enumerate() {
                 let o = body.dof_offset;
                 for &(j, _, _) in &self.sides[b] {
-                    let row0 = model.joints[j].row_offset;
+                    let (row0, rows) = (model.joints[j].row_offset, model.joints[j].rows);
                     for r in 0..body.dof_count {
                         self.u[o + r] -=
                             (0..rows).map(|c| self.weighted[w][(r, c)] * self.b[row0 + c]).sum::<f64>();
