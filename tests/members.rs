@@ -262,10 +262,24 @@ fn the_first_axial_mode_of_a_free_free_member_converges_at_order_two() {
     assert!(errors[4] > 0.0 && errors[4] < 1e-4, "128 elements: relative error {}", errors[4]);
 }
 
+/// The generated 3-prism in nodal form, struts of axial stiffness `ea` (N).
+fn nodal_prism(ea: f64) -> Model {
+    model_of(&prism(&PrismParams { nodal_strut_ea: Some(ea), ..Default::default() }))
+}
+
+/// `errors` at EA growing tenfold each: every pair falls by a factor 10 (order 1 in 1/EA) within
+/// `slack` of the order.
+fn assert_first_order_in_stiffness(errors: &[f64], slack: f64) {
+    for w in errors.windows(2) {
+        let order = (w[0] / w[1]).log10();
+        assert!((order - 1.0).abs() < slack, "observed order {order} in 1/EA from {errors:?}");
+    }
+}
+
 #[test]
 fn the_nodal_prism_starts_in_the_rigid_prisms_equilibrium_with_its_struts_compression() {
     let rigid = model_of(&prism(&PrismParams::default()));
-    let nodal = model_of(&prism(&PrismParams { nodal_strut_ea: Some(1e6), ..Default::default() }));
+    let nodal = nodal_prism(1e6);
     assert!(nodal.cables.iter().filter(|c| !c.tension_only).count() == 3);
     let mut ws = Workspace::new(&nodal);
     let state = State::initial(&nodal);
@@ -304,17 +318,14 @@ fn the_nodal_prisms_equilibrium_converges_to_the_rigid_prisms_as_strut_ea_grows(
     let tops: Vec<_> = (0..3).map(|i| position(&rigid, &reference, &format!("bar0_{i}.b"))).collect();
     let mut errors = Vec::new();
     for ea in [1e6, 1e7, 1e8, 1e9] {
-        let nodal = model_of(&prism(&PrismParams { nodal_strut_ea: Some(ea), ..Default::default() }));
+        let nodal = nodal_prism(ea);
         let state = shortened(&nodal);
         let error = (0..3)
             .map(|i| (position(&nodal, &state, &format!("bar0_{i}_b")) - tops[i]).norm())
             .fold(0.0, f64::max);
         errors.push(error);
     }
-    for w in errors.windows(2) {
-        let order = (w[0] / w[1]).log10();
-        assert!((order - 1.0).abs() < 0.1, "observed order {order} in 1/EA from {errors:?}");
-    }
+    assert_first_order_in_stiffness(&errors, 0.1);
     assert!(errors[3] < 2e-6, "EA 1e9: {} m", errors[3]);
 }
 
@@ -344,14 +355,10 @@ fn the_nodal_prisms_dynamics_converge_to_rigid_bars_of_the_same_mass_distributio
     let reference = run(rigid, ".b");
     let mut errors = Vec::new();
     for ea in [1e6, 1e7, 1e8] {
-        let nodal = model_of(&prism(&PrismParams { nodal_strut_ea: Some(ea), ..Default::default() }));
-        let tops = run(nodal, "_b");
+        let tops = run(nodal_prism(ea), "_b");
         errors.push((0..3).map(|i| (tops[i] - reference[i]).norm()).fold(0.0, f64::max));
     }
-    for w in errors.windows(2) {
-        let order = (w[0] / w[1]).log10();
-        assert!((order - 1.0).abs() < 0.15, "observed order {order} in 1/EA from {errors:?}");
-    }
+    assert_first_order_in_stiffness(&errors, 0.15);
     assert!(errors[2] < 5e-5, "EA 1e8: {} m after 0.2 s", errors[2]);
 }
 
