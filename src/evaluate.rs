@@ -1,5 +1,5 @@
 //! The evaluation stage: takes a `Model`, a `State` and a preallocated `Workspace`, gives every
-//! point's kinematics, the total applied force `Q` (cables, contacts, gravity and Rayleigh damping, `crate::forces`), its
+//! point's kinematics, the total applied force `Q` (cables, contacts, gravity, Rayleigh and joint damping, `crate::forces`), its
 //! tangents `K = -dQ/dq` and `C = -dQ/dv` (through an `assembly::TangentSink`), the joints'
 //! values and Jacobian (`crate::constraints`), every cable's response and the energies. The
 //! solvers read everything from the workspace.
@@ -63,6 +63,8 @@ pub struct Workspace {
     pub strut_closest: Vec<ClosestPoints>,
     /// Power dissipated by all contacts (normal damping and friction), W.
     pub contact_loss_power: f64,
+    /// Power dissipated by the joints' rotational damping, W.
+    pub joint_loss_power: f64,
     /// Segment lengths of all cables, concatenated (cable `c` starts at `route_start - c`).
     pub segment_lengths: Vec<f64>,
     /// Energies of the evaluated state (kinetic included).
@@ -99,6 +101,7 @@ impl Workspace {
             contacts: vec![ContactResponse::default(); model.contact_pairs()],
             strut_closest: vec![ClosestPoints::default(); model.strut_pairs.len()],
             contact_loss_power: 0.0,
+            joint_loss_power: 0.0,
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
             scratch: CableScratch::new(max_route),
@@ -189,6 +192,13 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
         }
     }
 
+    // rotational damping at joints that declare it
+    ws.joint_loss_power = if model.damped_joints {
+        crate::forces::joint_damping::add_joint_damping_force(model, &state.poses, v, &mut ws.force)
+    } else {
+        0.0
+    };
+
     // cables
     let mut elastic = 0.0;
     for (c, cable) in model.cables.iter().enumerate() {
@@ -252,6 +262,14 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
                 sink.damping(BodyId(b), BodyId(b), &body.mass_matrix(), model.rayleigh.alpha);
             }
         }
+    }
+    if model.damped_joints {
+        crate::forces::joint_damping::add_joint_damping_tangents(
+            model,
+            &state.poses,
+            &state.velocities,
+            sink,
+        );
     }
     for (k, sphere, ground) in model.contact_pair_list() {
         let (poses, v, kin) = (&state.poses, &state.velocities, &points[sphere.point.0]);

@@ -207,7 +207,8 @@ pub struct EnergyAccount {
     /// Work done by the actuators on the cables since the start (trapezoidal in time).
     pub actuator_work: f64,
     /// Energy dissipated since the start (trapezoidal in time) by the cable and member dampers
-    /// (Rayleigh's `beta` included), the contacts and Rayleigh's mass-proportional `alpha`.
+    /// (Rayleigh's `beta` included), the contacts, the joints' rotational damping and Rayleigh's
+    /// mass-proportional `alpha`.
     pub damping_loss: f64,
     /// Total energy at the start.
     pub initial_total: f64,

@@ -257,6 +257,7 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
         at: None,
         direction: None,
         normal: None,
+        damping: None,
     }];
     if kinds.len() > 2 {
         joints.push(JointSpec {
@@ -266,6 +267,7 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
             at: None,
             direction: None,
             normal: None,
+            damping: None,
         });
     }
     SceneSpec { bodies, cables, joints, ..Default::default() }

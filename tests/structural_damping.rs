@@ -3,7 +3,9 @@
 //! measured from the free decay of a dynamic run; `alpha` settles the 3-prism's lowest mode, held
 //! by prestress, which hardly stretches a cable and so keeps 99.9 % of its energy over 6 cycles
 //! against the cables' 5 % damping ratio; the energy account books what it dissipates; and bad
-//! coefficients are refused naming the field.
+//! coefficients are refused naming the field. Rotational damping at joints (`damping` on a
+//! joint): its stiffness and damping matrices match finite differences, and a pendulum on a
+//! damped pin decays at the closed-form ratio `c / (2 sqrt(I m g l / 2))`.
 
 mod common;
 
@@ -161,4 +163,102 @@ fn alpha_settles_the_prisms_prestress_mode_which_cable_damping_leaves_ringing() 
         "with alpha {alpha}: energy ratio {settling} over 6 cycles against {expected}"
     );
     println!("the prism's lowest mode ({:.3} Hz) keeps {ringing:.3} of its energy over 6 cycles; with alpha {alpha}, {settling:.4} (expected {expected:.4})", lowest.frequency_hz);
+}
+
+#[test]
+fn joint_damping_derivatives_match_finite_differences() {
+    // a rigid body pinned with damping, and a bar joined to it by a damped ball joint, turned
+    // away from the axes and spinning
+    let model = model_from_toml(
+        r#"
+[[bodies]]
+name = "hub"
+kind = "rigid"
+mass = 2.0
+position = [0.0, 0.0, 0.0]
+rotation = [0.4, -0.3, 0.8]
+inertia = [0.2, 0.3, 0.4, 0.01, 0.02, -0.03]
+points = { tip = [0.1, 0.2, 0.5] }
+[[bodies]]
+name = "arm"
+kind = "bar"
+mass = 1.0
+ends = [[0.0, 0.0, 0.0], [1.0, 0.6, -0.4]]
+[[joints]]
+kind = "pin"
+a = "hub.tip"
+damping = 0.7
+[[joints]]
+kind = "ball"
+a = "arm.a"
+b = "hub"
+damping = 1.3
+"#,
+    );
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    for (k, v) in state.velocities.iter_mut().enumerate() {
+        *v = 0.3 * (1.0 + k as f64).sin();
+    }
+    tensegrity::evaluate::evaluate(
+        &model,
+        &state,
+        &mut ws,
+        tensegrity::evaluate::Tangents::StiffnessAndDamping,
+    );
+    let k_fd = fd_stiffness(&model, &state, 1e-6);
+    let c_fd = fd_damping(&model, &state, 1e-3);
+    assert!(k_fd.amax() > 0.1 && c_fd.amax() > 0.5, "the joints damp: {k_fd} {c_fd}");
+    assert!(rel_err(&ws.stiffness, &k_fd, 1.0) < 1e-6, "K = {}\nK_fd = {k_fd}", ws.stiffness);
+    assert!(rel_err(&ws.damping, &c_fd, 1.0) < 1e-9, "C = {}\nC_fd = {c_fd}", ws.damping);
+}
+
+#[test]
+fn a_pendulum_with_a_damped_pin_decays_at_its_closed_form_ratio() {
+    // a bar of mass m and length l hanging from a damped pin (planar): I theta'' + c theta' +
+    // m g (l/2) theta = 0 with I = m l^2 / 3, so omega = sqrt(3 g / (2 l)) and
+    // zeta = c / (2 sqrt(I m g l / 2))
+    let (m, l, c, g): (f64, f64, f64, f64) = (2.0, 1.5, 0.2, 9.81);
+    let text = format!(
+        "planar = true\ngravity = [0.0, -{g}, 0.0]\n[[bodies]]\nname = \"bar\"\nkind = \"bar\"\nmass = {m}\nends = [[0.0, 0.0, 0.0], [{}, {}, 0.0]]\n[[joints]]\nkind = \"pin\"\na = \"bar.a\"\ndamping = {c}\n",
+        l * 0.05f64.sin(),
+        -l * 0.05f64.cos()
+    );
+    let model = model_from_toml(&text);
+    let inertia = m * l * l / 3.0;
+    let omega = (3.0 * g / (2.0 * l)).sqrt();
+    let expected = c / (2.0 * (inertia * m * g * l / 2.0).sqrt());
+    let period = 2.0 * std::f64::consts::PI / omega;
+    let settings = SimSettings {
+        dt: period / 2000.0,
+        integrator: Integrator::GeneralizedAlpha { rho_inf: 0.9 },
+        ..Default::default()
+    };
+    let mut sim = Simulator::new(model, settings).unwrap();
+    let e0 = sim.energy().total();
+    let x0 = sim.state().poses[0].position.x;
+    let (mut x, mut peaks) = ([x0; 3], Vec::new());
+    for _ in 0..(2000 * 5) {
+        sim.step().unwrap();
+        x = [x[1], x[2], sim.state().poses[0].position.x];
+        if x[1] > x[0] && x[1] >= x[2] && x[1] > 0.0 {
+            let (a, b) = (0.5 * (x[0] + x[2]) - x[1], 0.5 * (x[2] - x[0]));
+            peaks.push(x[1] - b * b / (4.0 * a));
+        }
+    }
+    assert!(peaks.len() >= 4, "peaks {peaks:?}");
+    let decrement = (peaks[0] / peaks[peaks.len() - 1]).ln() / (peaks.len() - 1) as f64;
+    let zeta = decrement / (4.0 * std::f64::consts::PI.powi(2) + decrement * decrement).sqrt();
+    // small angles (0.05 rad): the pendulum's nonlinearity shifts the ratio by about 1e-4
+    assert!((zeta - expected).abs() < 5e-3 * expected, "measured zeta {zeta:.6} against {expected:.6}");
+    let e = sim.energy();
+    assert!(e.damping_loss > 0.5 * (e0 - e.total()).abs(), "the account books the pin's loss: {e:?}");
+    assert!(e.numerical_loss().abs() < 1e-3 * e.damping_loss, "energy balance misses {e:?}");
+}
+
+#[test]
+fn joint_damping_on_a_node_is_refused() {
+    let text = "[[bodies]]\nname = \"n\"\nkind = \"node\"\nmass = 1.0\nposition = [0.0, 0.0, 0.0]\n[[joints]]\nkind = \"pin\"\na = \"n\"\ndamping = 1.0\n";
+    let err = tensegrity::scene::from_toml(text, "node.toml").expect_err("a node has no spin").to_string();
+    assert!(err.contains("joints[0].damping") && err.contains("no spin"), "{err}");
 }

@@ -274,6 +274,9 @@ pub struct JointModel {
     pub directions: Option<Matrix3<f64>>,
     /// What the joint is.
     pub kind: JointKind,
+    /// Rotational damping `c`, N m s/rad (0: none): torques `-c (omega_a - omega_b)` on the
+    /// first body and the opposite on the second (`crate::forces::joint_damping`).
+    pub damping: f64,
 }
 
 impl JointModel {
@@ -449,6 +452,9 @@ pub struct Model {
     pub solver: SolverSettings,
     /// Rayleigh damping (zero: none, and it costs nothing).
     pub rayleigh: RayleighDamping,
+    /// True when some joint has rotational damping (`JointModel::damping`); false: the joints'
+    /// damping is not visited at all.
+    pub damped_joints: bool,
     /// Physics step the scene asks for, s (None: the tool's default).
     pub physics_dt: Option<f64>,
     /// The scene text this model was built from (for a generated scene, its TOML), so that a

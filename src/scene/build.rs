@@ -130,6 +130,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
+        damped_joints: spec.joints.iter().any(|j| j.damping.is_some_and(|c| c > 0.0)),
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
             None => None,
@@ -541,7 +542,27 @@ fn build_joints(
                 format!("joints[{first}] already holds these points: the constraint would be repeated (redundant)"),
             ));
         }
-        joints.push(JointModel { point: a, target, row_offset, rows: joint_rows, directions, kind });
+        let damping = match j.damping {
+            None => 0.0,
+            Some(c) => {
+                let c = in_range(c, limits::DAMPING, "N m s/rad").map_err(|r| e("damping", r))?;
+                let turns =
+                    |b: crate::model::BodyId| matches!(bodies[b.0].kind, BodyKind::Bar | BodyKind::Rigid);
+                let other = match target {
+                    JointTarget::Point(b) => Some(points[b.0].body),
+                    JointTarget::World(_) => None,
+                };
+                let still = |b: crate::model::BodyId| bodies[b.0].kind == BodyKind::Fixed;
+                if !turns(body_a) || other.is_some_and(|b| !turns(b) && !still(b)) {
+                    return Err(e(
+                        "damping",
+                        "joint damping resists the relative spin of two bodies that turn (bar, rigid) or of one and the ground; a node has no spin".into(),
+                    ));
+                }
+                c
+            }
+        };
+        joints.push(JointModel { point: a, target, row_offset, rows: joint_rows, directions, kind, damping });
         row_offset += joint_rows;
     }
 

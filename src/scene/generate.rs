@@ -267,6 +267,7 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
             at: None,
             direction: None,
             normal: None,
+            damping: None,
         });
     }
     for l in 1..s {
@@ -278,6 +279,7 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
                 at: None,
                 direction: None,
                 normal: None,
+                damping: None,
             });
         }
     }
@@ -443,6 +445,7 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
                 at: None,
                 direction: None,
                 normal: None,
+                damping: None,
             },
             JointSpec {
                 kind: JointKindSpec::Ball,
@@ -451,6 +454,7 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
                 at: None,
                 direction: None,
                 normal: None,
+                damping: None,
             },
         ],
         cables: vec![

@@ -352,6 +352,10 @@ pub struct JointSpec {
     /// A slider's plane normal, world frame (any length).
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub normal: Option<[f64; 3]>,
+    /// Rotational damping, N m s/rad: torques against the two bodies' relative spin (both must
+    /// turn: bars or rigid bodies, or one of them and the ground).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub damping: Option<f64>,
 }
 
 /// A cable through an ordered route of points: anchors at both ends, pulleys between.

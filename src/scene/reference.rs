@@ -157,6 +157,14 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         ),
         f(joints, "direction", "[x, y, z]", "-", "required (roller)", "the roller's line, any length (planar: z 0)".into()),
         f(joints, "normal", "[x, y, z]", "-", "required (slider)", "the slider's plane normal, any length (planar: z 0)".into()),
+        f(
+            joints,
+            "damping",
+            "number",
+            "N m s/rad",
+            "0",
+            format!("{}; torque against the bodies' relative spin (bars, rigid bodies, the ground)", range(limits::DAMPING)),
+        ),
         f(cables, "name", "string", "-", "required", "unique".into()),
         f(
             cables,

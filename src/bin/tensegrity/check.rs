@@ -33,6 +33,10 @@ pub fn run(scene: &Path) -> Result<(), String> {
             counted(sliders, "slider")
         );
     }
+    let damped = model.joints.iter().filter(|j| j.damping > 0.0).count();
+    if damped > 0 {
+        say!("joint damping: {} (rotational, against the bodies' relative spin)", counted(damped, "joint"));
+    }
     if model.rayleigh != Default::default() {
         say!(
             "damping: Rayleigh alpha {} 1/s (on every body's mass), beta {} s (on each cable's and member's EA/L0)",

@@ -572,12 +572,13 @@ pub fn stability_limit(model: &Model, state: &State) -> f64 {
 }
 
 /// Power flows at one instant (W): actuator power into the cables, and power lost in the cable
-/// dampers, the contacts (normal damping and friction) and Rayleigh's mass-proportional damping
-/// (see `EnergyAccount`).
+/// dampers, the contacts (normal damping and friction), the joints' rotational damping and
+/// Rayleigh's mass-proportional damping (see `EnergyAccount`).
 pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f64) {
     let mut actuator = 0.0;
     // Rayleigh's alpha M dissipates alpha v^T M v = 2 alpha (kinetic energy)
-    let mut loss = ws.contact_loss_power + 2.0 * model.rayleigh.alpha * ws.energies.kinetic;
+    let mut loss =
+        ws.contact_loss_power + ws.joint_loss_power + 2.0 * model.rayleigh.alpha * ws.energies.kinetic;
     for (c, r) in ws.cables.iter().enumerate() {
         if r.slack || (model.cables[c].tension_only && r.length <= r.rest_length) {
             continue; // a member works in compression too
