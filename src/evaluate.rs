@@ -183,12 +183,19 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
             if body.dof_count == 0 {
                 continue;
             }
-            let m = body.mass_matrix();
-            let mut local = Vector6::zeros();
-            for r in 0..body.dof_count {
-                local[r] = v[body.dof_offset + r];
-            }
-            add_vector(model, BodyId(b), &(m * local), -alpha, &mut ws.force);
+            // M_b v_b = B^T diag(m I, J) B v_b, as `kinetic_energy` weighs it
+            let local = body.local_increment(v.as_slice(), 1.0);
+            let (dx, w) = (local.fixed_rows::<3>(0), local.fixed_rows::<3>(3));
+            let momentum = body.inertia * w;
+            let f6 = Vector6::new(
+                body.mass * dx[0],
+                body.mass * dx[1],
+                body.mass * dx[2],
+                momentum.x,
+                momentum.y,
+                momentum.z,
+            );
+            add_vector(model, BodyId(b), &(body.basis.transpose() * f6), -alpha, &mut ws.force);
         }
     }
 

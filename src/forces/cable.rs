@@ -48,16 +48,15 @@ pub fn tension(
     length_rate: f64,
     tension_only: bool,
 ) -> f64 {
-    if rest_length == DISENGAGED {
+    if rest_length == DISENGAGED || (tension_only && length <= rest_length) {
         return 0.0;
     }
-    if !tension_only {
-        return (ea / rest_length) * (length - rest_length) + damping * length_rate;
+    let law = (ea / rest_length) * (length - rest_length) + damping * length_rate;
+    if tension_only {
+        law.max(0.0)
+    } else {
+        law
     }
-    if length <= rest_length {
-        return 0.0;
-    }
-    ((ea / rest_length) * (length - rest_length) + damping * length_rate).max(0.0)
 }
 
 /// Elastic energy `EA/(2 L0) (L - L0)^2` (J): a cable's while taut (else 0), a member's always;

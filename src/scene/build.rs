@@ -98,6 +98,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let rows = if spec.planar { 2 } else { 3 };
     let joints = build_joints(spec, &cx, &bodies, &points, &point_names, rows)?;
     let constraint_count = joints.iter().map(|j| j.rows).sum();
+    let damped_joints = joints.iter().any(|j| j.damping > 0.0);
     let Cables { cables, cable_names, route_points, rest_specs, damping_ratios } =
         build_cables(spec, &cx, &point_names)?;
     let (actuators, actuator_names) = build_actuators(spec, &cx, &cable_names)?;
@@ -130,7 +131,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
-        damped_joints: spec.joints.iter().any(|j| j.damping.is_some_and(|c| c > 0.0)),
+        damped_joints,
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
             None => None,
