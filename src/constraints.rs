@@ -6,16 +6,33 @@
 //! or the x and y rows only in planar scenes (where z is not a coordinate). A roller or slider
 //! support holds only some world directions `D` (`JointModel::directions`): `Phi = D (r_a - x0)`,
 //! `Phi_q = D J`, and its multipliers push along `D^T lambda`.
+//!
+//! The axis rows of a hinge or planar joint (`JointModel::alignment`, `crate::model::Alignment`)
+//! hold orientations: `Phi_k = e_k . w` with `e_k = R_a n_k` and the axis `w` (`R_b u`, or the
+//! world's `u`). Their rows have the same shape as a point joint's, `D G` per side, with
+//! `D = [a_1; a_2]`, `a_k = e_k x w` (world, changing with the poses) and `G = [0 | R] B` the
+//! body's spin Jacobian (`spin_jacobian`); their multipliers carry the moment `D^T lambda` (N m).
+//! With the body-frame retraction `R <- R exp([d]x)`, `w'_a = R_a^T w`, `e'_k = R_b^T e_k`, the
+//! rotation blocks of `d(Phi_q^T lambda)/dq` are
+//! `sum_k lambda_k [n_k]x [w'_a]x` (a, a), `-sum_k lambda_k [n_k]x R_a^T R_b [u]x` (a, b),
+//! `sum_k lambda_k [u]x [e'_k]x` (b, b) and `-sum_k lambda_k [u]x R_b^T R_a [n_k]x` (b, a).
 
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3};
 
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
 use crate::kinematics::{force_jacobian_derivative, PointJacobian, PointKinematics};
-use crate::model::{JointModel, JointTarget, Model, PointId, Pose};
+use crate::model::{skew, Alignment, BodyId, JointModel, JointTarget, Model, PointId, Pose};
 
-/// Fills `phi` (rows, m) for all joints.
-pub fn evaluate_values(model: &Model, kin: &[PointKinematics], phi: &mut DVector<f64>) {
+/// Fills `phi` (rows, m; an alignment's rows are dimensionless) for all joints.
+pub fn evaluate_values(model: &Model, poses: &[Pose], kin: &[PointKinematics], phi: &mut DVector<f64>) {
     for joint in &model.joints {
+        if let Some(al) = &joint.alignment {
+            let (e, w) = alignment_vectors(model, poses, joint, al);
+            for (r, e) in e.iter().enumerate() {
+                phi[joint.row_offset + r] = e.dot(&w);
+            }
+            continue;
+        }
         let ra = kin[joint.point.0].position;
         let rb = match joint.target {
             JointTarget::Point(p) => kin[p.0].position,
@@ -29,13 +46,13 @@ pub fn evaluate_values(model: &Model, kin: &[PointKinematics], phi: &mut DVector
 }
 
 /// Fills the dense `phi_q` (rows x coordinates) for all joints.
-pub fn evaluate_jacobian(model: &Model, kin: &[PointKinematics], phi_q: &mut DMatrix<f64>) {
+pub fn evaluate_jacobian(model: &Model, poses: &[Pose], kin: &[PointKinematics], phi_q: &mut DMatrix<f64>) {
     if model.joints.is_empty() {
         return;
     }
     phi_q.fill(0.0);
     for joint in &model.joints {
-        add_jacobian_entries(model, kin, joint, |r, c, x| phi_q[(joint.row_offset + r, c)] += x);
+        add_jacobian_entries(model, poses, kin, joint, |r, c, x| phi_q[(joint.row_offset + r, c)] += x);
     }
 }
 
@@ -45,6 +62,7 @@ pub fn evaluate_jacobian(model: &Model, kin: &[PointKinematics], phi_q: &mut DMa
 /// into any layout (`evaluate_jacobian`'s dense matrix, a block of some joints and bodies).
 pub fn add_jacobian_entries(
     model: &Model,
+    poses: &[Pose],
     kin: &[PointKinematics],
     joint: &JointModel,
     mut add: impl FnMut(usize, usize, f64),
@@ -52,7 +70,7 @@ pub fn add_jacobian_entries(
     for (pid, sign) in joint_points(joint) {
         let p = &kin[pid.0];
         let body = &model.bodies[p.body.0];
-        let jacobian = joint_jacobian(joint, &p.jacobian);
+        let jacobian = side_jacobian(model, poses, joint, p);
         for r in 0..joint.rows {
             for c in 0..body.dof_count {
                 add(r, body.dof_offset + c, sign * jacobian[(r, c)]);
@@ -61,12 +79,128 @@ pub fn add_jacobian_entries(
     }
 }
 
-/// The joint's rows of a point Jacobian: `D J` (`J` itself for ball joints and pins).
+/// The joint's rows of a point Jacobian: `D J` (`J` itself for ball joints and pins). For point
+/// rows only; `side_jacobian` serves every joint.
+#[inline]
 pub fn joint_jacobian(joint: &JointModel, jacobian: &PointJacobian) -> PointJacobian {
     match &joint.directions {
         None => *jacobian,
         Some(d) => d * jacobian,
     }
+}
+
+/// The joint's rows of `Phi_q` on the body of `p` (one of `joint_points(joint)`), without that
+/// side's sign: `D J` for point rows (`joint_jacobian`), `D G` for an alignment
+/// (`alignment_directions`, `spin_jacobian`). The first `joint.rows` rows count.
+#[inline]
+pub fn side_jacobian(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    p: &PointKinematics,
+) -> PointJacobian {
+    match &joint.alignment {
+        None => joint_jacobian(joint, &p.jacobian),
+        Some(al) => alignment_directions(model, poses, joint, al) * spin_jacobian(model, poses, p.body),
+    }
+}
+
+/// `G = [0 | R] B` of `body` (3 x 6, unused columns zero): its world angular velocity is `G v_b`.
+pub fn spin_jacobian(model: &Model, poses: &[Pose], body: BodyId) -> PointJacobian {
+    let b = &model.bodies[body.0];
+    let rot = poses[body.0].rotation.to_rotation_matrix();
+    let mut g = PointJacobian::zeros();
+    for c in 0..b.dof_count {
+        let col = b.basis.column(c);
+        g.set_column(c, &(rot * Vector3::new(col[3], col[4], col[5])));
+    }
+    g
+}
+
+/// `body`'s coordinates' share of `v` as a 6-vector (zero past its `dof_count`).
+fn body_velocity(model: &Model, body: BodyId, v: &DVector<f64>) -> nalgebra::Vector6<f64> {
+    let b = &model.bodies[body.0];
+    nalgebra::Vector6::from_fn(|c, _| if c < b.dof_count { v[b.dof_offset + c] } else { 0.0 })
+}
+
+/// The rotations `R_a` and `R_b` of an alignment's two sides (`R_b = I` for the ground).
+fn alignment_rotations(model: &Model, poses: &[Pose], joint: &JointModel) -> (Matrix3<f64>, Matrix3<f64>) {
+    let rot = |p: PointId| poses[model.points[p.0].body.0].rotation.to_rotation_matrix().into_inner();
+    let rb = match joint.target {
+        JointTarget::Point(b) => rot(b),
+        JointTarget::World(_) => Matrix3::identity(),
+    };
+    (rot(joint.point), rb)
+}
+
+/// An alignment's world vectors at `poses`: `e_k = R_a n_k` and the axis `w`.
+pub fn alignment_vectors(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    al: &Alignment,
+) -> ([Vector3<f64>; 2], Vector3<f64>) {
+    let (ra, rb) = alignment_rotations(model, poses, joint);
+    (al.normals.map(|n| ra * n), rb * al.axis)
+}
+
+/// An alignment's `D` at `poses`: rows `a_k = e_k x w` (world; the third row zero).
+pub fn alignment_directions(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    al: &Alignment,
+) -> Matrix3<f64> {
+    let (e, w) = alignment_vectors(model, poses, joint, al);
+    let mut d = Matrix3::zeros();
+    for (r, e) in e.iter().enumerate() {
+        d.set_row(r, &e.cross(&w).transpose());
+    }
+    d
+}
+
+/// The world moment an alignment's multipliers `lambda` put on its first body, `D^T lambda`
+/// (N m; the second body takes its opposite). Zero for point rows.
+pub fn joint_moment(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    lambda: &DVector<f64>,
+) -> Vector3<f64> {
+    let Some(al) = &joint.alignment else { return Vector3::zeros() };
+    let d = alignment_directions(model, poses, joint, al);
+    let mut l = Vector3::zeros();
+    for r in 0..joint.rows {
+        l[r] = lambda[joint.row_offset + r];
+    }
+    d.transpose() * l
+}
+
+/// `d/dt(Phi_q) v` of an alignment (1/s²): with `omega` the world angular velocities,
+/// `(d a_k/dt) . (omega_a - omega_b)`, `d a_k/dt = (omega_a x e_k) x w + e_k x (omega_b x w)`.
+pub fn alignment_bias(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    joint: &JointModel,
+    al: &Alignment,
+) -> Vector3<f64> {
+    let (e, w) = alignment_vectors(model, poses, joint, al);
+    let omega = |p: PointId| {
+        let body = model.points[p.0].body;
+        spin_jacobian(model, poses, body) * body_velocity(model, body, v)
+    };
+    let wa = omega(joint.point);
+    let wb = match joint.target {
+        JointTarget::Point(b) => omega(b),
+        JointTarget::World(_) => Vector3::zeros(),
+    };
+    let mut out = Vector3::zeros();
+    for (r, e) in e.iter().enumerate() {
+        let rate = wa.cross(e).cross(&w) + e.cross(&wb.cross(&w));
+        out[r] = rate.dot(&(wa - wb));
+    }
+    out
 }
 
 /// The points a joint ties, with the sign of their position in `Phi`: `(a, +1)` and, for a
@@ -79,8 +213,12 @@ pub fn joint_points(joint: &JointModel) -> impl Iterator<Item = (PointId, f64)> 
     std::iter::once((joint.point, 1.0)).chain(b)
 }
 
-/// A joint's multipliers as a world force `D^T lambda` (N; z is 0 in planar scenes).
+/// A joint's multipliers as a world force `D^T lambda` (N; z is 0 in planar scenes). Zero for
+/// an alignment's rows, which carry a moment (`joint_moment`).
 pub fn joint_reaction(joint: &JointModel, lambda: &DVector<f64>) -> Vector3<f64> {
+    if joint.alignment.is_some() {
+        return Vector3::zeros();
+    }
     let mut f = Vector3::zeros();
     for r in 0..joint.rows {
         f[r] = lambda[joint.row_offset + r];
@@ -92,12 +230,27 @@ pub fn joint_reaction(joint: &JointModel, lambda: &DVector<f64>) -> Vector3<f64>
 /// forming `Phi_q`.
 pub fn add_reaction_force(
     model: &Model,
+    poses: &[Pose],
     kin: &[PointKinematics],
     lambda: &DVector<f64>,
     scale: f64,
     out: &mut DVector<f64>,
 ) {
     for joint in &model.joints {
+        if joint.alignment.is_some() {
+            let m = joint_moment(model, poses, joint, lambda);
+            for (pid, sign) in joint_points(joint) {
+                let body = model.points[pid.0].body;
+                let g = spin_jacobian(model, poses, body);
+                let k = model.bodies[body.0].dof_count;
+                let f = g.transpose() * m;
+                let o = model.bodies[body.0].dof_offset;
+                for c in 0..k {
+                    out[o + c] += sign * scale * f[c];
+                }
+            }
+            continue;
+        }
         let f = joint_reaction(joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let p = &kin[pid.0];
@@ -106,9 +259,28 @@ pub fn add_reaction_force(
     }
 }
 
-/// `Phi_q v` (m/s): each joint's relative velocity, from the point velocities in `kin`.
-pub fn evaluate_rates(model: &Model, kin: &[PointKinematics], out: &mut DVector<f64>) {
+/// `Phi_q v` (m/s): each joint's relative velocity, from the point velocities in `kin` (an
+/// alignment's: `a_k . (omega_a - omega_b)`, 1/s, from the local velocities `v`).
+pub fn evaluate_rates(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    kin: &[PointKinematics],
+    out: &mut DVector<f64>,
+) {
     for joint in &model.joints {
+        if joint.alignment.is_some() {
+            let mut rate = Vector3::zeros();
+            for (pid, sign) in joint_points(joint) {
+                let p = &kin[pid.0];
+                let jac = side_jacobian(model, poses, joint, p);
+                rate += sign * (jac * body_velocity(model, p.body, v));
+            }
+            for r in 0..joint.rows {
+                out[joint.row_offset + r] = rate[r];
+            }
+            continue;
+        }
         let mut rate = Vector3::zeros();
         for (pid, sign) in joint_points(joint) {
             rate += kin[pid.0].velocity * sign;
@@ -135,6 +307,10 @@ pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
     sink: &mut S,
 ) {
     for joint in &model.joints {
+        if let Some(al) = &joint.alignment {
+            add_alignment_hessian(model, poses, joint, al, lambda, scale, sink);
+            continue;
+        }
         let f = joint_reaction(joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let body = model.points[pid.0].body;
@@ -143,6 +319,53 @@ pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
             }
             sink.stiffness(body, body, &force_jacobian_derivative(model, poses, pid, &f), sign * scale);
         }
+    }
+}
+
+/// Adds `scale * d(Phi_q^T lambda)/dq` of one alignment (the module docs' four blocks).
+fn add_alignment_hessian<S: TangentSink + ?Sized>(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    al: &Alignment,
+    lambda: &DVector<f64>,
+    scale: f64,
+    sink: &mut S,
+) {
+    let (ra, rb) = alignment_rotations(model, poses, joint);
+    let body_a = model.points[joint.point.0].body;
+    let body_b = match joint.target {
+        JointTarget::Point(p) => Some(model.points[p.0].body),
+        JointTarget::World(_) => None,
+    }
+    .filter(|b| model.bodies[b.0].dof_count > 0);
+    let w_a = ra.transpose() * rb * al.axis;
+    let (rab, rba) = (ra.transpose() * rb, rb.transpose() * ra);
+    let u = skew(&al.axis);
+    let (mut aa, mut ab, mut bb, mut ba) =
+        (Matrix3::zeros(), Matrix3::zeros(), Matrix3::zeros(), Matrix3::zeros());
+    for (k, n) in al.normals.iter().enumerate() {
+        let l = lambda[joint.row_offset + k];
+        let nx = skew(n);
+        aa += l * nx * skew(&w_a);
+        ab -= l * nx * rab * u;
+        bb += l * u * skew(&(rba * n));
+        ba -= l * u * rba * nx;
+    }
+    let block = |b_i: BodyId, m: &Matrix3<f64>, b_j: BodyId| {
+        let mut six = Matrix6::zeros();
+        six.fixed_view_mut::<3, 3>(3, 3).copy_from(m);
+        model.bodies[b_i.0].basis.transpose() * six * model.bodies[b_j.0].basis
+    };
+    if model.bodies[body_a.0].dof_count > 0 {
+        sink.stiffness(body_a, body_a, &block(body_a, &aa, body_a), scale);
+        if let Some(b) = body_b {
+            sink.stiffness(body_a, b, &block(body_a, &ab, b), scale);
+            sink.stiffness(b, body_a, &block(b, &ba, body_a), scale);
+        }
+    }
+    if let Some(b) = body_b {
+        sink.stiffness(b, b, &block(b, &bb, b), scale);
     }
 }
 

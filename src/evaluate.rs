@@ -12,7 +12,7 @@ use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableRespo
 use crate::forces::collision::{add_collision_force, add_collision_tangents, ClosestPoints};
 use crate::forces::contact::{add_contact_force, add_contact_tangents, ContactResponse};
 use crate::kinematics::{point_kinematics, PointKinematics};
-use crate::model::{BodyId, CableId, Model, PointId};
+use crate::model::{BodyId, CableId, Model, PointId, Pose};
 use crate::state::State;
 
 /// Which tangent matrices an evaluation fills.
@@ -69,6 +69,10 @@ pub struct Workspace {
     pub segment_lengths: Vec<f64>,
     /// Energies of the evaluated state (kinetic included).
     pub energies: Energies,
+    /// The poses of the last evaluation, kept only in scenes whose joints hold axes (hinge,
+    /// planar: `JointModel::alignment`), whose constraint rows turn with the bodies; empty
+    /// otherwise. What the constraint solvers that see the workspace alone pass as `poses`.
+    pub poses: Vec<Pose>,
     /// Per-route scratch (public so that callers can pass it to `add_tangents`).
     pub scratch: CableScratch,
 }
@@ -104,6 +108,11 @@ impl Workspace {
             joint_loss_power: 0.0,
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
+            poses: if model.joints.iter().any(|j| j.alignment.is_some()) {
+                Vec::with_capacity(model.bodies.len())
+            } else {
+                Vec::new()
+            },
             scratch: CableScratch::new(max_route),
         }
     }
@@ -151,7 +160,7 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
         let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
         add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
     }
-    constraints::evaluate_jacobian(model, &ws.points, &mut ws.constraint_jacobian);
+    constraints::evaluate_jacobian(model, &state.poses, &ws.points, &mut ws.constraint_jacobian);
 }
 
 /// The part of `evaluate` that is linear in the scene size: point kinematics, `Q`, cable
@@ -161,6 +170,10 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     let v = &state.velocities;
     for (i, p) in ws.points.iter_mut().enumerate() {
         *p = point_kinematics(model, &state.poses, v, PointId(i));
+    }
+    if ws.poses.capacity() > 0 {
+        ws.poses.clear();
+        ws.poses.extend_from_slice(&state.poses);
     }
     ws.force.fill(0.0);
 
@@ -247,7 +260,7 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     }
     ws.contact_loss_power = loss;
 
-    constraints::evaluate_values(model, &ws.points, &mut ws.constraint);
+    constraints::evaluate_values(model, &state.poses, &ws.points, &mut ws.constraint);
     ws.energies = Energies { elastic, gravitational, kinetic: kinetic_energy(model, v) };
 }
 

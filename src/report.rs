@@ -204,7 +204,7 @@ pub fn body_reports(model: &Model, state: &State) -> Vec<BodyReport> {
 /// What a joint does to the structure at a state, for output.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct JointReport {
-    /// `ball`, `pin`, `roller` or `slider`.
+    /// `ball`, `pin`, `roller`, `slider`, `hinge` or `planar`.
     pub kind: &'static str,
     /// The joint's point `a`.
     pub point: String,
@@ -213,14 +213,24 @@ pub struct JointReport {
     /// The force the joint exerts on the body of `a`, N, world frame (`-D^T lambda`): for a
     /// support, its reaction; a roller's has no part along its line, a slider's none in its plane.
     pub force_n: [f64; 3],
+    /// The moment the joint exerts on the body of `a`, N m, world frame: a hinge's or planar
+    /// joint's axis rows (`-D^T lambda`, normal to the axis); zero for joints that hold no axis.
+    pub moment_nm: [f64; 3],
 }
 
-/// Every joint's force on its first point's body at `state` (its multipliers).
+/// Every scene joint's force and moment on its first point's body at `state` (its
+/// multipliers): one report per `[[joints]]` entry (a hinge's axis rows join its point's).
 pub fn joint_reports(model: &Model, state: &State) -> Vec<JointReport> {
-    model
-        .joints
-        .iter()
-        .map(|j| JointReport {
+    let mut out: Vec<JointReport> = Vec::new();
+    for j in &model.joints {
+        if j.alignment.is_some() {
+            if let Some(last) = out.last_mut() {
+                last.moment_nm =
+                    (-crate::constraints::joint_moment(model, &state.poses, j, &state.multipliers)).into();
+            }
+            continue;
+        }
+        out.push(JointReport {
             kind: j.kind.as_str(),
             point: model.points[j.point.0].name.clone(),
             other: match j.target {
@@ -228,8 +238,10 @@ pub fn joint_reports(model: &Model, state: &State) -> Vec<JointReport> {
                 crate::model::JointTarget::World(_) => String::new(),
             },
             force_n: (-crate::constraints::joint_reaction(j, &state.multipliers)).into(),
-        })
-        .collect()
+            moment_nm: [0.0; 3],
+        });
+    }
+    out
 }
 
 /// Named point positions (every point of every body), m.

@@ -257,6 +257,7 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
         at: None,
         direction: None,
         normal: None,
+        axis: None,
         damping: None,
     }];
     if kinds.len() > 2 {
@@ -267,6 +268,7 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
             at: None,
             direction: None,
             normal: None,
+            axis: None,
             damping: None,
         });
     }

@@ -188,8 +188,8 @@ proptest! {
         let rp = spec.bodies[3].position.unwrap();
         spec.bodies[3].position = Some([rp[0] + shift.x, rp[1] + shift.y, rp[2] + shift.z]);
         spec.joints = vec![
-            JointSpec { kind: JointKindSpec::Ball, a: "b.b".into(), b: Some("r.p".into()), at: None, direction: None, normal: None, damping: None },
-            JointSpec { kind: JointKindSpec::Pin, a: "n".into(), b: None, at: None, direction: None, normal: None, damping: None },
+            JointSpec { kind: JointKindSpec::Ball, a: "b.b".into(), b: Some("r.p".into()), at: None, direction: None, normal: None, axis: None, damping: None },
+            JointSpec { kind: JointKindSpec::Pin, a: "n".into(), b: None, at: None, direction: None, normal: None, axis: None, damping: None },
         ];
         let model = model_of(&spec);
         let state = State::initial(&model);

@@ -241,6 +241,13 @@ pub enum JointKind {
     Roller,
     /// A point held on a world plane (a slider support): free in the plane.
     Slider,
+    /// A revolute axis: a ball joint (or a pin) whose two bodies (or body and ground) also keep
+    /// their axes aligned, so they turn about the axis only. Two `JointModel`s: the point's rows
+    /// and, after them, the axis's (`JointModel::alignment`).
+    Hinge,
+    /// A body held on a ground plane, free to slide in it and to turn about its normal only: a
+    /// slider row and two alignment rows (`JointModel::alignment`).
+    Planar,
 }
 
 impl JointKind {
@@ -251,6 +258,8 @@ impl JointKind {
             JointKind::Pin => "pin",
             JointKind::Roller => "roller",
             JointKind::Slider => "slider",
+            JointKind::Hinge => "hinge",
+            JointKind::Planar => "planar",
         }
     }
 }
@@ -258,7 +267,8 @@ impl JointKind {
 /// A joint: `Phi = D (r_a(q) - r_b(q)) = 0`, one equation per row of `D` (world directions).
 /// A ball joint or a pin holds every direction: `D = I`, 3 rows (2 in planar scenes: x and y);
 /// a roller holds the 2 directions across its line (1 in a planar scene), a slider the normal of
-/// its plane (1).
+/// its plane (1). An alignment (`alignment` set: the axis rows of a hinge or planar joint) holds
+/// orientations instead, `Phi_k = e_k . w` (`Alignment`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JointModel {
     /// Point on the first body.
@@ -277,6 +287,26 @@ pub struct JointModel {
     /// Rotational damping `c`, N m s/rad (0: none): torques `-c (omega_a - omega_b)` on the
     /// first body and the opposite on the second (`crate::forces::joint_damping`).
     pub damping: f64,
+    /// `Some`: these rows hold an axis, not a point (`Alignment`); `directions` is unused.
+    pub alignment: Option<Alignment>,
+    /// Index of the scene's `[[joints]]` entry this joint comes from (a hinge or a planar joint
+    /// gives two `JointModel`s with the same index).
+    pub scene_index: usize,
+}
+
+/// The axis rows of a hinge or planar joint: body `a` (the joint point's body) keeps two
+/// body-fixed unit vectors `e_k = R_a n_k` normal to an axis `w`, which is body `b`'s
+/// `w = R_b u` (a joint between two bodies) or the world's `w = u` (to the ground):
+/// `Phi_k = e_k . w = 0`, `k = 1, 2`, so the bodies turn relative to each other about `w` only.
+/// With `a_k = e_k x w`, `Phi_q v = a_k . (omega_a - omega_b)` (world angular velocities): the
+/// rows are `a_k^T G` with `G = [0 | R] B` the body's spin Jacobian, and the multipliers carry
+/// the moment `sum_k lambda_k a_k` (N m) on body `a` (its opposite on `b`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Alignment {
+    /// `n_1`, `n_2`: unit, orthogonal to each other and to the axis, in body `a`'s frame.
+    pub normals: [Vector3<f64>; 2],
+    /// `u`: the unit axis in body `b`'s frame (`JointTarget::Point`) or the world (`World`).
+    pub axis: Vector3<f64>,
 }
 
 impl JointModel {

@@ -400,15 +400,20 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
         Ok(v.normalize())
     };
     let stray = |field: &'static str, given: bool| -> Result<(), (&'static str, String)> {
+        let owners = match field {
+            "normal" => "slider or a planar joint",
+            "axis" => "hinge",
+            _ => "roller",
+        };
         if given {
-            Err((
-                field,
-                format!("only a {} takes `{field}`", if field == "normal" { "slider" } else { "roller" }),
-            ))
+            Err((field, format!("only a {owners} takes `{field}`")))
         } else {
             Ok(())
         }
     };
+    if j.kind != super::JointKindSpec::Hinge {
+        stray("axis", j.axis.is_some())?;
+    }
     match j.kind {
         super::JointKindSpec::Ball | super::JointKindSpec::Pin => {
             stray("direction", j.direction.is_some())?;
@@ -416,12 +421,39 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
             let kind = if j.kind == super::JointKindSpec::Ball { JointKind::Ball } else { JointKind::Pin };
             Ok((kind, None, rows))
         }
-        super::JointKindSpec::Slider => {
+        super::JointKindSpec::Hinge => {
             stray("direction", j.direction.is_some())?;
-            let n = unit(j.normal, "normal", "slider")?;
+            stray("normal", j.normal.is_some())?;
+            if planar {
+                let axis = j.axis.ok_or(("axis", "missing: a hinge needs its axis".to_string()))?;
+                if axis[0] != 0.0 || axis[1] != 0.0 || axis[2] == 0.0 {
+                    return Err((
+                        "axis",
+                        "a planar scene turns about z only: a hinge's axis must be [0, 0, 1]".into(),
+                    ));
+                }
+            } else {
+                unit(j.axis, "axis", "hinge")?;
+            }
+            Ok((JointKind::Hinge, None, rows))
+        }
+        super::JointKindSpec::Slider | super::JointKindSpec::Planar => {
+            stray("direction", j.direction.is_some())?;
+            let (kind, what) = match j.kind {
+                super::JointKindSpec::Slider => (JointKind::Slider, "slider"),
+                _ => (JointKind::Planar, "planar joint"),
+            };
+            if planar && kind == JointKind::Planar {
+                return Err((
+                    "kind",
+                    "a planar scene already keeps its bodies in the xy plane: use a slider or a roller"
+                        .into(),
+                ));
+            }
+            let n = unit(j.normal, "normal", what)?;
             let mut d = Matrix3::zeros();
             d.set_row(0, &n.transpose());
-            Ok((JointKind::Slider, Some(d), 1))
+            Ok((kind, Some(d), 1))
         }
         super::JointKindSpec::Roller => {
             stray("normal", j.normal.is_some())?;
@@ -469,7 +501,7 @@ fn build_joints(
         let a = lookup(&j.a).ok_or_else(|| e("a", format!("unknown point '{}'", j.a)))?;
         let body_a = points[a.0].body;
         let target = match j.kind {
-            JointKindSpec::Ball => {
+            JointKindSpec::Ball | JointKindSpec::Hinge if j.kind == JointKindSpec::Ball || j.b.is_some() => {
                 let bname =
                     j.b.as_ref()
                         .ok_or_else(|| e("b", "missing: a ball joint joins point a to point b".into()))?;
@@ -478,18 +510,26 @@ fn build_joints(
                     return Err(e("b", "both points are on the same body".into()));
                 }
                 if j.at.is_some() {
-                    return Err(e("at", "only supports (pin, roller, slider) take `at`".into()));
+                    return Err(e(
+                        "at",
+                        "a joint between two bodies sits where its points meet; only supports (pin, roller, slider, planar, hinge without b) take `at`".into(),
+                    ));
                 }
                 if bodies[body_a.0].dof_count == 0 && bodies[points[b.0].body.0].dof_count == 0 {
                     return Err(e("a", "both bodies are fixed: the joint holds nothing".into()));
                 }
                 JointTarget::Point(b)
             }
-            JointKindSpec::Pin | JointKindSpec::Roller | JointKindSpec::Slider => {
+            JointKindSpec::Ball
+            | JointKindSpec::Hinge
+            | JointKindSpec::Pin
+            | JointKindSpec::Roller
+            | JointKindSpec::Slider
+            | JointKindSpec::Planar => {
                 if j.b.is_some() {
                     return Err(e(
                         "b",
-                        "a pin, roller or slider holds one point to the ground; use kind = \"ball\" to join two bodies".into(),
+                        "a pin, roller, slider or planar joint holds one point to the ground; use kind = \"ball\" (or \"hinge\") to join two bodies".into(),
                     ));
                 }
                 if bodies[body_a.0].dof_count == 0 {
@@ -534,7 +574,7 @@ fn build_joints(
         // (a roller and a slider on one point may be meant; the rank test below judges them)
         let key = match (target, j.kind) {
             (JointTarget::Point(b), _) => Some((a.0.min(b.0), a.0.max(b.0))),
-            (JointTarget::World(_), JointKindSpec::Pin) => Some((a.0, usize::MAX)),
+            (JointTarget::World(_), JointKindSpec::Pin | JointKindSpec::Hinge) => Some((a.0, usize::MAX)),
             _ => None,
         };
         if let Some(first) = key.and_then(|key| joint_keys.insert(key, i)) {
@@ -563,11 +603,84 @@ fn build_joints(
                 c
             }
         };
-        joints.push(JointModel { point: a, target, row_offset, rows: joint_rows, directions, kind, damping });
+        let other_body = match target {
+            JointTarget::Point(b) => Some(points[b.0].body),
+            JointTarget::World(_) => None,
+        };
+        // a hinge's or planar joint's axis rows (none for a hinge in a planar scene, whose
+        // bodies turn about z only)
+        let axis = match j.kind {
+            JointKindSpec::Hinge if rows == 3 => j.axis.map(Vector3::from),
+            JointKindSpec::Planar => j.normal.map(Vector3::from),
+            _ => None,
+        };
+        let alignment = match axis {
+            None => None,
+            Some(axis) => {
+                let orients = |b: crate::model::BodyId| {
+                    matches!(bodies[b.0].kind, BodyKind::Bar | BodyKind::Rigid | BodyKind::Fixed)
+                };
+                if !orients(body_a) || other_body.is_some_and(|b| !orients(b)) {
+                    return Err(e(
+                        "a",
+                        format!(
+                            "a {} holds the orientation of bodies that turn (bar, rigid) or are fixed; a node has none",
+                            if j.kind == JointKindSpec::Hinge { "hinge" } else { "planar joint" }
+                        ),
+                    ));
+                }
+                Some(axis_alignment(&axis.normalize(), bodies, body_a, other_body))
+            }
+        };
+        let base = JointModel {
+            point: a,
+            target,
+            row_offset,
+            rows: joint_rows,
+            directions,
+            kind,
+            damping,
+            alignment: None,
+            scene_index: i,
+        };
+        joints.push(base);
         row_offset += joint_rows;
+        if alignment.is_some() {
+            joints.push(JointModel {
+                row_offset,
+                rows: 2,
+                directions: None,
+                damping: 0.0,
+                alignment,
+                ..base
+            });
+            row_offset += 2;
+        }
     }
 
     Ok(joints)
+}
+
+/// The alignment that keeps world axis `axis` (unit, at the initial poses) common to body `a`
+/// and body `b` (or the ground): two unit normals to it in `a`'s frame, the axis in `b`'s.
+fn axis_alignment(
+    axis: &Vector3<f64>,
+    bodies: &[BodyModel],
+    a: crate::model::BodyId,
+    b: Option<crate::model::BodyId>,
+) -> crate::model::Alignment {
+    let helper = if axis.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    let n1 = axis.cross(&helper).normalize();
+    let n2 = axis.cross(&n1);
+    let to_body =
+        |body: crate::model::BodyId, v: &Vector3<f64>| bodies[body.0].initial_pose.rotation.inverse() * v;
+    crate::model::Alignment {
+        normals: [to_body(a, &n1), to_body(a, &n2)],
+        axis: match b {
+            Some(b) => to_body(b, axis),
+            None => *axis,
+        },
+    }
 }
 
 /// The contact spheres the bodies declare (`contact_radius`, `contact_points`), in body order.
@@ -1377,7 +1490,11 @@ pub const MAX_REDUNDANCY_CHECK_ROWS: usize = 4000;
 /// where one QR of the whole `Phi_q^T` (5000 x 3000) took 13.6 s; a tower's stages joined by ball
 /// joints are one block, as before. On failure, the joints of every deficient group, in scene
 /// order.
-fn joints_independent(model: &Model, kin: &[crate::kinematics::PointKinematics]) -> Result<(), Vec<usize>> {
+fn joints_independent(
+    model: &Model,
+    poses: &[crate::model::Pose],
+    kin: &[crate::kinematics::PointKinematics],
+) -> Result<(), Vec<usize>> {
     let mut parent: Vec<usize> = (0..model.bodies.len()).collect();
     fn root(parent: &mut [usize], mut b: usize) -> usize {
         while parent[b] != b {
@@ -1433,7 +1550,7 @@ fn joints_independent(model: &Model, kin: &[crate::kinematics::PointKinematics])
             let mut block = faer::Mat::<f64>::zeros(column_of.len(), total);
             let mut first = 0;
             for &j in joints {
-                crate::constraints::add_jacobian_entries(model, kin, &model.joints[j], |r, c, x| {
+                crate::constraints::add_jacobian_entries(model, poses, kin, &model.joints[j], |r, c, x| {
                     block[(column_of[&c], first + r)] += x;
                 });
                 first += model.joints[j].rows;
@@ -1491,7 +1608,7 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
     let kin: Vec<_> = (0..model.points.len())
         .map(|p| crate::kinematics::point_kinematics(model, &state.poses, &state.velocities, PointId(p)))
         .collect();
-    let Err(suspects) = joints_independent(model, &kin) else { return Ok(()) };
+    let Err(suspects) = joints_independent(model, &state.poses, &kin) else { return Ok(()) };
     // the deficient groups' rows only (other groups share no coordinate with them)
     // each row's joint (its index in `suspects`) and each joint's first row
     let mut row_joint = Vec::new();
@@ -1502,7 +1619,7 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
     }
     let mut phi_q = DMatrix::zeros(row_joint.len(), n);
     for (k, &j) in suspects.iter().enumerate() {
-        crate::constraints::add_jacobian_entries(model, &kin, &model.joints[j], |r, c, x| {
+        crate::constraints::add_jacobian_entries(model, &state.poses, &kin, &model.joints[j], |r, c, x| {
             phi_q[(first_row[k] + r, c)] += x;
         });
     }
@@ -1546,8 +1663,9 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
                             let c = svd.solve(&phi_q.row(d).transpose(), 1e-10 * svd.s.amax());
                             let big = c.amax();
                             for (k, &e) in earlier.iter().enumerate() {
-                                if c[k].abs() > 1e-8 * big {
-                                    named.insert(suspects[row_joint[e]]);
+                                let other = model.joints[suspects[row_joint[e]]].scene_index;
+                                if c[k].abs() > 1e-8 * big && other != model.joints[joint].scene_index {
+                                    named.insert(other);
                                 }
                             }
                         }
@@ -1568,7 +1686,7 @@ fn check_redundant_joints(model: &Model, cx: &Ctx) -> Result<(), SceneError> {
                 };
                 return Err(cx.err(
                     "joints",
-                    joint,
+                    model.joints[joint].scene_index,
                     "a",
                     format!(
                         "redundant: {what} implied by {by} at the initial pose (together they fix more \

@@ -267,6 +267,7 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
             at: None,
             direction: None,
             normal: None,
+            axis: None,
             damping: None,
         });
     }
@@ -279,6 +280,7 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
                 at: None,
                 direction: None,
                 normal: None,
+                axis: None,
                 damping: None,
             });
         }
@@ -445,6 +447,7 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
                 at: None,
                 direction: None,
                 normal: None,
+                axis: None,
                 damping: None,
             },
             JointSpec {
@@ -454,6 +457,7 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
                 at: None,
                 direction: None,
                 normal: None,
+                axis: None,
                 damping: None,
             },
         ],

@@ -329,6 +329,13 @@ pub enum JointKindSpec {
     /// Point `a` held on a world plane through `at` (default its initial position) with
     /// `normal`: a slider support, free to slide in the plane.
     Slider,
+    /// A revolute joint: point `a` held on point `b` of another body (or, without `b`, at `at`,
+    /// default its initial position), and the two bodies (or the body and the ground) turn
+    /// relative to each other about `axis` only. Both bodies turn (bar, rigid) or are fixed.
+    Hinge,
+    /// A planar support: point `a` held on a world plane through `at` with `normal`, and its
+    /// body turns about the normal only (it slides in the plane and spins about the normal).
+    Planar,
 }
 
 /// A ball joint or a pin to the ground.
@@ -349,9 +356,12 @@ pub struct JointSpec {
     /// A roller's line direction, world frame (any length).
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub direction: Option<[f64; 3]>,
-    /// A slider's plane normal, world frame (any length).
+    /// A slider's or planar joint's plane normal, world frame (any length).
     #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
     pub normal: Option<[f64; 3]>,
+    /// A hinge's axis, world frame at the initial pose (any length).
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "exact::some_vec3")]
+    pub axis: Option<[f64; 3]>,
     /// Rotational damping, N m s/rad: torques against the two bodies' relative spin (both must
     /// turn: bars or rigid bodies, or one of them and the ground).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -598,7 +608,7 @@ fn plain_words(message: &str) -> String {
         ("struct SolverSpec", "a [solver] table"),
         ("struct GroundSpec", "a [[grounds]] table"),
         ("enum BodyKindSpec", "a body kind (node, bar, rigid or fixed)"),
-        ("enum JointKindSpec", "a joint kind (ball or pin)"),
+        ("enum JointKindSpec", "a joint kind (ball, pin, roller, slider, hinge or planar)"),
     ]
     .iter()
     .fold(message.to_string(), |m, (from, to)| m.replace(from, to))

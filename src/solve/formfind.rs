@@ -220,7 +220,7 @@ impl EquilibriumSystem {
                 let column = crate::constraints::joint_points(joint).flat_map(|(pid, sign)| {
                     let p = &ws.points[pid.0];
                     let body = &model.bodies[p.body.0];
-                    let jacobian = crate::constraints::joint_jacobian(joint, &p.jacobian);
+                    let jacobian = crate::constraints::side_jacobian(model, &ws.poses, joint, p);
                     (0..body.dof_count).map(move |k| (body.dof_offset + k, -sign * jacobian[(r, k)]))
                 });
                 columns.push(merged(column));

@@ -70,9 +70,9 @@ use faer::{Conj, MatMut, Par, Side};
 use nalgebra::{DMatrix, DVector, Matrix6, Vector6};
 
 use crate::assembly::TangentSink;
-use crate::constraints::joint_points;
+use crate::constraints::{joint_points, side_jacobian};
 use crate::kinematics::{PointJacobian, PointKinematics};
-use crate::model::{BodyId, CableId, Model, PointId};
+use crate::model::{BodyId, CableId, Model, PointId, Pose};
 
 /// Smallest size (unknowns) for which `Auto` uses the sparse LU.
 pub const SPARSE_MIN_SIZE: usize = 200;
@@ -923,12 +923,18 @@ impl KktSystem {
         }
     }
 
-    /// Adds every joint's rows `Phi_q` and columns `Phi_q^T` at the point kinematics `points`
-    /// (`add_joint_jacobian` for each side of each joint of `model`).
-    pub fn add_joints(&mut self, model: &Model, points: &[PointKinematics]) {
+    /// Adds every joint's rows `Phi_q` and columns `Phi_q^T` at the poses `poses` and point
+    /// kinematics `points` (`add_joint_jacobian` for each side of each joint of `model`;
+    /// `poses` may be empty when no joint holds an axis, `Workspace::poses`).
+    pub fn add_joints(&mut self, model: &Model, poses: &[Pose], points: &[PointKinematics]) {
         for (j, joint) in model.joints.iter().enumerate() {
             for (side, (p, sign)) in joint_points(joint).enumerate() {
                 let point = &points[p.0];
+                if joint.alignment.is_some() {
+                    let jacobian = side_jacobian(model, poses, joint, point);
+                    self.add_joint_jacobian(j, joint.row_offset, side, point.body, &jacobian, sign);
+                    continue;
+                }
                 let projected: PointJacobian;
                 let jacobian = match &joint.directions {
                     None => &point.jacobian,

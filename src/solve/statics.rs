@@ -173,9 +173,16 @@ pub fn rigid_body_motions(model: &Model, state: &State, ws: &Workspace) -> DMatr
             crate::model::JointTarget::Point(q) if !moving(q.0) => ws.points[q.0].position,
             crate::model::JointTarget::Point(_) => continue,
         };
+        // an axis held to the ground turns with no rigid motion but about itself
+        let held = joint
+            .alignment
+            .map(|al| crate::constraints::alignment_directions(model, &state.poses, joint, &al));
         for r in 0..joint.rows {
             for (i, (t, w)) in generators.iter().enumerate() {
-                row[i] = joint.project(&(t + w.cross(&(anchor - c))))[r];
+                row[i] = match &held {
+                    None => joint.project(&(t + w.cross(&(anchor - c))))[r],
+                    Some(d) => (d * w)[r],
+                };
             }
             add(&mut broken, &row[..g]);
         }
@@ -396,7 +403,14 @@ pub(crate) fn residual_of(
     let n = model.dof_count;
     let mut r = ws.force.clone_owned();
     if model.constraint_count > 0 {
-        crate::constraints::add_reaction_force(model, &ws.points, &state.multipliers, -1.0, &mut r);
+        crate::constraints::add_reaction_force(
+            model,
+            &state.poses,
+            &ws.points,
+            &state.multipliers,
+            -1.0,
+            &mut r,
+        );
     }
     rhs.rows_mut(0, n).copy_from(&r);
     if model.constraint_count > 0 {
@@ -1395,7 +1409,7 @@ fn sparse_least_squares_multipliers(
     evaluate_forces(model, state, ws);
     kkt.clear();
     kkt.add_to_coordinate_diagonal(1.0);
-    kkt.add_joints(model, &ws.points);
+    kkt.add_joints(model, &state.poses, &ws.points);
     let mut x = DVector::zeros(kkt.size());
     x.rows_mut(0, n).copy_from(&ws.force);
     if kkt.factor_symmetric() && kkt.solve_factored(&mut x) {
@@ -1515,7 +1529,7 @@ fn convexity_correction(
 /// kinematics, cable and contact responses last evaluated into `ws` (no dense tangent needed).
 fn assemble_sparse(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut Workspace) {
     kkt.clear();
-    kkt.add_joints(model, &ws.points);
+    kkt.add_joints(model, &state.poses, &ws.points);
     let mut sink = kkt.tangents(1.0, 0.0);
     let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
     add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);

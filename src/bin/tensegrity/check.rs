@@ -33,6 +33,17 @@ pub fn run(scene: &Path) -> Result<(), String> {
             counted(sliders, "slider")
         );
     }
+    // a hinge's or planar joint's axis rows are their own JointModel: count the point rows
+    let of_kind = |kind| model.joints.iter().filter(|j| j.kind == kind && j.alignment.is_none()).count();
+    let hinges = of_kind(tensegrity::model::JointKind::Hinge);
+    let planars = of_kind(tensegrity::model::JointKind::Planar);
+    if hinges + planars > 0 {
+        say!(
+            "axes: {} (turn about one axis), {} (slide on a plane, turn about its normal)",
+            counted(hinges, "hinge"),
+            counted(planars, "planar joint")
+        );
+    }
     let damped = model.joints.iter().filter(|j| j.damping > 0.0).count();
     if damped > 0 {
         say!("joint damping: {} (rotational, against the bodies' relative spin)", counted(damped, "joint"));

@@ -183,15 +183,21 @@ fn format_statics(
     }
     let joints = report::joint_reports(model, state);
     if !joints.is_empty() {
-        let _ = writeln!(
+        // moments only where a joint holds an axis (hinge, planar)
+        let axes = model.joints.iter().any(|j| j.alignment.is_some());
+        let _ = write!(
             out,
             "\n{:<8} {:<20} {:<20} {:>12} {:>12} {:>12}",
             "joint", "point", "on", "Fx N", "Fy N", "Fz N"
         );
+        if axes {
+            let _ = write!(out, " {:>12} {:>12} {:>12}", "Mx N m", "My N m", "Mz N m");
+        }
+        let _ = writeln!(out);
         for j in joints {
             let on = if j.other.is_empty() { "(ground)" } else { j.other.as_str() };
             let f = j.force_n;
-            let _ = writeln!(
+            let _ = write!(
                 out,
                 "{:<8} {:<20} {:<20} {:>12.6} {:>12.6} {:>12.6}",
                 j.kind,
@@ -201,6 +207,11 @@ fn format_statics(
                 Num(f[1]),
                 Num(f[2])
             );
+            if axes {
+                let m = j.moment_nm;
+                let _ = write!(out, " {:>12.6} {:>12.6} {:>12.6}", Num(m[0]), Num(m[1]), Num(m[2]));
+            }
+            let _ = writeln!(out);
         }
     }
     let contacts = report::contact_reports(model, ws);

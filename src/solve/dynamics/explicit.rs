@@ -236,6 +236,14 @@ impl Dynamics {
         }
         if nc > 0 {
             for joint in &model.joints {
+                if let Some(al) = &joint.alignment {
+                    let bias =
+                        crate::constraints::alignment_bias(model, &state.poses, &state.velocities, joint, al);
+                    for r in 0..joint.rows {
+                        work[n + joint.row_offset + r] = -bias[r];
+                    }
+                    continue;
+                }
                 let mut bias = Vector3::zeros();
                 for (p, sign) in crate::constraints::joint_points(joint) {
                     bias += centripetal(model, &state.poses, &state.velocities, p) * sign;
@@ -282,7 +290,7 @@ impl Dynamics {
     /// factors of the last `factor_mass_and_joints`.
     pub(super) fn solve_factored_mass_and_joints(&mut self, model: &Model) -> bool {
         if self.kkt.backend() == LinearBackend::Dense {
-            return self.schur.solve_factored(model, &self.ws, &mut self.explicit.work);
+            return self.schur.solve_factored(model, &mut self.explicit.work);
         }
         let size = self.kkt.size();
         self.rhs.fill(0.0);
@@ -442,6 +450,7 @@ impl Dynamics {
 
 /// `Jdot v` of point `pid`: the centripetal acceleration `R (w x (w x p))` of a point `p` on a
 /// rotating body (body-frame angular velocity `w` from the local velocities), m/s^2.
+#[inline]
 fn centripetal(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: crate::model::PointId) -> Vector3<f64> {
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];

@@ -196,7 +196,7 @@ impl Dynamics {
             let inertial = residual.amax();
             add_gyroscopic(model, &self.v, &mut residual);
             residual -= &self.ws.force;
-            add_reaction_force(model, &self.ws.points, &self.lambda, 1.0, &mut residual);
+            add_reaction_force(model, &self.trial.poses, &self.ws.points, &self.lambda, 1.0, &mut residual);
             self.residual = residual;
             if !all_finite(&self.residual) {
                 return Err(AttemptFailure::Diverged);

@@ -3,7 +3,7 @@
 
 use nalgebra::{DVector, Matrix6};
 
-use crate::constraints::joint_points;
+use crate::constraints::{joint_points, side_jacobian};
 use crate::evaluate::Workspace;
 use crate::kinematics::PointJacobian;
 use crate::model::Model;
@@ -23,6 +23,9 @@ pub(super) struct JointSchur {
     s: Vec<f64>,
     /// Per joint side in `sides` order: `M_b^-1 J^T` (k x 3 in a 6 x 3).
     weighted: Vec<nalgebra::Matrix6x3<f64>>,
+    /// Per joint side in `sides` order: its rows `J` of `Phi_q` at the last `factor`'s kinematics
+    /// (`constraints::side_jacobian`), which `solve_factored` reuses.
+    rows: Vec<PointJacobian>,
     u: DVector<f64>,
     b: DVector<f64>,
     mem: faer::dyn_stack::MemBuffer,
@@ -41,6 +44,7 @@ impl Clone for JointSchur {
             sides: self.sides.clone(),
             s: self.s.clone(),
             weighted: self.weighted.clone(),
+            rows: self.rows.clone(),
             u: self.u.clone(),
             b: self.b.clone(),
             mem: Self::scratch(self.b.len()),
@@ -88,6 +92,7 @@ impl JointSchur {
             sides,
             s: vec![0.0; nc * nc],
             weighted: vec![nalgebra::Matrix6x3::zeros(); count],
+            rows: vec![PointJacobian::zeros(); count],
             u: DVector::zeros(model.dof_count),
             b: DVector::zeros(nc),
             mem: Self::scratch(nc),
@@ -97,7 +102,7 @@ impl JointSchur {
     /// Solves `[M, Phi_q^T; Phi_q, 0] x = rhs` in place at the point kinematics in `ws`. False
     /// when `S` is not positive definite or the result is not finite.
     pub(super) fn solve(&mut self, model: &Model, ws: &Workspace, rhs: &mut DVector<f64>) -> bool {
-        self.factor(model, ws) && self.solve_factored(model, ws, rhs)
+        self.factor(model, ws) && self.solve_factored(model, rhs)
     }
 
     /// Forms `S = Phi_q M^-1 Phi_q^T` at the point kinematics in `ws` (from the 3 x 3 blocks of
@@ -116,14 +121,13 @@ impl JointSchur {
             let first = w;
             for &(j, p, sign) in &self.sides[b] {
                 let joint = &model.joints[j];
-                let projected: PointJacobian;
-                let jac = match &joint.directions {
-                    None => &ws.points[p.0].jacobian,
-                    Some(d) => {
-                        projected = d * ws.points[p.0].jacobian;
-                        &projected
-                    }
+                let point = &ws.points[p.0];
+                self.rows[w] = match (&joint.alignment, &joint.directions) {
+                    (None, None) => point.jacobian,
+                    (None, Some(d)) => d * point.jacobian,
+                    (Some(_), _) => side_jacobian(model, &ws.poses, joint, point),
                 };
+                let jac = &self.rows[w];
                 let mut m = nalgebra::Matrix6x3::zeros();
                 for r in 0..k {
                     for c in 0..joint.rows {
@@ -134,15 +138,8 @@ impl JointSchur {
                 self.weighted[w] = m;
                 w += 1;
             }
-            for &(ja, pa, sa) in &self.sides[b] {
-                let projected: PointJacobian;
-                let jac = match &model.joints[ja].directions {
-                    None => &ws.points[pa.0].jacobian,
-                    Some(d) => {
-                        projected = d * ws.points[pa.0].jacobian;
-                        &projected
-                    }
-                };
+            for (x, &(ja, _, sa)) in self.sides[b].iter().enumerate() {
+                let jac = &self.rows[first + x];
                 let (ra, rows_a) = (model.joints[ja].row_offset, model.joints[ja].rows);
                 for (y, &(jb, _, _)) in self.sides[b].iter().enumerate() {
                     let (rb, rows_b) = (model.joints[jb].row_offset, model.joints[jb].rows);
@@ -168,9 +165,9 @@ impl JointSchur {
     }
 
     /// Solves `[M, Phi_q^T; Phi_q, 0] x = rhs` in place with the factor of the last `factor`
-    /// (made at the same point kinematics `ws`): `S mu = Phi_q M^-1 p - c`, then
+    /// (and its joint rows): `S mu = Phi_q M^-1 p - c`, then
     /// `v = M^-1 (p - Phi_q^T mu)`. False when the result is not finite.
-    pub(super) fn solve_factored(&mut self, model: &Model, ws: &Workspace, rhs: &mut DVector<f64>) -> bool {
+    pub(super) fn solve_factored(&mut self, model: &Model, rhs: &mut DVector<f64>) -> bool {
         use faer::linalg::cholesky::llt;
         let n = model.dof_count;
         let nc = model.constraint_count;
@@ -185,17 +182,12 @@ impl JointSchur {
             // b = Phi_q u - c
             self.b.copy_from(&rhs.rows(n, nc));
             self.b.neg_mut();
+            let mut w = 0;
             for (b, body) in model.bodies.iter().enumerate() {
                 let (o, k) = (body.dof_offset, body.dof_count);
-                for &(j, p, sign) in &self.sides[b] {
-                    let projected: PointJacobian;
-                    let jac = match &model.joints[j].directions {
-                        None => &ws.points[p.0].jacobian,
-                        Some(d) => {
-                            projected = d * ws.points[p.0].jacobian;
-                            &projected
-                        }
-                    };
+                for &(j, _, sign) in &self.sides[b] {
+                    let jac = &self.rows[w];
+                    w += 1;
                     let row0 = model.joints[j].row_offset;
                     for r in 0..model.joints[j].rows {
                         self.b[row0 + r] += sign * (0..k).map(|c| jac[(r, c)] * self.u[o + c]).sum::<f64>();

@@ -276,7 +276,7 @@ fn constraint_curvature(model: &Model, state: &State, ws: &mut Workspace) -> DVe
         s.poses.copy_from_slice(&state.poses);
         retract(model, &mut s.poses, &state.velocities, scale);
         evaluate_forces(model, &s, ws);
-        evaluate_rates(model, &ws.points, &mut rates);
+        evaluate_rates(model, &s.poses, &state.velocities, &ws.points, &mut rates);
         out.axpy(sign / (2.0 * eps), &rates, 1.0);
     }
     out
@@ -471,7 +471,7 @@ pub fn assemble_mass_and_joints(model: &Model, ws: &Workspace, mass: &[Matrix6<f
     for (b, m) in mass.iter().enumerate() {
         kkt.add_body_block(BodyId(b), BodyId(b), m, 1.0);
     }
-    kkt.add_joints(model, &ws.points);
+    kkt.add_joints(model, &ws.poses, &ws.points);
 }
 
 /// Largest stable step of an explicit integrator at `state` (infinite for generalized-alpha):

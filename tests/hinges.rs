@@ -1,0 +1,452 @@
+//! Invariant: a hinge holds two bodies (or a body and the ground) on a common point and a common
+//! axis, and a planar joint holds a body on a ground plane turning about its normal; each holds
+//! exactly that and nothing else.
+//! - The axis rows' Jacobian, the derivative of their reactions `d(Phi_q^T lambda)/dq` and their
+//!   acceleration bias match finite differences, off the constraint manifold too (where the rows
+//!   turn with the bodies).
+//! - Statics: a door on a hinge held by a vertical cable at its tip carries its weight's moment
+//!   about the horizontal normal to the hinge (`m g d`) in the hinge and its weight in the cable,
+//!   the moment about the axis being zero.
+//! - Dynamics: a rigid body with a skewed inertia tensor on a horizontal hinge swings as a
+//!   physical pendulum of period `4 sqrt(I / (m g d)) K(sin(theta0 / 2))`, with the implicit
+//!   integrator (dense and sparse Newton systems) and an explicit one (the joints' Schur
+//!   complement, or the sparse joint system, and the axis rows' bias), its axis held to 1e-9.
+//! - A rigid body on a tilted planar support slides at `g sin(theta)` and keeps spinning about the
+//!   normal at its initial rate.
+//! - Careless hinges are refused naming the field; a second hinge on the same axis is redundant.
+
+mod common;
+
+use common::*;
+use nalgebra::{DMatrix, DVector, Vector3};
+use tensegrity::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
+use tensegrity::sim::{SimSettings, Simulator};
+use tensegrity::solve::dynamics::Integrator;
+use tensegrity::solve::linear::LinearBackend;
+use tensegrity::solve::statics::StaticSolver;
+use tensegrity::state::retract;
+use tensegrity::{Model, State};
+
+/// A bar hinged to a skewed rigid box (axis oblique), the box on a tilted planar support, and a
+/// second bar hinged to the ground: every kind of axis row, turned away from the coordinate axes.
+fn mixed() -> Model {
+    model_from_toml(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "bar"
+kind = "bar"
+mass = 1.0
+ends = [[0.1, 0.2, 0.3], [1.1, 0.7, 0.9]]
+[[bodies]]
+name = "box"
+kind = "rigid"
+mass = 2.0
+position = [1.1, 0.7, 0.9]
+rotation = [0.3, -0.2, 0.5]
+inertia = [0.2, 0.25, 0.3, 0.01, -0.02, 0.015]
+points = { knuckle = [0.0, 0.0, 0.0], foot = [0.1, -0.1, -0.3] }
+[[bodies]]
+name = "arm"
+kind = "bar"
+mass = 0.5
+ends = [[-1.0, 0.0, 0.0], [-1.5, 0.4, 0.2]]
+[[joints]]
+kind = "hinge"
+a = "bar.b"
+b = "box.knuckle"
+axis = [0.2, 0.9, -0.4]
+[[joints]]
+kind = "planar"
+a = "box.foot"
+normal = [0.3, -0.2, 1.0]
+[[joints]]
+kind = "hinge"
+a = "arm.a"
+axis = [0.0, 0.6, 0.8]
+"#,
+    )
+}
+
+/// The state `state` moved along `dq` by `scale` (local increments; velocities kept).
+fn moved(model: &Model, state: &State, dq: &DVector<f64>, scale: f64) -> State {
+    let mut s = state.clone();
+    retract(model, &mut s.poses, dq, scale);
+    s
+}
+
+/// A fixed pseudo-random vector of length `n` (entries in [-1, 1]).
+fn wiggle(n: usize, seed: u64) -> DVector<f64> {
+    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    DVector::from_fn(n, |_, _| {
+        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    })
+}
+
+/// A state of `mixed()` off its constraints (the joints' rows no longer zero) with velocities.
+fn off_manifold(model: &Model) -> State {
+    let start = State::initial(model);
+    let mut s = moved(model, &start, &wiggle(model.dof_count, 1), 0.05);
+    s.velocities = wiggle(model.dof_count, 2);
+    s
+}
+
+#[test]
+fn axis_rows_match_finite_differences() {
+    let model = mixed();
+    // 3 + 2 (hinge), 1 + 2 (planar), 3 + 2 (hinge to the ground)
+    assert_eq!(model.constraint_count, 13);
+    let start = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    evaluate(&model, &start, &mut ws, Tangents::None);
+    assert!(ws.constraint.amax() < 1e-12, "the joints hold at the start: {}", ws.constraint.amax());
+
+    let state = off_manifold(&model);
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    assert!(ws.constraint.amax() > 1e-3, "the test state is off the manifold");
+    let phi_q = ws.constraint_jacobian.clone();
+    let h = 1e-6;
+    let n = model.dof_count;
+    let lambda = wiggle(model.constraint_count, 3) * 10.0;
+    // Phi_q^T lambda at a state (reactions as generalized forces)
+    let reactions = |s: &State| {
+        let mut w = Workspace::new(&model);
+        evaluate_forces(&model, s, &mut w);
+        let mut out = DVector::zeros(n);
+        tensegrity::constraints::add_reaction_force(&model, &s.poses, &w.points, &lambda, 1.0, &mut out);
+        out
+    };
+    let mut hessian = DMatrix::zeros(n, n);
+    tensegrity::constraints::add_multiplier_hessian(&model, &state.poses, &lambda, &mut hessian);
+    let base = reactions(&state);
+    assert!((&base - phi_q.transpose() * &lambda).amax() < 1e-12, "reactions are Phi_q^T lambda");
+    for j in 0..n {
+        let e = DVector::from_fn(n, |i, _| if i == j { 1.0 } else { 0.0 });
+        let (sp, sm) = (moved(&model, &state, &e, h), moved(&model, &state, &e, -h));
+        let (mut wp, mut wm) = (Workspace::new(&model), Workspace::new(&model));
+        evaluate(&model, &sp, &mut wp, Tangents::None);
+        evaluate(&model, &sm, &mut wm, Tangents::None);
+        let fd = (&wp.constraint - &wm.constraint) / (2.0 * h);
+        assert!(
+            (&fd - phi_q.column(j)).amax() < 1e-8,
+            "Phi_q column {j}: {}",
+            (&fd - phi_q.column(j)).amax()
+        );
+        let fd = (reactions(&sp) - reactions(&sm)) / (2.0 * h);
+        let err = (&fd - hessian.column(j)).amax();
+        assert!(err < 1e-6 * (1.0 + fd.amax()), "d(Phi_q^T lambda)/dq column {j}: {err}");
+    }
+    // the rates are Phi_q v, and their derivative along the motion is Phi_q vdot + bias
+    let mut rates = DVector::zeros(model.constraint_count);
+    tensegrity::constraints::evaluate_rates(&model, &state.poses, &state.velocities, &ws.points, &mut rates);
+    assert!((&rates - &phi_q * &state.velocities).amax() < 1e-12);
+    let rates_at = |s: &State| {
+        let mut w = Workspace::new(&model);
+        evaluate_forces(&model, s, &mut w);
+        let mut r = DVector::zeros(model.constraint_count);
+        tensegrity::constraints::evaluate_rates(&model, &s.poses, &s.velocities, &w.points, &mut r);
+        r
+    };
+    let fd = (rates_at(&moved(&model, &state, &state.velocities, h))
+        - rates_at(&moved(&model, &state, &state.velocities, -h)))
+        / (2.0 * h);
+    for joint in model.joints.iter().filter(|j| j.alignment.is_some()) {
+        let al = joint.alignment.unwrap();
+        let bias =
+            tensegrity::constraints::alignment_bias(&model, &state.poses, &state.velocities, joint, &al);
+        for r in 0..2 {
+            let want = fd[joint.row_offset + r];
+            assert!(
+                (bias[r] - want).abs() < 1e-7 * (1.0 + want.abs()),
+                "bias row {r}: {} against {want}",
+                bias[r]
+            );
+        }
+    }
+}
+
+/// A 3 kg door hinged at the origin about y, its centre of mass at (1, d, 0), held horizontal by
+/// a stiff vertical cable from its tip (1, 0, 0) to (1, 0, 2).
+fn door(d: f64, kind: &str) -> Model {
+    model_from_toml(&format!(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "door"
+kind = "rigid"
+mass = 3.0
+position = [1.0, {d}, 0.0]
+inertia = [0.4, 0.3, 0.6]
+points = {{ hinge = [-1.0, {md}, 0.0], tip = [0.0, {md}, 0.0] }}
+[[bodies]]
+name = "hook"
+kind = "fixed"
+position = [1.0, 0.0, 2.0]
+[[cables]]
+name = "stay"
+route = ["door.tip", "hook"]
+ea = 1e7
+rest_length = 2.0
+[[joints]]
+kind = "{kind}"
+a = "door.hinge"
+{axis}
+"#,
+        md = -d,
+        axis = if kind == "hinge" { "axis = [0.0, 1.0, 0.0]" } else { "" }
+    ))
+}
+
+#[test]
+fn a_door_on_a_hinge_carries_the_moment_its_cable_cannot() {
+    let (m, g, d) = (3.0, 9.81, 0.3);
+    let model = door(d, "hinge");
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let report = StaticSolver::new(&model)
+        .equilibrate(&model, &mut state, &mut ws, &model.solver)
+        .expect("equilibrium");
+    assert_eq!(report.negative_modes, 0, "{}", report.stability_words());
+    let joints = tensegrity::report::joint_reports(&model, &state);
+    assert_eq!(joints.len(), 1, "one report per scene joint");
+    assert_eq!(joints[0].kind, "hinge");
+    let moment = Vector3::from(joints[0].moment_nm);
+    let force = Vector3::from(joints[0].force_n);
+    let tension = ws.cables[0].tension;
+    assert!((tension - m * g).abs() < 1e-8 * m * g, "the cable carries the weight: {tension}");
+    assert!(
+        (moment.x - m * g * d).abs() < 1e-8 * m * g * d,
+        "moment about x {} against {}",
+        moment.x,
+        m * g * d
+    );
+    assert!(moment.y.abs() < 1e-9 && moment.z.abs() < 1e-6, "no moment about the axis: {moment}");
+    assert!(force.norm() < 1e-6, "nothing left for the hinge's point: {force}");
+    // the same door on a pin (a ball joint to the ground) cannot hold that moment: it turns
+    // about x until its centre of mass is under the hinge-tip line
+    let pinned = door(d, "pin");
+    let mut s = State::initial(&pinned);
+    let mut w = Workspace::new(&pinned);
+    let r = StaticSolver::new(&pinned)
+        .equilibrate(&pinned, &mut s, &mut w, &pinned.solver)
+        .expect("pinned equilibrium");
+    assert_eq!(r.negative_modes, 0, "{}", r.stability_words());
+    let c = s.poses[0].position;
+    assert!(c.y.abs() < 1e-6 && c.z < -0.29, "pinned, the door hangs under the hinge-tip line: {c}");
+}
+
+/// `K(k)`, the complete elliptic integral of the first kind (modulus `k`), by the
+/// arithmetic-geometric mean.
+fn elliptic_k(k: f64) -> f64 {
+    let (mut a, mut b) = (1.0, (1.0 - k * k).sqrt());
+    for _ in 0..30 {
+        (a, b) = (0.5 * (a + b), (a * b).sqrt());
+    }
+    std::f64::consts::PI / (2.0 * a)
+}
+
+/// A 2 kg body with a skewed inertia tensor on a hinge about world y through the origin, its
+/// centre of mass `d` = 0.4 m from the axis, released at `theta0` from hanging straight down.
+fn pendulum(theta0: f64) -> Model {
+    let d = 0.4;
+    let c = [d * theta0.sin(), 0.0, -d * theta0.cos()];
+    // the hinge point in the body frame: the body is turned by `rotation`
+    let rot = nalgebra::Rotation3::new(Vector3::new(0.2, -0.3, 0.4));
+    let local = rot.inverse() * -Vector3::from(c);
+    model_from_toml(&format!(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "bob"
+kind = "rigid"
+mass = 2.0
+position = [{}, {}, {}]
+rotation = [0.2, -0.3, 0.4]
+inertia = [0.05, 0.06, 0.04, 0.005, -0.003, 0.004]
+points = {{ pivot = [{}, {}, {}] }}
+[[joints]]
+kind = "hinge"
+a = "bob.pivot"
+axis = [0.0, 1.0, 0.0]
+"#,
+        c[0], c[1], c[2], local.x, local.y, local.z
+    ))
+}
+
+#[test]
+fn a_body_on_a_hinge_swings_as_a_physical_pendulum() {
+    let theta0: f64 = 0.3;
+    let (m, g, d) = (2.0, 9.81, 0.4);
+    let model = pendulum(theta0);
+    // the moment of inertia about the axis: the body's, turned to the world, plus m d^2
+    let body = &model.bodies[0];
+    let r = body.initial_pose.rotation.to_rotation_matrix().into_inner();
+    let i_world = r * body.inertia * r.transpose();
+    let i_axis = i_world[(1, 1)] + m * d * d;
+    let period = 4.0 * (i_axis / (m * g * d)).sqrt() * elliptic_k((theta0 / 2.0).sin());
+    let cases = [
+        (Integrator::GeneralizedAlpha { rho_inf: 0.9 }, LinearBackend::Dense, 1e-3, 2e-5),
+        (Integrator::GeneralizedAlpha { rho_inf: 0.9 }, LinearBackend::Sparse, 1e-3, 2e-5),
+        (Integrator::Rk4, LinearBackend::Auto, 1e-3, 2e-5),
+        (Integrator::Rk4, LinearBackend::Sparse, 1e-3, 2e-5),
+    ];
+    for (integrator, linear, dt, tolerance) in cases {
+        let settings = SimSettings { dt, integrator, linear, ..Default::default() };
+        let mut sim = Simulator::new(model.clone(), settings).unwrap();
+        // the angle from hanging: x of the centre of mass; its first upward zero crossing after
+        // the start is at a quarter period, the next downward one at three quarters
+        let mut crossings = Vec::new();
+        let mut last = (0.0, sim.state().poses[0].position.x);
+        let mut worst_axis: f64 = 0.0;
+        while crossings.len() < 2 && last.0 < 3.0 * period {
+            sim.step().unwrap();
+            let t = sim.state().time;
+            let x = sim.state().poses[0].position.x;
+            if last.1 * x < 0.0 {
+                crossings.push(last.0 + (t - last.0) * last.1 / (last.1 - x));
+            }
+            last = (t, x);
+            let ws = sim.workspace();
+            worst_axis = worst_axis.max(ws.constraint.amax());
+            let c = sim.state().poses[0].position;
+            assert!(c.y.abs() < 1e-9, "{integrator:?}: the centre left the swing plane by {}", c.y);
+        }
+        assert_eq!(crossings.len(), 2, "{integrator:?}: it swings");
+        let measured = 2.0 * (crossings[1] - crossings[0]);
+        assert!(
+            (measured - period).abs() < tolerance * period,
+            "{integrator:?}: period {measured} s against {period} s"
+        );
+        assert!(worst_axis < 1e-9, "{integrator:?}: the joint drifted by {worst_axis}");
+    }
+}
+
+#[test]
+fn a_body_on_a_tilted_planar_support_slides_and_keeps_its_spin() {
+    let theta: f64 = 0.35;
+    let n = Vector3::new(theta.sin(), 0.0, theta.cos());
+    let model = model_from_toml(&format!(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "puck"
+kind = "rigid"
+mass = 1.2
+position = [0.0, 0.0, 0.0]
+rotation = [0.1, 0.4, -0.2]
+inertia = [0.03, 0.035, 0.04, 0.002, 0.001, -0.003]
+points = {{ centre = [0.0, 0.0, 0.0] }}
+[[joints]]
+kind = "planar"
+a = "puck.centre"
+normal = [{}, {}, {}]
+"#,
+        n.x, n.y, n.z
+    ));
+    let spin = 3.0;
+    for (integrator, linear, tolerance) in [
+        (Integrator::GeneralizedAlpha { rho_inf: 0.9 }, LinearBackend::Dense, 1e-6),
+        (Integrator::GeneralizedAlpha { rho_inf: 0.9 }, LinearBackend::Sparse, 1e-6),
+        (Integrator::Rk4, LinearBackend::Auto, 1e-6),
+    ] {
+        let mut state = State::initial(&model);
+        let r = state.poses[0].rotation;
+        let w_body = r.inverse() * (n * spin);
+        for k in 0..3 {
+            state.velocities[3 + k] = w_body[k];
+        }
+        let settings = SimSettings { dt: 1e-3, integrator, linear, ..Default::default() };
+        let mut sim = Simulator::from_state(model.clone(), state, settings).unwrap();
+        for _ in 0..500 {
+            sim.step().unwrap();
+        }
+        let s = sim.state();
+        let x = s.poses[0].position;
+        let downhill = Vector3::new(theta.cos(), 0.0, -theta.sin());
+        let want = 0.5 * 9.81 * theta.sin() * 0.5f64.powi(2);
+        assert!(n.dot(&x).abs() < 1e-9, "{integrator:?}: off the plane by {}", n.dot(&x));
+        let along = downhill.dot(&x);
+        assert!((along - want).abs() < tolerance * want, "{integrator:?}: slid {along} m against {want}");
+        let omega = s.poses[0].rotation * Vector3::new(s.velocities[3], s.velocities[4], s.velocities[5]);
+        assert!((omega - n * spin).norm() < 1e-6 * spin, "{integrator:?}: spin {omega} against {}", n * spin);
+    }
+}
+
+#[test]
+fn careless_hinges_are_refused_naming_the_field() {
+    let scene = |joint: &str| {
+        format!(
+            r#"
+[[bodies]]
+name = "bar"
+kind = "bar"
+mass = 1.0
+ends = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+[[bodies]]
+name = "box"
+kind = "rigid"
+mass = 1.0
+position = [2.0, 0.0, 0.0]
+inertia = [0.1, 0.1, 0.1]
+points = {{ p = [0.0, 0.0, 0.0], q = [1.0, 0.0, 0.0] }}
+[[bodies]]
+name = "n"
+kind = "node"
+mass = 1.0
+position = [3.0, 0.0, 0.0]
+[[joints]]
+kind = "hinge"
+a = "bar.b"
+b = "box.p"
+axis = [0.0, 0.0, 1.0]
+[[joints]]
+{joint}
+"#
+        )
+    };
+    let cases = [
+        // the same axis again, at another point of it: everything it holds is held already
+        (
+            "kind = \"hinge\"\na = \"box.q\"\naxis = [0.0, 0.0, 1.0]\nat = [3.0, 0.0, 0.0]",
+            "joints[1].a",
+            "redundant",
+        ),
+        ("kind = \"hinge\"\na = \"box.q\"", "joints[1].axis", "missing"),
+        ("kind = \"hinge\"\na = \"box.q\"\naxis = [0.0, 0.0, 0.0]", "joints[1].axis", "zero"),
+        (
+            "kind = \"hinge\"\na = \"box.q\"\nb = \"n\"\naxis = [0.0, 0.0, 1.0]",
+            "joints[1].a",
+            "a node has none",
+        ),
+        ("kind = \"pin\"\na = \"box.q\"\naxis = [0.0, 0.0, 1.0]", "joints[1].axis", "only a hinge"),
+        (
+            "kind = \"planar\"\na = \"box.q\"\nb = \"n\"\nnormal = [0.0, 0.0, 1.0]",
+            "joints[1].b",
+            "planar joint holds one point",
+        ),
+        ("kind = \"planar\"\na = \"box.q\"", "joints[1].normal", "missing"),
+        ("kind = \"planar\"\na = \"n\"\nnormal = [0.0, 0.0, 1.0]", "joints[1].a", "a node has none"),
+    ];
+    for (joint, field, words) in cases {
+        let text = scene(joint);
+        let err = tensegrity::scene::from_toml(&text, "hinge.toml").expect_err(joint).to_string();
+        assert!(err.contains(field) && err.contains(words), "{joint}: {err}");
+    }
+    // a planar scene turns about z only
+    let planar = r#"
+planar = true
+[[bodies]]
+name = "bar"
+kind = "bar"
+mass = 1.0
+ends = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+[[joints]]
+kind = "hinge"
+a = "bar.a"
+axis = [1.0, 0.0, 0.0]
+"#;
+    let err =
+        tensegrity::scene::from_toml(planar, "p.toml").expect_err("axis x in a planar scene").to_string();
+    assert!(err.contains("joints[0].axis") && err.contains("about z only"), "{err}");
+}
