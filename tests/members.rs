@@ -396,6 +396,19 @@ position = [1.0, 0.0, 2.0]
         ),
         ("[[members]]\nname = \"m\"\nends = [\"ground.a\", \"n\"]\nea = -1.0\n", "members[0].ea", "EA"),
         ("[[members]]\nname = \"m\"\nends = [\"ground.a\"]\nea = 1.0\n", "members", ""),
+        // a member whose ends coincide is a fault of its ends, not of its force
+        ("[[members]]\nname = \"m\"\nends = [\"n\", \"n\"]\nea = 1e3\n", "members[0].ends", ""),
+        (
+            "[[bodies]]\nname = \"o\"\nkind = \"node\"\nmass = 1.0\nposition = [1.0, 0.0, 2.0]\n[[members]]\nname = \"m\"\nends = [\"n\", \"o\"]\nea = 1e3\n",
+            "members[0].ends",
+            "zero length at the initial geometry",
+        ),
+        // two collinear members form-found against each other: their common force is free
+        (
+            "[[bodies]]\nname = \"m\"\nkind = \"node\"\nmass = 1.0\nposition = [1.0, 0.0, 0.0]\n[[members]]\nname = \"left\"\nends = [\"ground.a\", \"m\"]\nea = 1e3\nform_find = true\n[[members]]\nname = \"right\"\nends = [\"m\", \"ground.b\"]\nea = 1e3\nform_find = true\n",
+            "members",
+            "cannot determine the forces of",
+        ),
     ];
     for (extra, field, reason) in cases {
         let text = format!("{base}\n{extra}");

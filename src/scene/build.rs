@@ -1338,12 +1338,17 @@ fn set_rest_lengths(
     spec_cables: usize,
     cx: &Ctx,
 ) -> Result<(), SceneError> {
-    model.initial_rest_lengths =
-        find_rest_lengths(model, rest_specs).map_err(|(cable, reason)| match cable {
-            Some(c) if c >= spec_cables => cx.err("members", c - spec_cables, "force", reason),
-            Some(c) => cx.err("cables", c, "prestress", reason),
-            None => cx.top("cables", reason),
-        })?;
+    model.initial_rest_lengths = find_rest_lengths(model, rest_specs).map_err(|(cable, reason)| {
+        let route = reason == crate::solve::formfind::ZERO_LENGTH;
+        match cable {
+            Some(c) if c >= spec_cables => {
+                cx.err("members", c - spec_cables, if route { "ends" } else { "force" }, reason)
+            }
+            Some(c) => cx.err("cables", c, if route { "route" } else { "prestress" }, reason),
+            None => cx
+                .top(if spec_cables == 0 && !model.cables.is_empty() { "members" } else { "cables" }, reason),
+        }
+    })?;
     for (c, ratio) in damping_ratios.iter().enumerate() {
         if let Some(zeta) = ratio {
             let inv_m: f64 = model

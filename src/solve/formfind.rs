@@ -75,6 +75,10 @@ pub const DENSE_FORM_FINDING_MAX: usize = 400;
 /// A form-finding refusal: the cable to blame (index into `Model::cables`), if one is, and why.
 pub type FormFindingError = (Option<usize>, String);
 
+/// The reason `find_rest_lengths` gives for an element whose ends coincide at the initial
+/// geometry (a fault of its route, not of its target).
+pub const ZERO_LENGTH: &str = "zero length at the initial geometry: its ends coincide";
+
 /// What form finding found, and what it cost.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FormFound {
@@ -106,7 +110,7 @@ pub fn find_rest_lengths_with(
     let lengths: Vec<f64> = ws.cables.iter().map(|c| c.length).collect();
     for (c, l) in lengths.iter().enumerate() {
         if *l <= 1e-12 {
-            return Err((Some(c), "the cable has zero length at the initial geometry".into()));
+            return Err((Some(c), ZERO_LENGTH.into()));
         }
     }
     let resolved: Vec<RestLengthSpec> = specs
@@ -254,25 +258,29 @@ impl EquilibriumSystem {
     fn check_equilibrium(&self, x: &DVector<f64>) -> Result<(), FormFindingError> {
         let residual = self.residual(x);
         if residual > 1e-8 * self.scale {
-            return Err((None, format!("the initial geometry is not an equilibrium for any cable tensions (force residual {residual:.3e} N); move the bodies or give rest lengths")));
+            return Err((None, format!("the initial geometry is not an equilibrium for any cable tensions (or member forces) (force residual {residual:.3e} N); move the bodies or give rest lengths")));
         }
         Ok(())
     }
 
     /// The refusal for tensions (columns `< nu` among `open`) that equilibrium leaves free.
     fn undetermined(&self, model: &Model, open: impl Iterator<Item = usize>) -> Result<(), FormFindingError> {
-        let names: Vec<&str> = open
-            .filter(|&col| col < self.unknown.len())
-            .map(|col| model.cable_names[self.unknown[col]].as_str())
-            .collect();
+        let elements: Vec<usize> =
+            open.filter(|&col| col < self.unknown.len()).map(|col| self.unknown[col]).collect();
+        let names: Vec<&str> = elements.iter().map(|&c| model.cable_names[c].as_str()).collect();
         if names.is_empty() {
             return Ok(());
         }
+        // members (and cables that may push) take a force of either sign
+        let push = elements.iter().any(|&c| !model.cables[c].tension_only);
         let listed = if names.len() > 6 {
             format!("{} and {} more", names[..5].join(", "), names.len() - 5)
         } else {
             names.join(", ")
         };
+        if push {
+            return Err((None, format!("form finding cannot determine the forces of {listed}: give one of them a rest_length, or a force ([[members]]) or prestress ([[cables]])")));
+        }
         Err((None, format!("form finding cannot determine the tensions of cables {listed}: give one of them a prestress or a rest_length")))
     }
 }
