@@ -316,7 +316,7 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
             &state.velocities,
             CableId(c),
             route,
-            cable.axial_stiffness,
+            cable::tangent_axial_stiffness(cable, state.rest_lengths[c], cables[c].length),
             cable.damping,
             state.rest_lengths[c],
             t,

@@ -13,6 +13,13 @@
 //! - an elastic member (`CableModel::tension_only` false, two points) keeps the law unclamped:
 //!   `T = (EA/L0)(L - L0) + c Ldot` pushes (`T < 0`) when compressed, `V = EA/(2 L0) (L - L0)^2`
 //!   always, and the matrices below hold at every `T`, negative and zero included;
+//! - a member with a buckling load `P` (`CableModel::buckling_load`) follows, once its
+//!   compression passes `P` (shortening `s = L0 - L` beyond `s_cr = P L0 / EA`), the initial
+//!   post-buckling path of the pinned Euler column in series with its axial compliance: the
+//!   elastica's `P_b = P (1 + delta / (2 L0))` for a bow shortening `delta`, so the compression is
+//!   `N = P + k_b (s - s_cr)` with `k_b = 1 / (L0/EA + 2 L0/P)`, its energy
+//!   `V = P^2 L0 / (2 EA) + P (s - s_cr) + k_b (s - s_cr)^2 / 2`, and `EA/L0` in `K` becomes
+//!   `k_b` (`axial_tangent`);
 //! - `K = (EA/L0) g g^T + T [sum_k G_k^T P_k G_k + sum_i d(J_i^T n_i)/dq] + c g h^T`, with
 //!   `G_k = J_k - J_(k-1)`, `P_k = (I - e_k e_k^T)/l_k`, and
 //!   `h = dLdot/dq = sum_k G_k^T P_k (rdot_k - rdot_(k-1)) + sum_i (d rdot_i/dq)^T n_i`;
@@ -37,33 +44,84 @@ pub const SEGMENT_LENGTH_FLOOR: f64 = 1e-9;
 /// The rest length that disengages an element, cable or member: no force, no energy.
 pub const DISENGAGED: f64 = f64::MAX;
 
-/// Tension law of docs/architecture.md ("The classical and the sliding cable"). `ea` (N), `rest_length` (m, > 0), `damping` (N s/m),
-/// `length` (m), `length_rate` (m/s). Returns the tension (N): `>= 0` for a cable
-/// (`tension_only`), of either sign for a member; 0 at a `DISENGAGED` rest length.
-pub fn tension(
-    ea: f64,
-    damping: f64,
-    rest_length: f64,
-    length: f64,
-    length_rate: f64,
-    tension_only: bool,
-) -> f64 {
-    if rest_length == DISENGAGED || (tension_only && length <= rest_length) {
+/// Tension law of docs/architecture.md ("The classical and the sliding cable"): the elastic
+/// force of `cable` (EA, its law, a member's buckling load; `elastic_force`) at rest length
+/// `rest_length` (m, > 0) and length `length` (m), plus its damping `c` (N s/m) times
+/// `length_rate` (m/s). Returns the tension (N): `>= 0` for a cable (`tension_only`), of either
+/// sign for a member; 0 at a `DISENGAGED` rest length.
+#[inline]
+pub fn tension(cable: &CableModel, rest_length: f64, length: f64, length_rate: f64) -> f64 {
+    if rest_length == DISENGAGED || (cable.tension_only && length <= rest_length) {
         return 0.0;
     }
-    let law = (ea / rest_length) * (length - rest_length) + damping * length_rate;
-    if tension_only {
+    let law = elastic_force(cable, rest_length, length) + cable.damping * length_rate;
+    if cable.tension_only {
         law.max(0.0)
     } else {
         law
     }
 }
 
-/// Elastic energy `EA/(2 L0) (L - L0)^2` (J): a cable's while taut (else 0), a member's always;
-/// 0 at a `DISENGAGED` rest length.
-pub fn elastic_energy(ea: f64, rest_length: f64, length: f64, tension_only: bool) -> f64 {
-    if rest_length == DISENGAGED || (tension_only && length <= rest_length) {
+/// Whether a member is compressed past its buckling load `P` at rest length `l0` and length `l`
+/// (m): `EA (L0 - L) > P L0`. Never for a cable, nor a member without a buckling load.
+#[inline]
+pub fn is_buckled(cable: &CableModel, l0: f64, l: f64) -> bool {
+    cable.buckling_load != f64::INFINITY && cable.axial_stiffness * (l0 - l) > cable.buckling_load * l0
+}
+
+/// The elastic part of the law, N (module docs): `(EA/L0)(L - L0)`, or, for a buckled member,
+/// `-(P + k_b (s - s_cr))` with `s = L0 - L`, `s_cr = P L0 / EA`, `k_b = 1 / (L0/EA + 2 L0/P)`.
+/// The caller clamps a cable at zero.
+#[inline]
+pub fn elastic_force(cable: &CableModel, l0: f64, l: f64) -> f64 {
+    let ea = cable.axial_stiffness;
+    if !is_buckled(cable, l0, l) {
+        return (ea / l0) * (l - l0);
+    }
+    let p = cable.buckling_load;
+    -(p + buckled_stiffness(cable, l0) * (l0 - l - p * l0 / ea))
+}
+
+/// `k_b = 1 / (L0/EA + 2 L0/P)`, N/m: a buckled member's axial stiffness at rest length `l0`.
+fn buckled_stiffness(cable: &CableModel, l0: f64) -> f64 {
+    1.0 / (l0 / cable.axial_stiffness + 2.0 * l0 / cable.buckling_load)
+}
+
+/// `EA_t` such that `EA_t / L0 = dT/dL` of the elastic law (N): `EA` itself, except for a
+/// buckled member, whose `k_b L0` it is. What `add_cable_tangents` takes as `ea`.
+#[inline]
+pub fn tangent_axial_stiffness(cable: &CableModel, l0: f64, l: f64) -> f64 {
+    if is_buckled(cable, l0, l) {
+        buckled_stiffness(cable, l0) * l0
+    } else {
+        cable.axial_stiffness
+    }
+}
+
+/// `dV/dL0` at a fixed length `l` (N) of a buckled member at rest length `l0` (m): with
+/// `u = s - s_cr`, `P^2/(2 EA) + (P + k_b u)(1 - P/EA) - k_b u^2 / (2 L0)`. What an actuator
+/// changing the rest length works against (`elastic_energy`; the unbuckled law's is
+/// `-T (L + L0) / (2 L0)`).
+pub fn buckled_energy_rest_derivative(cable: &CableModel, l0: f64, l: f64) -> f64 {
+    let (ea, p) = (cable.axial_stiffness, cable.buckling_load);
+    let k_b = buckled_stiffness(cable, l0);
+    let u = l0 - l - p * l0 / ea;
+    p * p / (2.0 * ea) + (p + k_b * u) * (1.0 - p / ea) - 0.5 * k_b * u * u / l0
+}
+
+/// Elastic energy (J): `EA/(2 L0) (L - L0)^2`, a cable's while taut (else 0), a member's
+/// always, a buckled member's `P^2 L0 / (2 EA) + P (s - s_cr) + k_b (s - s_cr)^2 / 2` (module
+/// docs); 0 at a `DISENGAGED` rest length.
+pub fn elastic_energy(cable: &CableModel, rest_length: f64, length: f64) -> f64 {
+    let ea = cable.axial_stiffness;
+    if rest_length == DISENGAGED || (cable.tension_only && length <= rest_length) {
         0.0
+    } else if is_buckled(cable, rest_length, length) {
+        let p = cable.buckling_load;
+        let beyond = rest_length - length - p * rest_length / ea;
+        p * p * rest_length / (2.0 * ea)
+            + p * beyond
+            + 0.5 * buckled_stiffness(cable, rest_length) * beyond * beyond
     } else {
         0.5 * ea / rest_length * (length - rest_length).powi(2)
     }
@@ -197,9 +255,9 @@ pub fn add_cable_force(
     scratch: &mut CableScratch,
     force: &mut DVector<f64>,
 ) -> CableResponse {
-    let (ea, only) = (cable.axial_stiffness, cable.tension_only);
+    let only = cable.tension_only;
     let (length, length_rate) = route_geometry(route, kin, scratch);
-    let t = tension(ea, cable.damping, rest_length, length, length_rate, only);
+    let t = tension(cable, rest_length, length, length_rate);
     if t != 0.0 {
         add_length_gradient(model, route, kin, scratch, -t, force);
     }
@@ -209,7 +267,7 @@ pub fn add_cable_force(
         rest_length,
         tension: t,
         slack: only && length <= rest_length,
-        energy: elastic_energy(ea, rest_length, length, only),
+        energy: elastic_energy(cable, rest_length, length),
     }
 }
 

@@ -154,6 +154,10 @@ pub struct CableModel {
     /// member between two points (`[[members]]`, or a cable with `tension_only = false`), whose
     /// law holds in compression too. A member's route has exactly two points.
     pub tension_only: bool,
+    /// A member's buckling load `P`, N (> 0; `f64::INFINITY`: it never buckles, and always for
+    /// a cable): compressed beyond `P`, it follows the post-buckling law of
+    /// `crate::forces::cable::elastic_force` instead of `EA/L0`.
+    pub buckling_load: f64,
 }
 
 impl CableModel {

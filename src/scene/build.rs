@@ -146,8 +146,52 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     check_contacts(spec, &model, &cx)?;
 
     set_rest_lengths(&mut model, &rest_specs, &damping_ratios, spec.cables.len(), &cx)?;
+    set_buckling_loads(spec, &mut model, &cx)?;
     model.schedule = build_schedule(spec, &model, &cx)?;
     Ok(model)
+}
+
+/// Sets each member's buckling load (`buckling_load`, or `pi^2 EI / L0^2` of its initial rest
+/// length from `bending_stiffness`) once the rest lengths are known, and refuses a member whose
+/// target force (`force`, `form_find`) already compresses it past that load: form finding
+/// solves the unbuckled law.
+fn set_buckling_loads(spec: &SceneSpec, model: &mut Model, cx: &Ctx) -> Result<(), SceneError> {
+    let first = spec.cables.len();
+    let state = crate::state::State::initial(model);
+    let mut ws = None;
+    for (i, m) in spec.members.iter().enumerate() {
+        let e = |field: &str, reason: String| cx.err("members", i, field, reason);
+        let c = first + i;
+        let l0 = model.initial_rest_lengths[c];
+        let load = match (m.bending_stiffness, m.buckling_load) {
+            (None, None) => continue,
+            (Some(_), Some(_)) => {
+                return Err(e("buckling_load", "give bending_stiffness or buckling_load, not both".into()))
+            }
+            (Some(ei), None) => {
+                let ei = in_range(ei, limits::BENDING_STIFFNESS, "N m^2")
+                    .map_err(|r| e("bending_stiffness", r))?;
+                std::f64::consts::PI.powi(2) * ei / (l0 * l0)
+            }
+            (None, Some(p)) => in_range(p, limits::BUCKLING_LOAD, "N").map_err(|r| e("buckling_load", r))?,
+        };
+        if m.force.is_some() || m.form_find {
+            let ws = ws.get_or_insert_with(|| {
+                let mut w = crate::evaluate::Workspace::for_forces(model);
+                crate::evaluate::evaluate_forces(model, &state, &mut w);
+                w
+            });
+            let t = ws.cables[c].tension;
+            if -t > load {
+                return Err(e(
+                    if m.form_find { "form_find" } else { "force" },
+                    format!("the member starts compressed by {:.6e} N, past its buckling load {load:.6e} N: form finding solves the unbuckled law; give a rest_length instead", -t),
+                ));
+            }
+        }
+        model.cables[c].buckling_load = load;
+    }
+    Ok(())
 }
 
 /// The bodies and their points, in scene order (`build_bodies`).
@@ -1241,6 +1285,7 @@ fn build_cables(
             axial_stiffness: c.ea,
             damping,
             tension_only: c.tension_only,
+            buckling_load: f64::INFINITY,
         });
         cable_names.push(c.name.clone());
     }

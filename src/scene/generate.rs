@@ -145,6 +145,8 @@ pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64) {
             force: None,
             form_find: true,
             mass: b.mass,
+            bending_stiffness: None,
+            buckling_load: None,
         });
     }
     spec.bodies = bodies;

@@ -37,6 +37,10 @@ pub mod limits {
     pub const INERTIA: (f64, f64) = (1e-15, 1e12);
     /// Axial stiffness EA, N.
     pub const EA: (f64, f64) = (1e-6, 1e12);
+    /// Bending stiffness EI, N m².
+    pub const BENDING_STIFFNESS: (f64, f64) = (1e-12, 1e12);
+    /// Buckling load, N.
+    pub const BUCKLING_LOAD: (f64, f64) = (1e-9, 1e12);
     /// Damping coefficient, N s/m.
     pub const DAMPING: (f64, f64) = (0.0, 1e9);
     /// Damping ratio.
@@ -437,6 +441,13 @@ pub struct MemberSpec {
     /// Mass, kg, lumped half on each end; the ends must then be nodes or fixed points.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass: Option<f64>,
+    /// Bending stiffness EI, N m² (> 0): the member buckles at the Euler load of a pinned-pinned
+    /// column of its initial rest length, `P = pi^2 EI / L0^2`. Excludes `buckling_load`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bending_stiffness: Option<f64>,
+    /// Buckling load P, N (> 0), given directly. Excludes `bending_stiffness`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub buckling_load: Option<f64>,
 }
 
 /// An actuator: sets one cable's rest length within limits.

@@ -211,7 +211,7 @@ impl EquilibriumSystem {
             length_gradient_entries(model, route, &ws.points, &scratch, &mut entries);
             if let RestLengthSpec::Given(l0) = spec {
                 let cable = &model.cables[c];
-                let t = tension(cable.axial_stiffness, 0.0, *l0, lengths[c], 0.0, cable.tension_only);
+                let t = tension(cable, *l0, lengths[c], 0.0);
                 for &(r, g) in &entries {
                     b[r] += t * g;
                 }

@@ -60,6 +60,16 @@ pub fn run(scene: &Path) -> Result<(), String> {
             "members: {} (elastic: push and pull; in the cable lists, negative tension is compression)",
             s.members
         );
+        let buckling: Vec<String> = model
+            .cables
+            .iter()
+            .zip(&model.cable_names)
+            .filter(|(c, _)| c.buckling_load.is_finite())
+            .map(|(c, name)| format!("{name} at {:.6} N", c.buckling_load))
+            .collect();
+        if !buckling.is_empty() {
+            say!("buckling: {} (past it, the elastica's post-buckling law)", buckling.join(", "));
+        }
     }
     say!("pulleys: {}", s.pulleys);
     say!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));

@@ -236,13 +236,8 @@ impl Dynamics {
         }
         if nc > 0 {
             for joint in &model.joints {
-                if let Some(al) = &joint.alignment {
-                    let bias =
-                        crate::constraints::alignment_bias(model, &state.poses, &state.velocities, joint, al);
-                    for r in 0..joint.rows {
-                        work[n + joint.row_offset + r] = -bias[r];
-                    }
-                    continue;
+                if joint.alignment.is_some() {
+                    continue; // alignment_biases
                 }
                 let mut bias = Vector3::zeros();
                 for (p, sign) in crate::constraints::joint_points(joint) {
@@ -252,6 +247,9 @@ impl Dynamics {
                 for r in 0..joint.rows {
                     work[n + joint.row_offset + r] = -bias[r];
                 }
+            }
+            if !self.ws.poses.is_empty() {
+                alignment_biases(model, state, n, work);
             }
         }
         if !self.solve_mass_and_joints(model) {
@@ -445,6 +443,21 @@ impl Dynamics {
         }
         self.trial.velocities.copy_from(&self.explicit.work.rows(0, n));
         Some(true)
+    }
+}
+
+/// Writes `-d/dt(Phi_q) v` of every hinge's and planar joint's axis rows into `work` (rows from
+/// `n`): apart from the point joints' loop, which it would otherwise weigh down.
+#[cold]
+#[inline(never)]
+fn alignment_biases(model: &Model, state: &State, n: usize, work: &mut DVector<f64>) {
+    for joint in &model.joints {
+        if let Some(al) = &joint.alignment {
+            let bias = crate::constraints::alignment_bias(model, &state.poses, &state.velocities, joint, al);
+            for r in 0..joint.rows {
+                work[n + joint.row_offset + r] = -bias[r];
+            }
+        }
     }
 }
 

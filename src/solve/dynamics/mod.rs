@@ -583,7 +583,15 @@ pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f
         if r.slack || (model.cables[c].tension_only && r.length <= r.rest_length) {
             continue; // a member works in compression too
         }
-        let ea = model.cables[c].axial_stiffness;
+        let cable = &model.cables[c];
+        if crate::forces::cable::is_buckled(cable, r.rest_length, r.length) {
+            let t_el = crate::forces::cable::elastic_force(cable, r.rest_length, r.length);
+            actuator += crate::forces::cable::buckled_energy_rest_derivative(cable, r.rest_length, r.length)
+                * rest_rate[c];
+            loss += (r.tension - t_el) * r.length_rate;
+            continue;
+        }
+        let ea = cable.axial_stiffness;
         let t_el = ea / r.rest_length * (r.length - r.rest_length);
         actuator -= t_el * (r.length + r.rest_length) / (2.0 * r.rest_length) * rest_rate[c];
         loss += (r.tension - t_el) * r.length_rate;
