@@ -26,8 +26,10 @@
 //! force-per-length scale, in a structure loaded by its weights rather than held by prestress)
 //! have their tensions as unknowns (`equilibrate_mixed`): Newton then measures their misfit as a
 //! length, not as `EA/L0` times it, and its iteration count does not grow with EA
-//! (`tests/stiff_statics.rs`: 1e2 to 1e9 N at the same cost). Elastic members (they push) stay in
-//! the displacement form.
+//! (`tests/stiff_statics.rs`: 1e2 to 1e9 N at the same cost). Stiff elastic members (they push;
+//! without a buckling law) join them in scenes below `SPARSE_STATICS_MIN` coordinates, prestressed
+//! structures included, since a member never goes slack; larger scenes and buckling members stay
+//! in the displacement form.
 //!
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
 //! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
@@ -865,12 +867,19 @@ pub const PRESTRESSED_START: f64 = 1e-6;
 /// to it (`tests/free_structures.rs`, `tests/perturbed_starts.rs`). A sketch drawn with its
 /// cables overstretched is not in equilibrium and keeps its stiff cables. `size` is
 /// `body_size(model)`; `ws` (a `Workspace::for_forces` will do) is overwritten.
+///
+/// Stiff elastic members (`CableModel::tension_only` false, without a buckling law) join the set
+/// in scenes small enough for the mixed form's dense steps (`SPARSE_STATICS_MIN`), prestressed or
+/// not: a member cannot go slack, so no self-stress is lost through it, and its force takes
+/// either sign.
 pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> {
     if model.cables.is_empty() {
         return Vec::new();
     }
     let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
-    if weight == 0.0 {
+    let mixed_member = |c: &crate::model::CableModel| !c.tension_only && c.buckling_load == f64::INFINITY;
+    let members = model.dof_count < SPARSE_STATICS_MIN && model.cables.iter().any(mixed_member);
+    if weight == 0.0 && !members {
         return Vec::new();
     }
     let mut initial = State::initial(model);
@@ -882,17 +891,19 @@ pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> 
         residual -= ws.constraint_jacobian.transpose() * &initial.multipliers;
     }
     let balanced = residual.amax() <= PRESTRESSED_START * tension.max(weight);
-    if tension > weight && balanced {
+    let prestressed = weight == 0.0 || (tension > weight && balanced);
+    if prestressed && !members {
         return Vec::new();
     }
     // the tensions of a sketch out of equilibrium say nothing of the loads: the weights do
-    let force = if balanced { weight.max(tension) } else { weight };
+    let force = if balanced || weight == 0.0 { weight.max(tension) } else { weight };
     let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max).max(size);
     let reference = force.max(1e-12) / length;
     (0..model.cables.len())
         .filter(|&c| {
-            model.cables[c].tension_only
-                && model.cables[c].axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
+            let cable = &model.cables[c];
+            let kind = if cable.tension_only { !prestressed } else { members && mixed_member(cable) };
+            kind && cable.axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
         })
         .collect()
 }
@@ -917,6 +928,8 @@ struct StiffCables {
     tension: Vec<f64>,
     /// Compliances `c = L0 / EA`, m/N.
     compliance: Vec<f64>,
+    /// True for a member: its force takes either sign and it never goes slack (always active).
+    push: Vec<bool>,
     /// True while a cable is taut in the iteration (its length equation is imposed).
     active: Vec<bool>,
     /// Lengths `L` at the last evaluation, m.
@@ -933,6 +946,15 @@ impl StiffCables {
             self.length[i] - rest_length - self.compliance[i] * self.tension[i]
         } else {
             (self.length[i] - rest_length).max(0.0)
+        }
+    }
+    /// Element `i`'s force after a step `dt` from `t` (N): a cable's by `next_tension` (kept
+    /// above a floor, never below zero), a member's `t + dt` of either sign.
+    fn next_tension(&self, i: usize, t: f64, dt: f64) -> f64 {
+        if self.push[i] {
+            t + dt
+        } else {
+            next_tension(t, dt)
         }
     }
     fn active_ids(&self) -> Vec<usize> {
@@ -985,7 +1007,7 @@ impl StaticSolver {
                 &mut stiff.gradient[i],
             );
             let t = stiff.tension[i];
-            if !stiff.active[i] || t <= 0.0 {
+            if !stiff.active[i] || (t <= 0.0 && !stiff.push[i]) {
                 continue;
             }
             force.axpy(-t, &stiff.gradient[i], 1.0);
@@ -1081,7 +1103,11 @@ impl StaticSolver {
         let mut stiff = StiffCables {
             tension: ids.iter().map(|&c| ws.cables[c].tension).collect(),
             compliance: ids.iter().map(|&c| rest[c] / model.cables[c].axial_stiffness).collect(),
-            active: ids.iter().map(|&c| ws.cables[c].tension > 0.0).collect(),
+            push: ids.iter().map(|&c| !model.cables[c].tension_only).collect(),
+            active: ids
+                .iter()
+                .map(|&c| ws.cables[c].tension > 0.0 || !model.cables[c].tension_only)
+                .collect(),
             length: vec![0.0; m],
             gradient: vec![DVector::zeros(n); m],
             ids,
@@ -1110,8 +1136,9 @@ impl StaticSolver {
             work.multipliers.copy_from(&state.multipliers);
             Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
             for i in 0..m {
-                // taut while it carries tension or is stretched
-                stiff.active[i] = stiff.tension[i] > 0.0 || stiff.length[i] > rest[stiff.ids[i]];
+                // taut while it carries tension or is stretched (a member always)
+                stiff.active[i] =
+                    stiff.push[i] || stiff.tension[i] > 0.0 || stiff.length[i] > rest[stiff.ids[i]];
                 if !stiff.active[i] {
                     stiff.tension[i] = 0.0;
                 }
@@ -1127,7 +1154,7 @@ impl StaticSolver {
                 .iter()
                 .map(|b| b.mass * model.gravity.norm())
                 .chain(ws.cables.iter().map(|c| c.tension.abs()))
-                .chain(stiff.tension.iter().copied())
+                .chain(stiff.tension.iter().map(|t| t.abs()))
                 .fold(1e-12, f64::max);
             let l_scale = res.length_scale;
 
@@ -1211,7 +1238,7 @@ impl StaticSolver {
                 retract(model, &mut work.poses, &self.dq, alpha);
                 work.multipliers = &base_multipliers + &dlambda * alpha;
                 for i in 0..m {
-                    stiff.tension[i] = next_tension(base_tension[i], alpha * dt[i]);
+                    stiff.tension[i] = stiff.next_tension(i, base_tension[i], alpha * dt[i]);
                 }
                 if energy_mode {
                     Self::mixed_evaluate(model, &work, ws, &mut stiff, false);
@@ -1245,7 +1272,7 @@ impl StaticSolver {
             retract(model, &mut state.poses, &self.dq, alpha);
             state.multipliers = &base_multipliers + &dlambda * alpha;
             for i in 0..m {
-                stiff.tension[i] = next_tension(base_tension[i], alpha * dt[i]);
+                stiff.tension[i] = stiff.next_tension(i, base_tension[i], alpha * dt[i]);
             }
             if energy_mode {
                 // a descent step moves the poses, not towards the reactions: take them afresh
@@ -1301,11 +1328,12 @@ fn least_squares_tensions(
     let nc = model.constraint_count;
     let mut q = ws.force.clone_owned();
     for i in 0..stiff.ids.len() {
-        if stiff.active[i] && stiff.tension[i] > 0.0 {
+        if stiff.active[i] && (stiff.tension[i] > 0.0 || stiff.push[i]) {
             q.axpy(stiff.tension[i], &stiff.gradient[i], 1.0);
         }
     }
-    let taut: Vec<usize> = (0..stiff.ids.len()).filter(|&i| stiff.length[i] >= rest[stiff.ids[i]]).collect();
+    let taut: Vec<usize> =
+        (0..stiff.ids.len()).filter(|&i| stiff.push[i] || stiff.length[i] >= rest[stiff.ids[i]]).collect();
     let rows = nc + taut.len();
     if rows == 0 {
         return;
@@ -1332,7 +1360,7 @@ fn least_squares_tensions(
         work.multipliers.copy_from(&y.rows(0, nc));
     }
     for (k, &i) in taut.iter().enumerate() {
-        stiff.tension[i] = y[nc + k].max(0.0);
+        stiff.tension[i] = if stiff.push[i] { y[nc + k] } else { y[nc + k].max(0.0) };
         stiff.active[i] = true;
     }
 }
