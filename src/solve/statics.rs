@@ -32,7 +32,9 @@
 //! in the displacement form.
 //!
 //! Stability: the equilibrium is stable when the symmetric part of `K + H_lambda`, restricted to
-//! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest).
+//! the null space of `Phi_q`, is positive definite (smallest eigenvalue above `1e-9` of the largest);
+//! with stiff members in the mixed form, on the motions that also keep their lengths
+//! (`dense_stability`).
 //! Neutral directions (free rigid motions, unstressed mechanisms) count as not stable.
 //!
 //! Size: from `SPARSE_STATICS_MIN` coordinates the solver works on the sparse KKT system of the
@@ -790,7 +792,11 @@ impl StaticSolver {
     ) -> EquilibriumReport {
         let modes = match &mut self.sparse {
             Some(kkt) => sparse_stability(kkt, model, state, ws),
-            None => dense_stability(model, state, ws),
+            None => {
+                let members: Vec<usize> =
+                    self.stiff.iter().copied().filter(|&c| !model.cables[c].tension_only).collect();
+                dense_stability(model, state, ws, &members)
+            }
         };
         EquilibriumReport {
             iterations,
@@ -811,7 +817,13 @@ impl StaticSolver {
 /// zero eigenvalues (relative to the largest, `1e-9`), from the dense tangent last evaluated into
 /// `ws`: the reduced tangent `Z^T K_sym Z` over an orthonormal null-space basis `Z` of `Phi_q`,
 /// all its eigenvalues (`sparse_stability` counts them without forming `Z`).
-fn dense_stability(model: &Model, state: &State, ws: &Workspace) -> Modes {
+///
+/// The stiff members `stiff_members` (the mixed form's, `stiff_cables`) are judged in their
+/// inextensible limit: `Z` also spans only motions that keep their lengths, on which their
+/// material stiffness `(EA/L0) g g^T` vanishes, so the tolerance scales with the structure's own
+/// stiffness and not with theirs (a strut of EA 1e12 N would otherwise make every mode below
+/// 1e-9 of its `EA/L0` count as zero). Along their lengths they only add stiffness.
+fn dense_stability(model: &Model, state: &State, ws: &Workspace, stiff_members: &[usize]) -> Modes {
     let n = model.dof_count;
     if n == 0 {
         return Modes { min_eigenvalue: 0.0, negative: 0, zero: 0, rigid: 0 };
@@ -821,7 +833,25 @@ fn dense_stability(model: &Model, state: &State, ws: &Workspace) -> Modes {
         add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut k);
     }
     let k_sym = (&k + k.transpose()) * 0.5;
-    let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
+    let held = if stiff_members.is_empty() {
+        None
+    } else {
+        let nc = model.constraint_count;
+        let mut j = DMatrix::zeros(nc + stiff_members.len(), n);
+        if nc > 0 {
+            j.view_mut((0, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+        }
+        let mut scratch = crate::forces::cable::CableScratch::new(2);
+        for (k, &c) in stiff_members.iter().enumerate() {
+            let route = model.route(CableId(c));
+            crate::forces::cable::route_geometry(route, &ws.points, &mut scratch);
+            let mut g = DVector::zeros(n);
+            crate::forces::cable::add_length_gradient(model, route, &ws.points, &scratch, 1.0, &mut g);
+            j.view_mut((nc + k, 0), (1, n)).copy_from(&g.transpose());
+        }
+        Some(j)
+    };
+    let Some(z) = crate::constraints::null_space(held.as_ref().unwrap_or(&ws.constraint_jacobian), n) else {
         return Modes { min_eigenvalue: f64::INFINITY, negative: 0, zero: 0, rigid: 0 };
     };
     let reduced = z.transpose() * &k_sym * z;
@@ -1715,7 +1745,7 @@ fn sparse_stability(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut 
 /// the dense tangent at `state` first.
 fn dense_stability_fallback(model: &Model, state: &State, ws: &mut Workspace) -> Modes {
     evaluate(model, state, ws, Tangents::Stiffness);
-    dense_stability(model, state, ws)
+    dense_stability(model, state, ws, &[])
 }
 
 /// Solves the KKT system with a Levenberg term `mu I` on the coordinate block, starting from
