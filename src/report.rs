@@ -24,6 +24,8 @@ pub struct CableReport {
     pub strain: f64,
     /// True when `L <= L0`.
     pub slack: bool,
+    /// True for a member compressed past its buckling load (`forces::cable::is_buckled`).
+    pub buckled: bool,
     /// Segment lengths, m, from the first anchor.
     pub segment_lengths: Vec<f64>,
     /// Cable passed through each pulley since `reference` (m, positive towards the last anchor):
@@ -161,6 +163,7 @@ pub fn cable_reports(
                 rest_length: r.rest_length,
                 strain: (r.length - r.rest_length) / r.rest_length,
                 slack: r.slack,
+                buckled: crate::forces::cable::is_buckled(&model.cables[c], r.rest_length, r.length),
                 segment_lengths: ws.cable_segments(model, c).to_vec(),
                 pulley_slip: now.iter().zip(&reference[c]).map(|(a, b)| a - b).collect(),
             }

@@ -167,6 +167,14 @@ fn a_column_buckles_at_the_euler_load() {
     let (a1, a2) = ((s2 - s1) / (w2 - w1), (s4 - s3) / (w4 - w3));
     let knee = (s3 - s1 + a1 * w1 - a2 * w3) / (a1 - a2);
     assert!((knee - p).abs() < 1e-6 * p, "buckles at {knee} N, Euler's {p} N");
+    // statics says so
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tensegrity"))
+        .args(["statics", concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples/column.toml"), "--json"])
+        .output()
+        .unwrap();
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("statics --json");
+    let column = &json["cables"][0];
+    assert_eq!(column["buckled"], serde_json::Value::Bool(true), "{column}");
 }
 
 #[test]

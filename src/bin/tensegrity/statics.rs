@@ -132,7 +132,13 @@ fn format_statics(
             c.rest_length,
             c.strain,
             c.segment_lengths.len() - 1,
-            if c.slack { "yes" } else { "no" }
+            if c.slack {
+                "yes"
+            } else if c.buckled {
+                "no, buckled"
+            } else {
+                "no"
+            }
         );
     }
     // sliding cables: where the cable runs and how far it has passed through each pulley
