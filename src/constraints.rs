@@ -186,9 +186,11 @@ pub fn alignment_bias(
     al: &Alignment,
 ) -> Vector3<f64> {
     let (e, w) = alignment_vectors(model, poses, joint, al);
+    // world angular velocity R (B v)_spin
     let omega = |p: PointId| {
         let body = model.points[p.0].body;
-        spin_jacobian(model, poses, body) * body_velocity(model, body, v)
+        let local = model.bodies[body.0].local_increment(v.as_slice(), 1.0);
+        poses[body.0].rotation * Vector3::new(local[3], local[4], local[5])
     };
     let wa = omega(joint.point);
     let wb = match joint.target {
@@ -242,12 +244,7 @@ pub fn add_reaction_force(
             for (pid, sign) in joint_points(joint) {
                 let body = model.points[pid.0].body;
                 let g = spin_jacobian(model, poses, body);
-                let k = model.bodies[body.0].dof_count;
-                let f = g.transpose() * m;
-                let o = model.bodies[body.0].dof_offset;
-                for c in 0..k {
-                    out[o + c] += sign * scale * f[c];
-                }
+                add_vector(model, body, &(g.transpose() * m), sign * scale, out);
             }
             continue;
         }
