@@ -419,12 +419,21 @@ fn build_bodies(spec: &SceneSpec, cx: &Ctx) -> Result<Bodies, SceneError> {
     Ok(Bodies { bodies, points, point_names, dof })
 }
 
-/// A joint's kind, its held world directions (`JointModel::directions`) and its rows.
-type HeldDirections = (crate::model::JointKind, Option<Matrix3<f64>>, usize);
+/// What a joint spec holds, checked: its kind, held world directions
+/// (`JointModel::directions`), point rows, and the unit world axis its alignment keeps (a
+/// hinge's axis or a planar joint's normal; none for a hinge in a planar scene, whose bodies
+/// turn about z only).
+struct HeldDirections {
+    kind: crate::model::JointKind,
+    directions: Option<Matrix3<f64>>,
+    rows: usize,
+    aligned_axis: Option<Vector3<f64>>,
+}
 
-/// A joint's kind, held world directions (`JointModel::directions`) and rows: ball joints and
-/// pins hold every direction (`rows`: 3, or 2 in a planar scene); a roller the directions
-/// across its line, a slider its plane's normal. On error, the field and the reason.
+/// A joint's kind, held world directions, rows and aligned axis: ball joints and pins hold
+/// every direction (`rows`: 3, or 2 in a planar scene); a roller the directions across its
+/// line, a slider its plane's normal; a hinge and a planar joint also keep an axis. On error,
+/// the field and the reason.
 fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirections, (&'static str, String)> {
     use crate::model::JointKind;
     let planar = rows == 2;
@@ -463,12 +472,12 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
             stray("direction", j.direction.is_some())?;
             stray("normal", j.normal.is_some())?;
             let kind = if j.kind == super::JointKindSpec::Ball { JointKind::Ball } else { JointKind::Pin };
-            Ok((kind, None, rows))
+            Ok(HeldDirections { kind, directions: None, rows, aligned_axis: None })
         }
         super::JointKindSpec::Hinge => {
             stray("direction", j.direction.is_some())?;
             stray("normal", j.normal.is_some())?;
-            if planar {
+            let aligned_axis = if planar {
                 let axis = j.axis.ok_or(("axis", "missing: a hinge needs its axis".to_string()))?;
                 if axis[0] != 0.0 || axis[1] != 0.0 || axis[2] == 0.0 {
                     return Err((
@@ -476,10 +485,11 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
                         "a planar scene turns about z only: a hinge's axis must be [0, 0, 1]".into(),
                     ));
                 }
+                None
             } else {
-                unit(j.axis, "axis", "hinge")?;
-            }
-            Ok((JointKind::Hinge, None, rows))
+                Some(unit(j.axis, "axis", "hinge")?)
+            };
+            Ok(HeldDirections { kind: JointKind::Hinge, directions: None, rows, aligned_axis })
         }
         super::JointKindSpec::Slider | super::JointKindSpec::Planar => {
             stray("direction", j.direction.is_some())?;
@@ -497,7 +507,8 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
             let n = unit(j.normal, "normal", what)?;
             let mut d = Matrix3::zeros();
             d.set_row(0, &n.transpose());
-            Ok((kind, Some(d), 1))
+            let aligned_axis = (kind == JointKind::Planar).then_some(n);
+            Ok(HeldDirections { kind, directions: Some(d), rows: 1, aligned_axis })
         }
         super::JointKindSpec::Roller => {
             stray("normal", j.normal.is_some())?;
@@ -506,7 +517,12 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
             if planar {
                 // the line's normal in the plane
                 d.set_row(0, &Vector3::new(-t.y, t.x, 0.0).transpose());
-                return Ok((JointKind::Roller, Some(d), 1));
+                return Ok(HeldDirections {
+                    kind: JointKind::Roller,
+                    directions: Some(d),
+                    rows: 1,
+                    aligned_axis: None,
+                });
             }
             // two unit vectors across the line
             let helper = if t.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
@@ -514,7 +530,7 @@ fn support_directions(j: &super::JointSpec, rows: usize) -> Result<HeldDirection
             let w = t.cross(&u);
             d.set_row(0, &u.transpose());
             d.set_row(1, &w.transpose());
-            Ok((JointKind::Roller, Some(d), 2))
+            Ok(HeldDirections { kind: JointKind::Roller, directions: Some(d), rows: 2, aligned_axis: None })
         }
     }
 }
@@ -589,7 +605,8 @@ fn build_joints(
                 JointTarget::World(at)
             }
         };
-        let (kind, directions, joint_rows) = support_directions(j, rows).map_err(|(f, r)| e(f, r))?;
+        let held = support_directions(j, rows).map_err(|(f, r)| e(f, r))?;
+        let (kind, directions, joint_rows) = (held.kind, held.directions, held.rows);
         let gap = match target {
             JointTarget::Point(b) => point_pos(a) - point_pos(b),
             JointTarget::World(x) => point_pos(a) - x,
@@ -651,14 +668,8 @@ fn build_joints(
             JointTarget::Point(b) => Some(points[b.0].body),
             JointTarget::World(_) => None,
         };
-        // a hinge's or planar joint's axis rows (none for a hinge in a planar scene, whose
-        // bodies turn about z only)
-        let axis = match j.kind {
-            JointKindSpec::Hinge if rows == 3 => j.axis.map(Vector3::from),
-            JointKindSpec::Planar => j.normal.map(Vector3::from),
-            _ => None,
-        };
-        let alignment = match axis {
+        // a hinge's or planar joint's axis rows
+        let alignment = match held.aligned_axis {
             None => None,
             Some(axis) => {
                 let orients = |b: crate::model::BodyId| {
@@ -673,7 +684,7 @@ fn build_joints(
                         ),
                     ));
                 }
-                Some(axis_alignment(&axis.normalize(), bodies, body_a, other_body))
+                Some(axis_alignment(&axis, bodies, body_a, other_body))
             }
         };
         let base = JointModel {
