@@ -225,14 +225,18 @@ pub struct JointReport {
 /// multipliers): one report per `[[joints]]` entry (a hinge's axis rows join its point's).
 pub fn joint_reports(model: &Model, state: &State) -> Vec<JointReport> {
     let mut out: Vec<JointReport> = Vec::new();
+    // which report each scene joint has: a hinge's or planar joint's axis rows are a second
+    // `JointModel` with its point rows' `scene_index`, and add the moment to that report
+    let mut report_of = vec![usize::MAX; model.joints.iter().map(|j| j.scene_index + 1).max().unwrap_or(0)];
     for j in &model.joints {
         if j.alignment.is_some() {
-            if let Some(last) = out.last_mut() {
-                last.moment_nm =
+            if let Some(report) = out.get_mut(report_of[j.scene_index]) {
+                report.moment_nm =
                     (-crate::constraints::joint_moment(model, &state.poses, j, &state.multipliers)).into();
             }
             continue;
         }
+        report_of[j.scene_index] = out.len();
         out.push(JointReport {
             kind: j.kind.as_str(),
             point: model.points[j.point.0].name.clone(),
