@@ -11,6 +11,7 @@ use crate::constraints;
 use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableResponse, CableScratch};
 use crate::forces::collision::{add_collision_force, add_collision_tangents, ClosestPoints};
 use crate::forces::contact::{add_contact_force, add_contact_tangents, ContactResponse};
+use crate::forces::pulley::{add_friction_cable_force, add_friction_cable_tangents, FrictionWork};
 use crate::kinematics::{point_kinematics, PointKinematics};
 use crate::model::{BodyId, CableId, Model, PointId, Pose};
 use crate::state::State;
@@ -75,6 +76,8 @@ pub struct Workspace {
     pub poses: Vec<Pose>,
     /// Per-route scratch (public so that callers can pass it to `add_tangents`).
     pub scratch: CableScratch,
+    /// What the pulleys with friction do (`crate::forces::pulley`; empty without).
+    pub friction: FrictionWork,
 }
 
 impl Workspace {
@@ -114,6 +117,7 @@ impl Workspace {
                 Vec::new()
             },
             scratch: CableScratch::new(max_route),
+            friction: FrictionWork::new(model),
         }
     }
 
@@ -158,7 +162,8 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
             damping: if want_c { Some(&mut ws.damping) } else { None },
         };
         let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
-        add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
+        let scratch = (&mut ws.scratch, &mut ws.friction);
+        add_tangents(model, state, &ws.points, &ws.cables, contacts, scratch, &mut sink);
     }
     constraints::evaluate_jacobian(model, &state.poses, &ws.points, &mut ws.constraint_jacobian);
 }
@@ -223,15 +228,33 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     let mut elastic = 0.0;
     for (c, cable) in model.cables.iter().enumerate() {
         let route = model.route(CableId(c));
-        let response = add_cable_force(
-            model,
-            route,
-            cable,
-            state.rest_lengths[c],
-            &ws.points,
-            &mut ws.scratch,
-            &mut ws.force,
-        );
+        let response = match cable.friction {
+            None => add_cable_force(
+                model,
+                route,
+                cable,
+                state.rest_lengths[c],
+                &ws.points,
+                &mut ws.scratch,
+                &mut ws.force,
+            ),
+            Some(f) => {
+                let friction = &model.pulley_friction[f];
+                let o = friction.segment_offset;
+                add_friction_cable_force(
+                    model,
+                    route,
+                    cable,
+                    friction,
+                    state.rest_lengths[c],
+                    &state.segment_rest_lengths[o..o + cable.segment_count()],
+                    &ws.points,
+                    &mut ws.scratch,
+                    &mut ws.friction,
+                    &mut ws.force,
+                )
+            }
+        };
         elastic += response.energy;
         ws.cables[c] = response;
         let start = cable.route_start - c;
@@ -266,14 +289,15 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
 
 /// Adds the cables' and contacts' tangent stiffness and damping at `state` into `sink`, using the
 /// point kinematics `points` and cable responses `cables` that `evaluate_forces` left for this
-/// state (and the contact responses `contacts`, one per `Model::contact_pairs`).
+/// state (and the contact responses `contacts`, one per `Model::contact_pairs`, and the pulleys'
+/// return map in `friction`).
 pub fn add_tangents<S: TangentSink + ?Sized>(
     model: &Model,
     state: &State,
     points: &[PointKinematics],
     cables: &[CableResponse],
     (contacts, strut_closest): (&[ContactResponse], &[ClosestPoints]),
-    scratch: &mut CableScratch,
+    (scratch, friction): (&mut CableScratch, &mut FrictionWork),
     sink: &mut S,
 ) {
     if model.rayleigh.alpha > 0.0 {
@@ -304,11 +328,19 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
         }
     }
     for (c, cable) in model.cables.iter().enumerate() {
+        let route = model.route(CableId(c));
+        if let Some(f) = cable.friction {
+            let (poses, v, l0) = (&state.poses, &state.velocities, state.rest_lengths[c]);
+            let f = &model.pulley_friction[f];
+            add_friction_cable_tangents(
+                model, poses, v, route, cable, f, l0, points, scratch, friction, sink,
+            );
+            continue;
+        }
         let t = cables[c].tension;
         if !cable::is_engaged(cable, state.rest_lengths[c], t) {
             continue;
         }
-        let route = model.route(CableId(c));
         cable::route_geometry(route, points, scratch);
         add_cable_tangents(
             model,

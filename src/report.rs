@@ -33,6 +33,69 @@ pub struct CableReport {
     /// `s_i = L0 sum_(k<=i) l_k / L`; slip is the change of `s_i` (the cable is taken as reeled at
     /// its last anchor).
     pub pulley_slip: Vec<f64>,
+    /// Each pulley's friction state, for a cable whose pulleys have friction (empty otherwise;
+    /// then `tension` is the tension of the segment at the cable's winch end).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub pulleys: Vec<PulleyReport>,
+}
+
+/// What one pulley with friction does (`crate::forces::pulley`), for output.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PulleyReport {
+    /// The route point the pulley is.
+    pub point: String,
+    /// `stick`, `slip-start` (the cable slips toward the route's first anchor), `slip-end`,
+    /// `free` (mu = 0) or `slack`.
+    pub state: &'static str,
+    /// True when its tension ratio is at the capstan bound `exp(mu theta)` (within 1e-9): a
+    /// pulley that has just slipped into an equilibrium sticks there at its limit.
+    pub at_limit: bool,
+    /// Friction coefficient.
+    pub mu: f64,
+    /// Wrap angle, rad.
+    pub wrap_angle_rad: f64,
+    /// Tension of the segment before the pulley (toward the first anchor), N.
+    pub tension_before_n: f64,
+    /// Tension of the segment after it, N.
+    pub tension_after_n: f64,
+    /// Material that crossed it since t = 0, m (positive: toward the first anchor; what the
+    /// winch wound in or paid out is not slip).
+    pub slip_m: f64,
+    /// Its rate over the last accepted step, m/s (0 after a static solve).
+    pub slip_speed_m_s: f64,
+}
+
+/// The pulley reports of cable `c` (empty when its pulleys have no friction).
+pub fn pulley_reports(model: &Model, state: &State, ws: &Workspace, c: usize) -> Vec<PulleyReport> {
+    let Some(f) = model.cables[c].friction else {
+        return Vec::new();
+    };
+    let f = &model.pulley_friction[f];
+    let route = model.route(crate::model::CableId(c));
+    let w = &ws.friction;
+    let (now, initial) = (&state.segment_rest_lengths, &model.initial_segment_rest_lengths);
+    let wound = state.rest_lengths[c] - model.initial_rest_lengths[c];
+    let mut crossed = 0.0;
+    (0..f.mu.len())
+        .map(|i| {
+            let (j, k) = (f.pulley_offset + i, f.segment_offset + i);
+            crossed += now[k] - initial[k];
+            let (before, after) = (w.tensions[k], w.tensions[k + 1]);
+            let bound = (f.mu[i] * w.wrap_angles[j]).exp();
+            let ratio = if before > 0.0 && after > 0.0 { (before / after).max(after / before) } else { 0.0 };
+            PulleyReport {
+                point: model.points[route[i + 1].0].name.clone(),
+                state: w.states[j].as_str(),
+                at_limit: f.mu[i] > 0.0 && (ratio - bound).abs() <= 1e-9 * bound,
+                mu: f.mu[i],
+                wrap_angle_rad: w.wrap_angles[j],
+                tension_before_n: w.tensions[k],
+                tension_after_n: w.tensions[k + 1],
+                slip_m: crossed - if f.fed_segment <= i { wound } else { 0.0 },
+                slip_speed_m_s: w.slip_speeds[j],
+            }
+        })
+        .collect()
 }
 
 /// What one contact sphere is doing against one ground (or one bar against another), for
@@ -166,6 +229,7 @@ pub fn cable_reports(
                 buckled: crate::forces::cable::is_buckled(&model.cables[c], r.rest_length, r.length),
                 segment_lengths: ws.cable_segments(model, c).to_vec(),
                 pulley_slip: now.iter().zip(&reference[c]).map(|(a, b)| a - b).collect(),
+                pulleys: pulley_reports(model, state, ws, c),
             }
         })
         .collect()

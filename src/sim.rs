@@ -210,6 +210,9 @@ pub struct EnergyAccount {
     /// (Rayleigh's `beta` included), the contacts, the joints' rotational damping and Rayleigh's
     /// mass-proportional `alpha`.
     pub damping_loss: f64,
+    /// Energy dissipated since the start by friction at the pulleys, booked per accepted step
+    /// (`crate::forces::pulley::commit`).
+    pub friction_loss: f64,
     /// Total energy at the start.
     pub initial_total: f64,
 }
@@ -222,7 +225,7 @@ impl EnergyAccount {
     /// Energy the balance does not explain: `initial + work - loss - total` (the integrator's
     /// numerical dissipation plus its error).
     pub fn numerical_loss(&self) -> f64 {
-        self.initial_total + self.actuator_work - self.damping_loss - self.total()
+        self.initial_total + self.actuator_work - self.damping_loss - self.friction_loss - self.total()
     }
 }
 
@@ -642,6 +645,15 @@ impl Simulator {
                             }
                             continue;
                         }
+                    }
+                    if !self.model.pulley_friction.is_empty() {
+                        // the pulleys' return map at the accepted state becomes the state
+                        self.energy.friction_loss += crate::forces::pulley::commit(
+                            &self.model,
+                            &mut self.ws.friction,
+                            &mut self.state.segment_rest_lengths,
+                            h_try,
+                        );
                     }
                     stats.newton_iterations += a.iterations;
                     stats.factorizations += a.factorizations;

@@ -21,6 +21,11 @@ pub struct State {
     pub rest_lengths: Vec<f64>,
     /// Joint reaction multipliers (N), one per constraint row: the force that holds the joint.
     pub multipliers: DVector<f64>,
+    /// Rest length of every segment of the cables with pulley friction, m
+    /// (`PulleyFriction::segment_offset`; empty without friction): the material on each side of
+    /// a pulley at the last accepted step, from which the next step's sticking and slipping
+    /// start.
+    pub segment_rest_lengths: Vec<f64>,
 }
 
 impl State {
@@ -32,6 +37,7 @@ impl State {
             velocities: DVector::zeros(model.dof_count),
             rest_lengths: model.initial_rest_lengths.clone(),
             multipliers: DVector::zeros(model.constraint_count),
+            segment_rest_lengths: model.initial_segment_rest_lengths.clone(),
         }
     }
 
@@ -42,6 +48,7 @@ impl State {
         self.velocities.copy_from(&other.velocities);
         self.rest_lengths.copy_from_slice(&other.rest_lengths);
         self.multipliers.copy_from(&other.multipliers);
+        self.segment_rest_lengths.copy_from_slice(&other.segment_rest_lengths);
     }
 
     /// True if every number in the state is finite.
@@ -50,6 +57,7 @@ impl State {
             && self.velocities.iter().all(|v| v.is_finite())
             && self.multipliers.iter().all(|v| v.is_finite())
             && self.rest_lengths.iter().all(|v| v.is_finite())
+            && self.segment_rest_lengths.iter().all(|v| v.is_finite())
             && self.poses.iter().all(|p| {
                 p.position.iter().all(|v| v.is_finite()) && p.rotation.coords.iter().all(|v| v.is_finite())
             })

@@ -248,6 +248,8 @@ fn random_scene(kinds: &[u8], routes: &[Vec<usize>], rest: &[f64], damping: &[f6
             prestress: None,
             force_density: None,
             tension_only: true,
+            pulley_friction: None,
+            winch_end: None,
         });
     }
     let mut joints = vec![JointSpec {

@@ -37,6 +37,7 @@ fn member(p: f64) -> CableModel {
         damping: 0.0,
         tension_only: false,
         buckling_load: p,
+        friction: None,
     }
 }
 

@@ -55,6 +55,8 @@ fn scene(p: &Params, route: &[usize], planar: bool) -> SceneSpec {
         prestress: None,
         force_density: None,
         tension_only: true,
+        pulley_friction: None,
+        winch_end: None,
     };
     SceneSpec { planar, bodies: vec![g, n, b, r], cables: vec![cable], ..Default::default() }
 }

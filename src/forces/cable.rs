@@ -156,6 +156,13 @@ pub struct CableScratch {
 }
 
 impl CableScratch {
+    /// Unit direction `e_k` of segment `k` (from route point `k - 1` to `k`, `k >= 1`) of the
+    /// route `route_geometry` last computed (zero for a segment shorter than
+    /// `SEGMENT_LENGTH_FLOOR`).
+    pub fn segment_direction(&self, k: usize) -> Vector3<f64> {
+        self.seg_dir[k - 1]
+    }
+
     /// Scratch for routes of up to `max_route_len` points.
     pub fn new(max_route_len: usize) -> Self {
         Self {
@@ -281,6 +288,34 @@ pub fn is_engaged(cable: &CableModel, rest_length: f64, t: f64) -> bool {
     }
 }
 
+/// Adds segment `k`'s (from route point `k - 1` to `k`) share of the geometric stiffness at
+/// tension `t` (N), `t G_k^T P_k G_k` with `P_k = (I - e_k e_k^T) / l_k` (module docs), using
+/// the geometry `route_geometry` left in `scratch`. Nothing for a segment shorter than
+/// `SEGMENT_LENGTH_FLOOR`.
+pub fn add_segment_geometric_stiffness<S: TangentSink + ?Sized>(
+    route: &[PointId],
+    k: usize,
+    kin: &[PointKinematics],
+    scratch: &CableScratch,
+    t: f64,
+    sink: &mut S,
+) {
+    let l = scratch.segment_lengths[k - 1];
+    if l <= SEGMENT_LENGTH_FLOOR {
+        return;
+    }
+    let body_of = |i: usize| kin[route[i].0].body;
+    let e = scratch.seg_dir[k - 1];
+    let p = (Matrix3::identity() - e * e.transpose()) / l;
+    let (ji, jj) = (&kin[route[k - 1].0].jacobian, &kin[route[k].0].jacobian);
+    let (pji, pjj) = (p * ji, p * jj);
+    let cross = jj.transpose() * pji; // its transpose is ji^T P jj (P is symmetric)
+    sink.stiffness(body_of(k), body_of(k), &(jj.transpose() * pjj), t);
+    sink.stiffness(body_of(k - 1), body_of(k - 1), &(ji.transpose() * pji), t);
+    sink.stiffness(body_of(k), body_of(k - 1), &cross, -t);
+    sink.stiffness(body_of(k - 1), body_of(k), &cross.transpose(), -t);
+}
+
 /// Adds one cable's tangent stiffness `K` and damping matrix `C` (module docs) into `sink`, for
 /// the tension `t` (N) found by `add_cable_force` and the route geometry it left in `scratch`
 /// (call `route_geometry` again when the scratch was reused since). The caller skips elements
@@ -304,19 +339,7 @@ pub fn add_cable_tangents<S: TangentSink + ?Sized>(
     let body_of = |i: usize| kin[route[i].0].body;
     // T sum_k G_k^T P_k G_k
     for k in 1..=m {
-        let l = scratch.segment_lengths[k - 1];
-        if l <= SEGMENT_LENGTH_FLOOR {
-            continue;
-        }
-        let e = scratch.seg_dir[k - 1];
-        let p = (Matrix3::identity() - e * e.transpose()) / l;
-        let (ji, jj) = (&kin[route[k - 1].0].jacobian, &kin[route[k].0].jacobian);
-        let (pji, pjj) = (p * ji, p * jj);
-        let cross = jj.transpose() * pji; // its transpose is ji^T P jj (P is symmetric)
-        sink.stiffness(body_of(k), body_of(k), &(jj.transpose() * pjj), t);
-        sink.stiffness(body_of(k - 1), body_of(k - 1), &(ji.transpose() * pji), t);
-        sink.stiffness(body_of(k), body_of(k - 1), &cross, -t);
-        sink.stiffness(body_of(k - 1), body_of(k), &cross.transpose(), -t);
+        add_segment_geometric_stiffness(route, k, kin, scratch, t, sink);
     }
     // T sum_i d(J_i^T n_i)/dq
     for i in 0..=m {

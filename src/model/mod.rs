@@ -158,6 +158,9 @@ pub struct CableModel {
     /// a cable): compressed beyond `P`, it follows the post-buckling law of
     /// `crate::forces::cable::elastic_force` instead of `EA/L0`.
     pub buckling_load: f64,
+    /// Index into `Model::pulley_friction` when some pulley of this cable has friction (`None`:
+    /// frictionless pulleys, one tension along the route, and friction costs nothing).
+    pub friction: Option<usize>,
 }
 
 impl CableModel {
@@ -169,6 +172,26 @@ impl CableModel {
     pub fn pulley_count(&self) -> usize {
         self.route_len - 2
     }
+}
+
+/// Coulomb friction at a clustered cable's pulleys (`crate::forces::pulley`): the cable's
+/// material on each segment is state (`State::segment_rest_lengths`), and across pulley `i`
+/// the tensions of its two segments keep `T_high <= T_low exp(mu_i theta_i)`, `theta_i` the
+/// wrap angle from the geometry; the cable slips through the pulley only at that bound.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PulleyFriction {
+    /// The cable.
+    pub cable: CableId,
+    /// Friction coefficient of each pulley in route order (`pulley_count` entries, >= 0).
+    pub mu: Vec<f64>,
+    /// Index of the cable's first segment in `State::segment_rest_lengths` (and of its
+    /// segments' entries in the workspace).
+    pub segment_offset: usize,
+    /// Index of the cable's first pulley among all friction pulleys (workspace outputs).
+    pub pulley_offset: usize,
+    /// The segment an actuator winds material into or out of: 0 (the winch at the route's
+    /// first anchor) or `segment_count - 1` (at its last).
+    pub fed_segment: usize,
 }
 
 /// The contact law of a ground (`crate::forces::contact`): a compliant normal force with
@@ -482,6 +505,13 @@ pub struct Model {
     pub constraint_count: usize,
     /// Rest lengths at t = 0, m, parallel to `cables` (from the scene or from form finding).
     pub initial_rest_lengths: Vec<f64>,
+    /// Cables whose pulleys have friction (none: every pulley is frictionless, and friction
+    /// costs nothing).
+    pub pulley_friction: Vec<PulleyFriction>,
+    /// Rest length of every segment of the friction cables at t = 0, m (`PulleyFriction::
+    /// segment_offset`): the initial rest length shared in proportion to the initial segment
+    /// lengths, as a frictionless cable would hold it.
+    pub initial_segment_rest_lengths: Vec<f64>,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
     /// Rayleigh damping (zero: none, and it costs nothing).

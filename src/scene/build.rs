@@ -129,6 +129,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         dof_count: dof,
         constraint_count,
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
+        pulley_friction: Vec::new(),
+        initial_segment_rest_lengths: Vec::new(),
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
         damped_joints,
@@ -147,8 +149,85 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
 
     set_rest_lengths(&mut model, &rest_specs, &damping_ratios, spec.cables.len(), &cx)?;
     set_buckling_loads(spec, &mut model, &cx)?;
+    set_pulley_friction(spec, &mut model, &cx)?;
     model.schedule = build_schedule(spec, &model, &cx)?;
     Ok(model)
+}
+
+/// Gives the cables whose pulleys have friction (`pulley_friction`, the cable's or the
+/// scene's) their `PulleyFriction` and their segments' initial rest lengths (the initial rest
+/// length at uniform strain). A cable whose coefficients are all 0 stays the frictionless
+/// element. Refused: a coefficient out of range, a list whose length is not the cable's pulley
+/// count, friction on a cable without pulleys, `winch_end` on an element that cannot use it.
+fn set_pulley_friction(spec: &SceneSpec, model: &mut Model, cx: &Ctx) -> Result<(), SceneError> {
+    use super::{PulleyFrictionSpec, WinchEndSpec};
+    let default = match spec.pulley_friction {
+        Some(mu) => in_range(mu, limits::FRICTION, "").map_err(|r| cx.top("pulley_friction", r))?,
+        None => 0.0,
+    };
+    let (mut segment_offset, mut pulley_offset) = (0, 0);
+    for (i, c) in spec.cables.iter().enumerate() {
+        let e = |field: &str, reason: String| cx.err("cables", i, field, reason);
+        let pulleys = c.route.len() - 2;
+        let mu = match &c.pulley_friction {
+            Some(_) if pulleys == 0 => {
+                return Err(e("pulley_friction", "a cable between two points has no pulleys".into()))
+            }
+            Some(PulleyFrictionSpec::All(mu)) => {
+                vec![in_range(*mu, limits::FRICTION, "").map_err(|r| e("pulley_friction", r))?; pulleys]
+            }
+            Some(PulleyFrictionSpec::Each(list)) => {
+                if list.len() != pulleys {
+                    return Err(e(
+                        "pulley_friction",
+                        format!(
+                            "one coefficient per pulley: the route has {pulleys}, the list {}",
+                            list.len()
+                        ),
+                    ));
+                }
+                for mu in list {
+                    in_range(*mu, limits::FRICTION, "").map_err(|r| e("pulley_friction", r))?;
+                }
+                list.clone()
+            }
+            None => vec![default; pulleys],
+        };
+        let with_friction = mu.iter().any(|m| *m > 0.0);
+        if c.winch_end.is_some() && !with_friction {
+            return Err(e(
+                "winch_end",
+                "only a cable with pulley friction has a winch end (without, the material runs freely)"
+                    .into(),
+            ));
+        }
+        if !with_friction {
+            continue;
+        }
+        let segments = pulleys + 1;
+        model.cables[i].friction = Some(model.pulley_friction.len());
+        model.pulley_friction.push(crate::model::PulleyFriction {
+            cable: crate::model::CableId(i),
+            mu,
+            segment_offset,
+            pulley_offset,
+            fed_segment: match c.winch_end {
+                Some(WinchEndSpec::Last) => segments - 1,
+                _ => 0,
+            },
+        });
+        segment_offset += segments;
+        pulley_offset += pulleys;
+    }
+    if !model.pulley_friction.is_empty() {
+        let state = crate::state::State::initial(model);
+        let kin: Vec<_> = (0..model.points.len())
+            .map(|p| crate::kinematics::point_kinematics(model, &state.poses, &state.velocities, PointId(p)))
+            .collect();
+        model.initial_segment_rest_lengths =
+            crate::forces::pulley::shared_rest_lengths(model, &kin, &model.initial_rest_lengths);
+    }
+    Ok(())
 }
 
 /// Sets each member's buckling load (`buckling_load`, or `pi^2 EI / L0^2` of its initial rest
@@ -1155,6 +1234,8 @@ fn member_as_cable(m: &super::MemberSpec) -> (CableSpec, bool) {
         prestress: m.force,
         force_density: None,
         tension_only: false,
+        pulley_friction: None,
+        winch_end: None,
     };
     (cable, m.form_find)
 }
@@ -1297,6 +1378,7 @@ fn build_cables(
             damping,
             tension_only: c.tension_only,
             buckling_load: f64::INFINITY,
+            friction: None,
         });
         cable_names.push(c.name.clone());
     }

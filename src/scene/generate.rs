@@ -76,6 +76,8 @@ fn cable(name: String, route: Vec<String>, ea: f64, zeta: f64) -> CableSpec {
         prestress: None,
         force_density: None,
         tension_only: true,
+        pulley_friction: None,
+        winch_end: None,
     }
 }
 
@@ -554,6 +556,8 @@ pub fn atwood(p: &AtwoodParams) -> SceneSpec {
             prestress: None,
             force_density: None,
             tension_only: true,
+            pulley_friction: None,
+            winch_end: None,
         }],
         ..Default::default()
     }
@@ -680,6 +684,8 @@ pub fn sixbar(p: &SixbarParams) -> SceneSpec {
                 prestress: None,
                 force_density: None,
                 tension_only: true,
+                pulley_friction: None,
+                winch_end: None,
             });
         }
     }

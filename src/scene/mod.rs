@@ -133,6 +133,9 @@ pub struct SceneSpec {
     /// Structural (Rayleigh) damping.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub damping: Option<DampingSpec>,
+    /// Coulomb friction coefficient of every pulley whose cable does not say (default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulley_friction: Option<f64>,
     /// Bodies.
     #[serde(default)]
     pub bodies: Vec<BodySpec>,
@@ -405,6 +408,35 @@ pub struct CableSpec {
     /// see `[[members]]`). Refused on a route with pulleys.
     #[serde(default = "yes", skip_serializing_if = "is_true")]
     pub tension_only: bool,
+    /// Coulomb friction coefficient of the route's pulleys (>= 0): one number for every
+    /// pulley, or one per pulley in route order. Default: the scene's `pulley_friction`, else 0
+    /// (frictionless: one tension along the route).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulley_friction: Option<PulleyFrictionSpec>,
+    /// The anchor where an actuator winds this cable in or pays it out: `first` (default) or
+    /// `last`. It matters only with pulley friction, where the material enters at that end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub winch_end: Option<WinchEndSpec>,
+}
+
+/// A cable's `pulley_friction`: one coefficient for all its pulleys, or one each.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum PulleyFrictionSpec {
+    /// The same `mu` at every pulley.
+    All(f64),
+    /// `mu` per pulley, in route order.
+    Each(Vec<f64>),
+}
+
+/// Which anchor of a cable its winch is at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WinchEndSpec {
+    /// The route's first point.
+    First,
+    /// The route's last point.
+    Last,
 }
 
 /// An elastic member between two points: the cable law `T = (EA/L0)(L - L0) + c Ldot` without
@@ -620,6 +652,8 @@ fn plain_words(message: &str) -> String {
         ("struct GroundSpec", "a [[grounds]] table"),
         ("enum BodyKindSpec", "a body kind (node, bar, rigid or fixed)"),
         ("enum JointKindSpec", "a joint kind (ball, pin, roller, slider, hinge or planar)"),
+        ("untagged enum PulleyFrictionSpec", "a friction coefficient, or a list of one per pulley"),
+        ("enum WinchEndSpec", "a cable end (first or last)"),
     ]
     .iter()
     .fold(message.to_string(), |m, (from, to)| m.replace(from, to))

@@ -547,6 +547,9 @@ impl KktSystem {
         let n = model.dof_count;
         let nc = model.constraint_count;
         let backend = match backend {
+            // pulley friction couples a cable's segments through its return map, a tangent the
+            // bordered sparse pattern does not hold
+            _ if !model.pulley_friction.is_empty() => LinearBackend::Dense,
             LinearBackend::Auto if n + nc >= SPARSE_MIN_SIZE => LinearBackend::Sparse,
             LinearBackend::Auto => LinearBackend::Dense,
             b => b,

@@ -370,6 +370,9 @@ pub fn load_rate(model: &Model, state: &State, ws: &mut Workspace, rates: &[f64]
         if rates[c] == 0.0 || (cable.tension_only && response.length <= response.rest_length) {
             continue; // a member's force changes with its rest length in compression too
         }
+        if cable.friction.is_some() {
+            continue; // no predictor through the pulleys' return map: the corrector finds it
+        }
         let route = model.route(crate::model::CableId(c));
         crate::forces::cable::route_geometry(route, &ws.points, &mut ws.scratch);
         let l0 = state.rest_lengths[c];
@@ -647,7 +650,10 @@ impl StaticSolver {
         loop {
             let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
                 Start::Go(res) => res,
-                Start::Converged(report) => return Ok(report),
+                Start::Converged(report) => {
+                    commit_friction(model, state, ws);
+                    return Ok(report);
+                }
                 Start::Stop => break,
             };
             iterations += 1;
@@ -933,9 +939,20 @@ pub fn stiff_cables(model: &Model, ws: &mut Workspace, size: f64) -> Vec<usize> 
         .filter(|&c| {
             let cable = &model.cables[c];
             let kind = if cable.tension_only { !prestressed } else { members && mixed_member(cable) };
-            kind && cable.axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
+            // a cable with pulley friction has a tension per segment, not one unknown
+            kind && cable.friction.is_none()
+                && cable.axial_stiffness / initial.rest_lengths[c] > STIFF_CABLE_RATIO * reference
         })
         .collect()
+}
+
+/// At an equilibrium found: the pulleys' return map (`crate::forces::pulley`) becomes the
+/// state's segment rest lengths, so the next solve (a deployment's next load step) starts from
+/// the material where this one left it.
+fn commit_friction(model: &Model, state: &mut State, ws: &mut Workspace) {
+    if !model.pulley_friction.is_empty() {
+        crate::forces::pulley::commit(model, &mut ws.friction, &mut state.segment_rest_lengths, 0.0);
+    }
 }
 
 /// A stiff cable's tension after a step `dt` from `t` (N): at least `TENSION_FLOOR` of `t`, so
@@ -1156,7 +1173,10 @@ impl StaticSolver {
             // converged in the displacement form, as `equilibrate` tests it
             let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
                 Start::Go(res) => res,
-                Start::Converged(report) => return Ok(report),
+                Start::Converged(report) => {
+                    commit_friction(model, state, ws);
+                    return Ok(report);
+                }
                 Start::Stop => break,
             };
             iterations += 1;
@@ -1590,7 +1610,15 @@ fn assemble_sparse(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut W
     kkt.add_joints(model, &state.poses, &ws.points);
     let mut sink = kkt.tangents(1.0, 0.0);
     let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
-    add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
+    add_tangents(
+        model,
+        state,
+        &ws.points,
+        &ws.cables,
+        contacts,
+        (&mut ws.scratch, &mut ws.friction),
+        &mut sink,
+    );
     if model.constraint_count > 0 {
         add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
     }

@@ -168,6 +168,8 @@ pub fn free_prism_spec() -> SceneSpec {
             rest_length: None,
             force_density: None,
             tension_only: true,
+            pulley_friction: None,
+            winch_end: None,
             ..template.clone()
         });
     }

@@ -72,6 +72,17 @@ pub fn run(scene: &Path) -> Result<(), String> {
         }
     }
     say!("pulleys: {}", s.pulleys);
+    if !model.pulley_friction.is_empty() {
+        let with: Vec<String> = model
+            .pulley_friction
+            .iter()
+            .map(|f| {
+                let mus: Vec<String> = f.mu.iter().map(|m| format!("{m}")).collect();
+                format!("{} (mu {})", model.cable_names[f.cable.0], mus.join(", "))
+            })
+            .collect();
+        say!("pulley friction: {} (capstan stick and slip; dense Newton systems)", with.join("; "));
+    }
     say!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));
     if s.planar {
         say!("planar: yes (xy plane)");

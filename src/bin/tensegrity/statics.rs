@@ -142,7 +142,9 @@ fn format_statics(
         );
     }
     // sliding cables: where the cable runs and how far it has passed through each pulley
-    let sliding: Vec<&report::CableReport> = cables.iter().filter(|c| c.segment_lengths.len() > 1).collect();
+    // (a cable with pulley friction has its own table below)
+    let sliding: Vec<&report::CableReport> =
+        cables.iter().filter(|c| c.segment_lengths.len() > 1 && c.pulleys.is_empty()).collect();
     if !sliding.is_empty() {
         let _ =
             writeln!(out, "\n{:<14} {:>8}  {:>12} {:>12}", "sliding cable", "segment", "length m", "slip m");
@@ -162,6 +164,32 @@ fn format_statics(
                     "",
                     "...",
                     m - SHOWN
+                );
+            }
+        }
+    }
+    // pulleys with friction: which stick, which slip, and the tensions on their two sides
+    let with_friction: Vec<&report::CableReport> = cables.iter().filter(|c| !c.pulleys.is_empty()).collect();
+    if !with_friction.is_empty() {
+        let _ = writeln!(
+            out,
+            "\n{:<14} {:<16} {:>6} {:<10} {:>10} {:>12} {:>12} {:>10}",
+            "cable", "pulley", "mu", "state", "wrap deg", "T before N", "T after N", "slip m"
+        );
+        for c in with_friction {
+            for (i, p) in c.pulleys.iter().enumerate() {
+                let name = if i == 0 { c.name.as_str() } else { "" };
+                let _ = writeln!(
+                    out,
+                    "{:<14} {:<16} {:>6.3} {:<10} {:>10.3} {:>12.6} {:>12.6} {:>10.6}",
+                    name,
+                    p.point,
+                    p.mu,
+                    if p.at_limit && p.state == "stick" { "at limit" } else { p.state },
+                    p.wrap_angle_rad.to_degrees(),
+                    Num(p.tension_before_n),
+                    Num(p.tension_after_n),
+                    Num(p.slip_m)
                 );
             }
         }

@@ -164,6 +164,7 @@ impl Dynamics {
 
         self.trial.time = state.time + h;
         self.trial.rest_lengths.copy_from_slice(rest_next);
+        self.trial.segment_rest_lengths.copy_from_slice(&state.segment_rest_lengths);
         let mut stats = AttemptStats::default();
         let coefficients = (beta_p, gamma_p);
         // with contacts, full Newton: the friction's slope changes by orders of magnitude between
@@ -450,7 +451,15 @@ pub fn assemble_newton_matrix(
     assemble_mass_and_joints(model, ws, mass, kkt);
     let mut sink = kkt.tangents(1.0 / beta_p, gamma_p / beta_p);
     let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
-    add_tangents(model, state, &ws.points, &ws.cables, contacts, &mut ws.scratch, &mut sink);
+    add_tangents(
+        model,
+        state,
+        &ws.points,
+        &ws.cables,
+        contacts,
+        (&mut ws.scratch, &mut ws.friction),
+        &mut sink,
+    );
     add_gyroscopic_damping(model, &state.velocities, &mut sink);
     if model.constraint_count > 0 {
         add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);

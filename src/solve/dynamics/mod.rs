@@ -580,6 +580,13 @@ pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f
     let mut loss =
         ws.contact_loss_power + ws.joint_loss_power + 2.0 * model.rayleigh.alpha * ws.energies.kinetic;
     for (c, r) in ws.cables.iter().enumerate() {
+        if let Some(f) = model.cables[c].friction {
+            let f = &model.pulley_friction[f];
+            let (a, l) = crate::forces::pulley::powers(model, &ws.friction, f, rest_rate[c]);
+            actuator += a;
+            loss += l;
+            continue;
+        }
         if r.slack || (model.cables[c].tension_only && r.length <= r.rest_length) {
             continue; // a member works in compression too
         }

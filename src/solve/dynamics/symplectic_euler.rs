@@ -32,6 +32,7 @@ impl Dynamics {
         self.trial.velocities.copy_from(&state.velocities);
         self.trial.multipliers.copy_from(&state.multipliers);
         self.trial.rest_lengths.copy_from_slice(rest_now);
+        self.trial.segment_rest_lengths.copy_from_slice(&state.segment_rest_lengths);
         evaluate_forces(model, &self.trial, &mut self.ws);
         // f = Q - gyro (in `residual`), M v_n (in `vdot`)
         self.v.fill(0.0);
