@@ -76,8 +76,10 @@ pub struct Workspace {
     pub poses: Vec<Pose>,
     /// Per-route scratch (public so that callers can pass it to `add_tangents`).
     pub scratch: CableScratch,
-    /// What the pulleys with friction do (`crate::forces::pulley`; empty without).
-    pub friction: FrictionWork,
+    /// What the pulleys with friction do (`crate::forces::pulley`; empty without). Boxed: the
+    /// integrators swap whole workspaces every step, and a scene without friction should not
+    /// pay for copying its bookkeeping.
+    pub friction: Box<FrictionWork>,
 }
 
 impl Workspace {
@@ -117,7 +119,7 @@ impl Workspace {
                 Vec::new()
             },
             scratch: CableScratch::new(max_route),
-            friction: FrictionWork::new(model),
+            friction: Box::new(FrictionWork::new(model)),
         }
     }
 
@@ -162,7 +164,7 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
             damping: if want_c { Some(&mut ws.damping) } else { None },
         };
         let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
-        let scratch = (&mut ws.scratch, &mut ws.friction);
+        let scratch = (&mut ws.scratch, &mut *ws.friction);
         add_tangents(model, state, &ws.points, &ws.cables, contacts, scratch, &mut sink);
     }
     constraints::evaluate_jacobian(model, &state.poses, &ws.points, &mut ws.constraint_jacobian);

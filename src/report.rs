@@ -31,7 +31,7 @@ pub struct CableReport {
     /// Cable passed through each pulley since `reference` (m, positive towards the last anchor):
     /// under uniform strain the rest length between the first anchor and pulley `i` is
     /// `s_i = L0 sum_(k<=i) l_k / L`; slip is the change of `s_i` (the cable is taken as reeled at
-    /// its last anchor).
+    /// its last anchor). With pulley friction: `PulleyReport::slip_m` (since t = 0).
     pub pulley_slip: Vec<f64>,
     /// Each pulley's friction state, for a cable whose pulleys have friction (empty otherwise;
     /// then `tension` is the tension of the segment at the cable's winch end).
@@ -58,10 +58,11 @@ pub struct PulleyReport {
     pub tension_before_n: f64,
     /// Tension of the segment after it, N.
     pub tension_after_n: f64,
-    /// Material that crossed it since t = 0, m (positive: toward the first anchor; what the
-    /// winch wound in or paid out is not slip).
+    /// Cable that ran through it since t = 0, m (positive toward the last anchor, as
+    /// `CableReport::pulley_slip`; what the winch wound in or paid out is not slip).
     pub slip_m: f64,
-    /// Its rate over the last accepted step, m/s (0 after a static solve).
+    /// Its rate over the last accepted step, m/s (positive toward the last anchor; 0 after a
+    /// static solve).
     pub slip_speed_m_s: f64,
 }
 
@@ -91,8 +92,8 @@ pub fn pulley_reports(model: &Model, state: &State, ws: &Workspace, c: usize) ->
                 wrap_angle_rad: w.wrap_angles[j],
                 tension_before_n: w.tensions[k],
                 tension_after_n: w.tensions[k + 1],
-                slip_m: crossed - if f.fed_segment <= i { wound } else { 0.0 },
-                slip_speed_m_s: w.slip_speeds[j],
+                slip_m: -(crossed - if f.fed_segment <= i { wound } else { 0.0 }),
+                slip_speed_m_s: -w.slip_speeds[j],
             }
         })
         .collect()
@@ -160,6 +161,40 @@ pub fn contact_csv_columns(model: &Model) -> Vec<String> {
     cols
 }
 
+/// CSV columns of the pulleys with friction, four per pulley `{cable}@{point}`: `_slipping`
+/// (+1 slipping toward the last anchor, -1 toward the first, 0 otherwise), `_tension_ratio`
+/// (after over before; 0 when either side is slack), `_slip_m` (since t = 0, positive toward the
+/// last anchor) and `_slip_m_s`; none without friction.
+pub fn pulley_csv_columns(model: &Model) -> Vec<String> {
+    let mut cols = Vec::new();
+    for f in &model.pulley_friction {
+        let route = model.route(f.cable);
+        for i in 0..f.mu.len() {
+            let pulley = format!("{}@{}", model.cable_names[f.cable.0], model.points[route[i + 1].0].name);
+            for what in ["slipping", "tension_ratio", "slip_m", "slip_m_s"] {
+                cols.push(format!("{pulley}_{what}"));
+            }
+        }
+    }
+    cols
+}
+
+/// Appends the columns of `pulley_csv_columns` to a CSV row.
+pub fn push_pulley_csv(model: &Model, state: &State, ws: &Workspace, row: &mut String) {
+    use std::fmt::Write;
+    for f in &model.pulley_friction {
+        for p in pulley_reports(model, state, ws, f.cable.0) {
+            let slipping = match p.state {
+                "slip-end" => 1,
+                "slip-start" => -1,
+                _ => 0,
+            };
+            let ratio = if p.tension_before_n > 0.0 { p.tension_after_n / p.tension_before_n } else { 0.0 };
+            let _ = write!(row, ",{slipping},{:.12},{:.12e},{:.9e}", ratio, p.slip_m, p.slip_speed_m_s);
+        }
+    }
+}
+
 /// Appends the contact columns of `contact_csv_columns` to a CSV row.
 pub fn push_contact_csv(ws: &Workspace, row: &mut String) {
     use std::fmt::Write;
@@ -219,6 +254,13 @@ pub fn cable_reports(
         .map(|c| {
             let r = &ws.cables[c];
             let now = pulley_coordinates(model, ws, state.rest_lengths[c], c);
+            let pulleys = pulley_reports(model, state, ws, c);
+            let pulley_slip = if pulleys.is_empty() {
+                now.iter().zip(&reference[c]).map(|(a, b)| a - b).collect()
+            } else {
+                // with friction the material on each segment is known: no uniform-strain guess
+                pulleys.iter().map(|p| p.slip_m).collect()
+            };
             CableReport {
                 name: model.cable_names[c].clone(),
                 tension: r.tension,
@@ -228,8 +270,8 @@ pub fn cable_reports(
                 slack: r.slack,
                 buckled: crate::forces::cable::is_buckled(&model.cables[c], r.rest_length, r.length),
                 segment_lengths: ws.cable_segments(model, c).to_vec(),
-                pulley_slip: now.iter().zip(&reference[c]).map(|(a, b)| a - b).collect(),
-                pulleys: pulley_reports(model, state, ws, c),
+                pulley_slip,
+                pulleys,
             }
         })
         .collect()
@@ -339,6 +381,7 @@ pub fn path_csv_header(model: &Model) -> String {
         }
     }
     cols.extend(contact_csv_columns(model));
+    cols.extend(pulley_csv_columns(model));
     cols.join(",")
 }
 
@@ -371,6 +414,7 @@ pub fn path_csv_row(
         let _ = write!(row, ",{:.12},{:.12},{:.12}", Num(k.position.x), Num(k.position.y), Num(k.position.z));
     }
     push_contact_csv(ws, &mut row);
+    push_pulley_csv(model, state, ws, &mut row);
     row
 }
 

@@ -647,13 +647,7 @@ impl Simulator {
                         }
                     }
                     if !self.model.pulley_friction.is_empty() {
-                        // the pulleys' return map at the accepted state becomes the state
-                        self.energy.friction_loss += crate::forces::pulley::commit(
-                            &self.model,
-                            &mut self.ws.friction,
-                            &mut self.state.segment_rest_lengths,
-                            h_try,
-                        );
+                        self.commit_pulley_friction(h_try);
                     }
                     stats.newton_iterations += a.iterations;
                     stats.factorizations += a.factorizations;
@@ -738,6 +732,20 @@ impl Simulator {
         }
         stats.wall_time = start.elapsed();
         Ok(stats)
+    }
+
+    /// After an accepted sub-step of `h` (s): the pulleys' return map at the accepted state
+    /// becomes the state (`crate::forces::pulley::commit`), and friction's loss is booked. Out
+    /// of line: scenes without friction never run it.
+    #[cold]
+    #[inline(never)]
+    fn commit_pulley_friction(&mut self, h: f64) {
+        self.energy.friction_loss += crate::forces::pulley::commit(
+            &self.model,
+            &mut self.ws.friction,
+            &mut self.state.segment_rest_lengths,
+            h,
+        );
     }
 
     /// Arms the divergence guard of an integrator at a fixed step (`guard` for an explicit one,

@@ -123,6 +123,13 @@ fn stepping_allocates_nothing() {
         ("tower.toml", euler(LinearBackend::Sparse), "symplectic Euler, sparse"),
         ("tower.toml", ga(LinearBackend::SparseLu), "generalized-alpha, sparse LU only"),
         ("tower.toml", euler(LinearBackend::SparseLu), "symplectic Euler, sparse LU only"),
+        ("../examples/capstan.toml", ga(LinearBackend::Auto), "generalized-alpha, pulley friction"),
+        ("../examples/capstan.toml", explicit(Integrator::Rk4, 1e-3), "RK4, pulley friction"),
+        (
+            "../examples/capstan.toml",
+            controlled(Integrator::GeneralizedAlpha { rho_inf: 0.8 }),
+            "generalized-alpha, error-controlled, pulley friction",
+        ),
     ] {
         let n = allocations_per_run(scene, settings);
         assert_eq!(n, 0, "{scene} with {what}: {n} allocations in 100 steps");

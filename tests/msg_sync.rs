@@ -107,6 +107,9 @@ fn wire_conversions_carry_the_state_and_refuse_bad_commands_whole() {
     let segments: u32 = m.segment_count.iter().sum();
     assert_eq!(m.segment_length.len(), segments as usize);
     assert_eq!(m.pulley_slip.len(), segments as usize - m.name.len());
+    for per_pulley in [m.pulley_slip_speed.len(), m.pulley_tension_ratio.len(), m.pulley_sticks.len()] {
+        assert_eq!(per_pulley, m.pulley_slip.len());
+    }
     let s = Structure::from_model(&model, "world");
     assert_eq!(s.cable_route_length.iter().sum::<u32>() as usize, s.route_points.len());
 

@@ -172,6 +172,17 @@ fn the_energy_account_books_friction() {
         "unexplained {unexplained} J of {} J friction",
         e.friction_loss
     );
+    // step by step, friction's power is (T_high - T_low) times the slip speed, to the strain
+    let mut sim = sim;
+    for _ in 0..100 {
+        let before = sim.energy().friction_loss;
+        sim.step().unwrap();
+        let power = (sim.energy().friction_loss - before) / 1e-4;
+        let f = &sim.workspace().friction;
+        let capstan = (f.tensions[0] - f.tensions[1]) * f.slip_speeds[0];
+        assert!(capstan > 0.0);
+        assert!((power - capstan).abs() < 1e-3 * capstan, "friction power {power} W, capstan {capstan} W");
+    }
 }
 
 /// A cable from an anchor over five fixed pulleys, each turning it through 90 degrees, down to
@@ -348,4 +359,143 @@ proptest! {
         let ec = rel_err(&ws.damping, &c_fd, 1.0);
         prop_assert!(ec < 1e-5, "C rel err {ec}, states {:?}", f.states);
     }
+}
+
+#[test]
+fn thousands_of_stick_slip_switches_stay_finite_and_keep_newton_short() {
+    // an Atwood machine held just past its threshold (mu 0.36 > ln 3 / pi) with a winch at the
+    // heavy mass shaking its end: each swing drives the pulley from stick into slip and back
+    let text = |mu: f64| {
+        format!(
+            r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "ceiling"
+kind = "fixed"
+points = {{ wheel = [0.0, 0.0, 0.0] }}
+[[bodies]]
+name = "m1"
+kind = "node"
+mass = 3.0
+position = [0.0, 0.0, -1.0]
+[[bodies]]
+name = "m2"
+kind = "node"
+mass = 1.0
+position = [0.0, 0.0, -1.5]
+[[cables]]
+name = "rope"
+route = ["m1", "ceiling.wheel", "m2"]
+ea = 1e6
+damping_ratio = 0.2
+rest_length = 2.5
+pulley_friction = {mu}
+[[actuators]]
+name = "winch"
+cable = "rope"
+min_rest_length = 1.5
+max_rest_length = 3.5
+max_rate = 1.0
+"#
+        )
+    };
+    for (settings, label, duration, least) in [
+        (SimSettings { dt: 1e-3, ..SimSettings::default() }, "fixed step", 20.0, 1000),
+        (SimSettings { dt: 5e-3, tolerance: Some(1e-6), ..SimSettings::default() }, "error control", 1.0, 40),
+    ] {
+        let dt = settings.dt;
+        let mut sim = Simulator::new(model_from_toml(&text(0.36)), settings).unwrap();
+        let (mut switches, mut last, mut newton, mut steps) = (0, PulleyState::Stick, 0, 0);
+        let omega = 300.0;
+        while sim.state().time < duration && switches < 2 * least {
+            let rate = 0.02 * (omega * sim.state().time).sin();
+            sim.command(
+                "winch",
+                tensegrity::control::ActuatorCommand { rest_length: None, rate: Some(rate) },
+            )
+            .unwrap();
+            let stats = sim.step().unwrap();
+            newton += stats.newton_iterations;
+            steps += stats.substeps;
+            let now = sim.workspace().friction.states[0];
+            if now != last {
+                switches += 1;
+                last = now;
+            }
+            assert!(sim.state().is_finite());
+            assert!(sim.workspace().friction.tensions.iter().all(|t| t.is_finite()));
+        }
+        assert!(switches >= least, "{label}: only {switches} switches");
+        let per_step = newton as f64 / steps as f64;
+        assert!(per_step < 4.0, "{label}: {per_step} Newton iterations per sub-step");
+        let e = sim.energy();
+        assert!(e.friction_loss > 0.0);
+        eprintln!("{label}: dt {dt}, {switches} switches, {per_step:.2} Newton iterations per sub-step, {steps} sub-steps");
+    }
+}
+
+#[test]
+fn a_load_pulled_into_its_pulley_keeps_the_run_going() {
+    // the light mass of the slipping Atwood machine reaches the wheel after 0.9 s and is held
+    // there: its segment vanishes, and the wrap angle fades out (`WRAP_FADE`) instead of flipping
+    for (integrator, dt) in [(Integrator::GeneralizedAlpha { rho_inf: 0.8 }, 1e-3), (Integrator::Rk4, 1e-4)] {
+        let mut sim =
+            Simulator::new(atwood(3.0, 1.0, 0.1), SimSettings { dt, integrator, ..SimSettings::default() })
+                .unwrap();
+        while sim.state().time < 2.5 {
+            if let Err(e) = sim.step() {
+                panic!("{integrator:?}: {e}");
+            }
+        }
+        let z2 = sim.state().poses[2].position.z;
+        assert!(z2.abs() < 0.05, "{integrator:?}: the light mass sits at the wheel, z = {z2}");
+        assert!(sim.workspace().friction.tensions.iter().all(|t| t.is_finite()));
+    }
+}
+
+#[test]
+fn the_faded_wrap_angle_keeps_the_tangent_exact() {
+    // the light mass 0.5 mm from the wheel and a little aside: the pulley's wrap angle is faded
+    let model = model_from_toml(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "ceiling"
+kind = "fixed"
+points = { wheel = [0.0, 0.0, 0.0] }
+[[bodies]]
+name = "m1"
+kind = "node"
+mass = 3.0
+position = [0.1, 0.0, -1.0]
+[[bodies]]
+name = "m2"
+kind = "node"
+mass = 1.0
+position = [0.0003, 0.0001, -0.0004]
+[[cables]]
+name = "rope"
+route = ["m1", "ceiling.wheel", "m2"]
+ea = 1e4
+damping = 2.0
+rest_length = 0.95
+pulley_friction = 0.3
+"#,
+    );
+    let mut state = State::initial(&model);
+    for (j, v) in state.velocities.iter_mut().enumerate() {
+        *v = 0.1 * (j as f64 + 1.0).sin();
+    }
+    let mut ws = Workspace::new(&model);
+    evaluate_forces(&model, &state, &mut ws);
+    let (l0, l1) = (ws.friction.lengths[0], ws.friction.lengths[1]);
+    state.segment_rest_lengths = vec![0.98 * l0, 0.999 * l1];
+    state.rest_lengths[0] = state.segment_rest_lengths.iter().sum();
+    evaluate(&model, &state, &mut ws, Tangents::StiffnessAndDamping);
+    let f = ws.friction.clone();
+    assert!(l1 < 1e-3 * (l0 + l1), "the fade is on: l1 = {l1}");
+    assert_eq!(f.states[0], PulleyState::SlipTowardStart, "{f:?}");
+    let k_fd = fd_stiffness(&model, &state, 1e-8);
+    let ek = rel_err(&ws.stiffness, &k_fd, f.tensions[0]);
+    assert!(ek < 1e-5, "K rel err {ek}\nK - K_fd = {:.3e}", &ws.stiffness - &k_fd);
 }

@@ -550,3 +550,32 @@ fn bag_commands_refuse_damaged_and_misnamed_bags_without_panicking() {
     assert_eq!(std::fs::read(&file).unwrap(), bytes, "the file is left as it was");
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1, "nothing written beside it");
 }
+
+#[test]
+fn a_run_with_pulley_friction_records_its_pulleys_and_replays_bit_for_bit() {
+    // the bundled prism with friction at its ring's pulleys
+    let scene = common::scratch("friction").join("prism3_friction.toml");
+    let text = std::fs::read_to_string(scene_path("prism3.toml")).unwrap();
+    std::fs::write(&scene, format!("pulley_friction = 0.3\n{text}")).unwrap();
+    let dir = bag_dir("friction");
+    let out = cli(&[
+        "deploy",
+        scene.to_str().unwrap(),
+        "--dynamic",
+        "--duration",
+        "0.6",
+        "--record",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_replays_identically(&dir);
+    let Some(v) = rosbags_read(&dir) else { return };
+    let cables = v["messages"]["/tensegrity_sim/cable_states"].as_array().unwrap();
+    let last = cables.last().unwrap();
+    // the ring's two pulleys: per pulley a stick flag, a slip speed and a tension ratio
+    assert_eq!(last["pulley_sticks"].as_array().unwrap().len(), 2, "{last}");
+    let ratios = floats(&last["pulley_tension_ratio"]);
+    assert!(ratios.iter().any(|r| (r - 1.0).abs() > 1e-3), "friction holds different tensions: {ratios:?}");
+    let ever_slipped = cables.iter().any(|m| floats(&m["pulley_slip_speed"]).iter().any(|s| s.abs() > 0.0));
+    assert!(ever_slipped, "the winch pulls rope over the pulleys at some step");
+}

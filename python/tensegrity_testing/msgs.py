@@ -63,6 +63,9 @@ class CableStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::CableStates_"
     segment_count: types.sequence[types.uint32] = field(default_factory=list)
     segment_length: types.sequence[types.float64] = field(default_factory=list)
     pulley_slip: types.sequence[types.float64] = field(default_factory=list)
+    pulley_sticks: types.sequence[bool] = field(default_factory=list)
+    pulley_slip_speed: types.sequence[types.float64] = field(default_factory=list)
+    pulley_tension_ratio: types.sequence[types.float64] = field(default_factory=list)
 
 
 @dataclass

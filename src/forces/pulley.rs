@@ -32,8 +32,9 @@
 //!   (`w_i = sum_(j > i) s_j r_j / D_j`, `d_i = +1` when the cable slips toward the route's start
 //!   at pulley `i`, `-1` toward its end), and `dT_k = r_k dT_a - T_a sum_(i < k) d_i mu_i r_k
 //!   dtheta_i`; `K = sum_k [T_k dg_k/dq + g_k (dT_k/dq)^T]`, `C = sum_k g_k (dT_k/dv)^T`. Not
-//!   symmetric while a pulley slips (friction is not conservative). At `theta = 0` or `pi`
-//!   exactly the wrap angle has no gradient (a cone point); it is taken as zero there.
+//!   symmetric while a pulley slips (friction is not conservative). At `theta = 0` or `pi` the
+//!   wrap angle has no gradient (a cone point); it is taken as zero there (`WRAP_SINE_FLOOR`).
+//!   Next to a vanishing segment the wrap angle fades out (`WRAP_FADE`), gradient included.
 //! - **dissipation**: the elastic energy `V = sum_k EA (l_k - s_k)^2 / (2 s_k)` changes by
 //!   `-phi_k ds_k` with `phi_k = T_el,k (l_k + s_k) / (2 s_k)`, so material `xi_i` crossing pulley
 //!   `i` (into segment `i`) dissipates `(phi_i - phi_(i+1)) xi_i`, which is
@@ -45,6 +46,27 @@ use crate::assembly::TangentSink;
 use crate::forces::cable::{add_segment_geometric_stiffness, route_geometry, CableResponse, CableScratch};
 use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointKinematics};
 use crate::model::{BodyKind, CableModel, Model, PointId, Pose, PulleyFriction};
+
+/// Below this `sin(theta)` the wrap angle's gradient is taken as zero: `theta` is at one of its
+/// cone points (0 or pi), where it has no derivative.
+pub const WRAP_SINE_FLOOR: f64 = 1e-9;
+
+/// A pulley next to a segment shorter than this fraction of its two segments' length has its
+/// wrap angle faded out, `theta_eff = theta min(1, l_min / (WRAP_FADE (l_a + l_b)))`: the angle
+/// to a segment about to vanish (a load pulled into its pulley) turns by `1/l` per metre of
+/// motion and flips between 0 and pi, which no step could follow; a real pulley's radius
+/// ends the wrap there too.
+pub const WRAP_FADE: f64 = 1e-3;
+
+/// `min(1, l_min / (WRAP_FADE (l_a + l_b)))` (`WRAP_FADE`), 0 for two empty segments.
+fn wrap_fade(la: f64, lb: f64) -> f64 {
+    let total = la + lb;
+    if total > 0.0 {
+        (la.min(lb) / (WRAP_FADE * total)).min(1.0)
+    } else {
+        0.0
+    }
+}
 
 /// What a pulley with friction does at one instant.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -76,6 +98,27 @@ impl PulleyState {
     /// True when the segments on both sides belong to one chain (one tension, scaled).
     fn joins(self) -> bool {
         matches!(self, PulleyState::SlipTowardStart | PulleyState::SlipTowardEnd | PulleyState::Free)
+    }
+    /// The state as a number (recordings pack states as numbers): 0 stick, 1 slip toward the
+    /// start, 2 toward the end, 3 free, 4 slack.
+    pub fn code(self) -> f64 {
+        match self {
+            PulleyState::Stick => 0.0,
+            PulleyState::SlipTowardStart => 1.0,
+            PulleyState::SlipTowardEnd => 2.0,
+            PulleyState::Free => 3.0,
+            PulleyState::Slack => 4.0,
+        }
+    }
+    /// The state of `code` (`PulleyState::code`; anything else: stick).
+    pub fn from_code(code: f64) -> Self {
+        match code as u8 {
+            1 => PulleyState::SlipTowardStart,
+            2 => PulleyState::SlipTowardEnd,
+            3 => PulleyState::Free,
+            4 => PulleyState::Slack,
+            _ => PulleyState::Stick,
+        }
     }
     /// Name in outputs: `stick`, `slip+` (toward the start), `slip-` (toward the end), `free`, `slack`.
     pub fn as_str(self) -> &'static str {
@@ -251,7 +294,8 @@ pub fn add_friction_cable_force(
     }
     for i in 0..m - 1 {
         let (a, b) = (scratch.segment_direction(i + 1), scratch.segment_direction(i + 2));
-        work.wrap_angles[po + i] = a.cross(&b).norm().atan2(a.dot(&b));
+        let fade = wrap_fade(work.lengths[so + i], work.lengths[so + i + 1]);
+        work.wrap_angles[po + i] = fade * a.cross(&b).norm().atan2(a.dot(&b));
     }
     // the accepted material, with what the actuator wound in or out since on the fed segment
     let history = &mut work.history[..m];
@@ -457,18 +501,32 @@ pub fn add_friction_cable_tangents<S: TangentSink + ?Sized>(
         let (a, b) = (scratch.segment_direction(i + 1), scratch.segment_direction(i + 2));
         let sin = a.cross(&b).norm();
         let (la, lb) = (work.lengths[so + i], work.lengths[so + i + 1]);
-        if sin < 1e-12 || la <= 1e-12 || lb <= 1e-12 {
-            continue; // a cone point of theta (module docs)
+        let fade = wrap_fade(la, lb);
+        if fade > 0.0 && sin >= WRAP_SINE_FLOOR {
+            // theta_eff = fade theta; dtheta = -(1/sin) dcos,
+            // dcos = (P_a b) . (dr_(i+1) - dr_i) + (P_b a) . (dr_(i+2) - dr_(i+1))
+            let pa_b = (b - a * a.dot(&b)) / la;
+            let pb_a = (a - b * a.dot(&b)) / lb;
+            let (q0, q1, q2) = (&kin[route[i].0], &kin[route[i + 1].0], &kin[route[i + 2].0]);
+            let scale = fade / sin;
+            work.wrap_grad[i] = [
+                q0.jacobian.transpose() * (pa_b * scale),
+                q1.jacobian.transpose() * ((pb_a - pa_b) * scale),
+                q2.jacobian.transpose() * (-pb_a * scale),
+            ];
         }
-        // dtheta = -(1/sin) dcos, dcos = (P_a b) . (dr_(i+1) - dr_i) + (P_b a) . (dr_(i+2) - dr_(i+1))
-        let pa_b = (b - a * a.dot(&b)) / la;
-        let pb_a = (a - b * a.dot(&b)) / lb;
-        let (q0, q1, q2) = (&kin[route[i].0], &kin[route[i + 1].0], &kin[route[i + 2].0]);
-        work.wrap_grad[i] = [
-            q0.jacobian.transpose() * (pa_b / sin),
-            q1.jacobian.transpose() * ((pb_a - pa_b) / sin),
-            q2.jacobian.transpose() * (-pb_a / sin),
-        ];
+        if fade < 1.0 && la + lb > 0.0 {
+            // + theta dfade: fade = l_min / (WRAP_FADE S), S = l_a + l_b
+            let theta = sin.atan2(a.dot(&b));
+            let total = la + lb;
+            let common = -la.min(lb) / (WRAP_FADE * total * total);
+            let own = 1.0 / (WRAP_FADE * total);
+            let (ca, cb) = if la <= lb { (own + common, common) } else { (common, own + common) };
+            let (ga, gb) = (work.seg_grad[i], work.seg_grad[i + 1]);
+            work.wrap_grad[i][0] += ga[0] * (theta * ca);
+            work.wrap_grad[i][1] += ga[1] * (theta * ca) + gb[0] * (theta * cb);
+            work.wrap_grad[i][2] += gb[1] * (theta * cb);
+        }
     }
     // per chain: K += U a^T - sum_i d_i mu_i T_a V_i dtheta_i^T, C += U b^T
     let mut a = 0;

@@ -90,6 +90,13 @@ pub struct CableStates {
     pub segment_length: Vec<f64>,
     /// Pulley slip, concatenated, m.
     pub pulley_slip: Vec<f64>,
+    /// Per pulley: true while a pulley with friction holds the cable.
+    pub pulley_sticks: Vec<bool>,
+    /// Per pulley: slip speed over the last step, m/s, positive toward the last anchor (0 for a
+    /// frictionless pulley).
+    pub pulley_slip_speed: Vec<f64>,
+    /// Per pulley: tension after it over tension before it (0 when either side is slack).
+    pub pulley_tension_ratio: Vec<f64>,
 }
 
 impl CableStates {
@@ -115,6 +122,21 @@ impl CableStates {
             m.slack.push(c.slack);
             m.segment_count.push(c.segment_lengths.len() as u32);
             m.segment_length.extend(c.segment_lengths);
+            if c.pulleys.is_empty() {
+                // frictionless: one tension along the route
+                let pulleys = c.pulley_slip.len();
+                let ratio = if c.tension > 0.0 { 1.0 } else { 0.0 };
+                m.pulley_sticks.extend(std::iter::repeat_n(false, pulleys));
+                m.pulley_slip_speed.extend(std::iter::repeat_n(0.0, pulleys));
+                m.pulley_tension_ratio.extend(std::iter::repeat_n(ratio, pulleys));
+            }
+            for p in &c.pulleys {
+                m.pulley_sticks.push(p.state == "stick");
+                m.pulley_slip_speed.push(p.slip_speed_m_s);
+                let ratio =
+                    if p.tension_before_n > 0.0 { p.tension_after_n / p.tension_before_n } else { 0.0 };
+                m.pulley_tension_ratio.push(ratio);
+            }
             m.pulley_slip.extend(c.pulley_slip);
         }
         m
@@ -129,6 +151,8 @@ impl CableStates {
             &self.strain,
             &self.segment_length,
             &self.pulley_slip,
+            &self.pulley_slip_speed,
+            &self.pulley_tension_ratio,
         ]
         .iter()
         .all(|v| v.iter().all(|x| x.is_finite()))

@@ -155,6 +155,10 @@ pub fn dynamic_csv_header(model: &Model) -> String {
         cols.push(s.into());
     }
     cols.extend(crate::report::contact_csv_columns(model));
+    if !model.pulley_friction.is_empty() {
+        cols.extend(crate::report::pulley_csv_columns(model));
+        cols.push("friction_loss_J".into());
+    }
     cols.join(",")
 }
 
@@ -189,6 +193,10 @@ pub fn dynamic_csv_row(sim: &Simulator, stats: &StepStats) -> String {
         stats.wall_time.as_secs_f64() * 1e6
     );
     crate::report::push_contact_csv(ws, &mut row);
+    if !sim.model().pulley_friction.is_empty() {
+        crate::report::push_pulley_csv(sim.model(), sim.state(), ws, &mut row);
+        let _ = write!(row, ",{:.9}", e.friction_loss);
+    }
     row
 }
 

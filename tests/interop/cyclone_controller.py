@@ -73,6 +73,9 @@ class CableStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::CableStates_"
     segment_count: sequence[uint32]
     segment_length: sequence[float64]
     pulley_slip: sequence[float64]
+    pulley_sticks: sequence[bool]
+    pulley_slip_speed: sequence[float64]
+    pulley_tension_ratio: sequence[float64]
 
 
 @dataclass

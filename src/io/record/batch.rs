@@ -259,6 +259,13 @@ pub(super) fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
         out.extend_from_slice(c.position.as_slice());
         out.extend_from_slice(c.normal.as_slice());
     }
+    // pulley friction: the material per segment, the tensions, and per pulley its state
+    let f = &ws.friction;
+    out.extend_from_slice(&state.segment_rest_lengths);
+    out.extend_from_slice(&f.tensions);
+    for ((s, theta), speed) in f.states.iter().zip(&f.wrap_angles).zip(&f.slip_speeds) {
+        out.extend_from_slice(&[s.code(), *theta, *speed]);
+    }
     debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
 
@@ -270,6 +277,8 @@ pub(super) fn packed_len(model: &Model) -> usize {
         + segments
         + model.cables.len()
         + 14 * model.contact_pairs()
+        + 2 * model.initial_segment_rest_lengths.len()
+        + 3 * model.pulley_friction.iter().map(|f| f.mu.len()).sum::<usize>()
 }
 
 /// Appends every point's position (3 each) of `view` to `out`.
@@ -326,6 +335,17 @@ pub(super) fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut Unp
             // not read by any message (`pack_state`)
             ..Default::default()
         };
+    }
+    let n = state.segment_rest_lengths.len();
+    state.segment_rest_lengths.copy_from_slice(take(n));
+    let f = &mut ws.friction;
+    let n = f.tensions.len();
+    f.tensions.copy_from_slice(take(n));
+    for i in 0..f.states.len() {
+        let v = take(3);
+        f.states[i] = crate::forces::pulley::PulleyState::from_code(v[0]);
+        f.wrap_angles[i] = v[1];
+        f.slip_speeds[i] = v[2];
     }
     if let Some(points) = points {
         for (p, xyz) in ws.points.iter_mut().zip(points.chunks_exact(3)) {

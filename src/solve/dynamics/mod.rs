@@ -571,6 +571,20 @@ pub fn stability_limit(model: &Model, state: &State) -> f64 {
     2.0 / (w * ((1.0 + zeta * zeta).sqrt() + zeta))
 }
 
+/// `cable_powers`' share of the cables with pulley friction (`crate::forces::pulley::powers`),
+/// kept out of line: scenes without friction never run it.
+#[cold]
+#[inline(never)]
+fn friction_cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f64) {
+    let (mut actuator, mut loss) = (0.0, 0.0);
+    for f in &model.pulley_friction {
+        let (a, l) = crate::forces::pulley::powers(model, &ws.friction, f, rest_rate[f.cable.0]);
+        actuator += a;
+        loss += l;
+    }
+    (actuator, loss)
+}
+
 /// Power flows at one instant (W): actuator power into the cables, and power lost in the cable
 /// dampers, the contacts (normal damping and friction), the joints' rotational damping and
 /// Rayleigh's mass-proportional damping (see `EnergyAccount`).
@@ -579,13 +593,14 @@ pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f
     // Rayleigh's alpha M dissipates alpha v^T M v = 2 alpha (kinetic energy)
     let mut loss =
         ws.contact_loss_power + ws.joint_loss_power + 2.0 * model.rayleigh.alpha * ws.energies.kinetic;
+    if !model.pulley_friction.is_empty() {
+        let (a, l) = friction_cable_powers(model, ws, rest_rate);
+        actuator += a;
+        loss += l;
+    }
     for (c, r) in ws.cables.iter().enumerate() {
-        if let Some(f) = model.cables[c].friction {
-            let f = &model.pulley_friction[f];
-            let (a, l) = crate::forces::pulley::powers(model, &ws.friction, f, rest_rate[c]);
-            actuator += a;
-            loss += l;
-            continue;
+        if model.cables[c].friction.is_some() {
+            continue; // booked above
         }
         if r.slack || (model.cables[c].tension_only && r.length <= r.rest_length) {
             continue; // a member works in compression too
