@@ -499,3 +499,52 @@ pulley_friction = 0.3
     let ek = rel_err(&ws.stiffness, &k_fd, f.tensions[0]);
     assert!(ek < 1e-5, "K rel err {ek}\nK - K_fd = {:.3e}", &ws.stiffness - &k_fd);
 }
+
+/// The bundled prism with friction `mu` at its ring's two pulleys (`None`: as bundled).
+fn prism_with_friction(mu: Option<f64>) -> Model {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/prism3.toml");
+    let text = std::fs::read_to_string(path).unwrap();
+    match mu {
+        Some(mu) => model_from_toml(&format!("pulley_friction = {mu}\n{text}")),
+        None => model_from_toml(&text),
+    }
+}
+
+#[test]
+fn a_deployment_stalls_at_the_far_pulleys_once_friction_holds_them() {
+    // the ring's winch winds at its first anchor: with enough friction its pulleys never slip,
+    // only the first segment shortens, and the prism ends in another shape than without
+    let deploy = |mu: Option<f64>| {
+        let model = prism_with_friction(mu);
+        let mut state = State::initial(&model);
+        let mut ws = Workspace::new(&model);
+        // the most rope that ran through a pulley since the start, at any load step (round-off
+        // aside)
+        let mut slipped: f64 = 0.0;
+        tensegrity::solve::deploy::deploy_quasi_static(&model, &mut state, &mut ws, |_, s, w| {
+            for c in 0..model.cables.len() {
+                for p in tensegrity::report::pulley_reports(&model, s, w, c) {
+                    slipped = slipped.max(p.slip_m.abs());
+                }
+            }
+        })
+        .unwrap();
+        evaluate_forces(&model, &state, &mut ws);
+        let tip = ws.points[model.point_id("bar0_1.b").unwrap().0].position;
+        (tip, slipped > 1e-9, ws.friction.tensions.clone())
+    };
+    let (free, _, _) = deploy(None);
+    let (low, low_slipped, _) = deploy(Some(0.05));
+    let (held, held_slipped, tensions) = deploy(Some(0.3));
+    let (stuck, _, _) = deploy(Some(1.0));
+    assert!(low_slipped, "at mu 0.05 the winch pulls rope over the pulleys");
+    assert!(!held_slipped, "at mu 0.3 no pulley ever slips");
+    assert!(
+        (held - stuck).norm() < 1e-9,
+        "once the pulleys hold, more friction changes nothing: {held} vs {stuck}"
+    );
+    assert!((held - free).norm() > 0.01, "the stalled deployment ends elsewhere: {held} vs {free}");
+    assert!((low - free).norm() < (held - free).norm());
+    // tension along the ring: the wound first segment carries the most
+    assert!(tensions[0] > tensions[1] && tensions[0] > tensions[2], "{tensions:?}");
+}
