@@ -352,3 +352,38 @@ fn parallel_runs_give_exactly_the_serial_results() {
     std::fs::remove_dir_all(&serial).ok();
     std::fs::remove_dir_all(&parallel).ok();
 }
+
+#[test]
+fn the_friction_study_shows_where_a_deployment_stalls() {
+    let out = scratch("friction_study");
+    let model = common::bundled("prism3.toml");
+    let result =
+        tensegrity::study::friction_study(&model, &[0.0, 0.05, 0.3, 1.0], Some("bar0_1.b"), &out).unwrap();
+    assert_eq!(result.cable, "ring");
+    let [free, low, held, stuck] = &result.rows[..] else { panic!("{result:?}") };
+    // without friction one tension along the ring, and nothing to slip against
+    assert!(free.route_tension.windows(2).all(|w| (w[0] - w[1]).abs() < 1e-6 * w[0]), "{free:?}");
+    assert!(low.largest_slip > 0.01, "at mu 0.05 rope runs over the pulleys: {low:?}");
+    assert_eq!(held.largest_slip, 0.0, "at mu 0.3 the pulleys hold all the way: {held:?}");
+    // the wound segment carries the most, and more friction than holding changes nothing
+    assert!(held.route_tension[0] > held.route_tension[1] && held.route_tension[0] > held.route_tension[2]);
+    assert!((held.final_displacement - stuck.final_displacement).abs() < 1e-9);
+    assert!((held.final_displacement - free.final_displacement).abs() > 0.01);
+    for f in [
+        "friction_path.csv",
+        "friction_route_tension.csv",
+        "friction_route_tension.png",
+        "friction_route_tension.svg",
+        "friction_deployment.png",
+    ] {
+        assert!(std::fs::metadata(out.join(f)).map(|m| m.len() > 0).unwrap_or(false), "{f} written");
+    }
+    let csv = std::fs::read_to_string(out.join("friction_route_tension.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 4 * 3, "a row per coefficient and segment:\n{csv}");
+    assert!(result.markdown().contains("| 0.3 |"));
+    // careless input
+    assert!(tensegrity::study::friction_study(&model, &[-0.1], None, &out).is_err());
+    assert!(tensegrity::study::friction_study(&model, &[f64::NAN], None, &out).is_err());
+    let atwood = common::bundled("atwood.toml");
+    assert!(tensegrity::study::friction_study(&atwood, &[0.1], None, &out).unwrap_err().contains("schedule"));
+}

@@ -14,9 +14,12 @@
 //!   timed runs one at a time.
 //! - `deployment_study` runs its dynamic deployments on all cores too (`jobs`), with the same
 //!   results as one at a time.
+//! - `friction_study`: the quasi-static deployment at several pulley-friction coefficients; how
+//!   far a point moves, how much rope runs over the pulleys, the tension along a clustered
+//!   cable's route at the end: where a deployment stalls.
 
 //!
-//! Files: `deployment` (the study), `work_precision`, `scaling` (step time against size); this
+//! Files: `deployment` (the study), `friction`, `work_precision`, `scaling` (step time against size); this
 //! module holds what they share (dynamic runs, their CSV rows and totals, schedule scaling).
 
 use std::fmt::Write as _;
@@ -30,10 +33,12 @@ use crate::report::Num;
 use crate::sim::{SimSettings, Simulator, StepStats};
 
 mod deployment;
+mod friction;
 mod scaling;
 mod work_precision;
 
 pub use deployment::*;
+pub use friction::*;
 pub use scaling::*;
 pub use work_precision::*;
 

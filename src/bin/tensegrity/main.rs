@@ -97,6 +97,11 @@ enum Command {
         /// quasi-static path).
         #[arg(long)]
         point: Option<String>,
+        /// Instead of the actuation times: the quasi-static deployment with each of these pulley
+        /// friction coefficients at every pulley (how far the point moves, how much rope runs
+        /// over the pulleys, the tension along the driven clustered cable at the end).
+        #[arg(long, value_delimiter = ',', conflicts_with = "ramp_times")]
+        friction: Option<Vec<f64>>,
         /// Time simulated after the schedule ends, s.
         #[arg(long, allow_hyphen_values = true, default_value_t = 1.0)]
         settle: f64,
@@ -146,8 +151,8 @@ fn run(cli: Cli) -> Result<(), String> {
         Command::Deploy(args) => deploy::run(args),
         Command::Replay { bag, scene, out } => bag::replay(&bag, scene.as_deref(), out.as_deref()),
         Command::Bag { kind } => bag::run(kind),
-        Command::Study { scene, ramp_times, point, settle, dynamics, jobs, out } => {
-            study::run(study::StudyArgs { scene, ramp_times, point, settle, dynamics, jobs, out })
+        Command::Study { scene, ramp_times, point, friction, settle, dynamics, jobs, out } => {
+            study::run(study::StudyArgs { scene, ramp_times, point, friction, settle, dynamics, jobs, out })
         }
         Command::Bench { kind } => bench::run(kind),
         Command::Generate { kind, out } => generate::run(kind, out),

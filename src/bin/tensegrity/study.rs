@@ -1,5 +1,6 @@
 //! `tensegrity study SCENE`: the quasi-static path and dynamic deployments at several actuation
-//! times (CSVs, a summary table, plots).
+//! times, or with `--friction` the quasi-static deployment at several pulley-friction
+//! coefficients (CSVs, a summary table, plots).
 
 use std::path::PathBuf;
 
@@ -15,6 +16,8 @@ pub struct StudyArgs {
     pub ramp_times: Option<Vec<f64>>,
     /// `--point`.
     pub point: Option<String>,
+    /// `--friction`.
+    pub friction: Option<Vec<f64>>,
     /// `--settle`.
     pub settle: f64,
     /// The integrator options.
@@ -27,8 +30,14 @@ pub struct StudyArgs {
 
 /// Runs `study`.
 pub fn run(args: StudyArgs) -> Result<(), String> {
-    let StudyArgs { scene, ramp_times, point, settle, dynamics, jobs, out } = args;
+    let StudyArgs { scene, ramp_times, point, friction, settle, dynamics, jobs, out } = args;
     let model = load(&scene)?;
+    if let Some(mus) = friction {
+        let result = study::friction_study(&model, &mus, point.as_deref(), &out)?;
+        emit(&result.markdown());
+        say!("written to {}", out.display());
+        return Ok(());
+    }
     let ramp_times = match ramp_times {
         Some(t) => t,
         None => study::default_ramp_times(&model)?,
