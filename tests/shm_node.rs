@@ -562,6 +562,13 @@ mod with_dds {
             assert_eq!(cm.rest_length, s.cable_rest_length[..n], "step {}", s.step);
             let slack: Vec<bool> = s.cable_slack[..n].iter().map(|f| *f == 1).collect();
             assert_eq!(cm.slack, slack, "step {}", s.step);
+            // per pulley, the same numbers on both transports
+            let k = s.pulley_count as usize;
+            assert_eq!(k, cm.pulley_tension_ratio.len());
+            assert_eq!(cm.pulley_tension_ratio, s.pulley_tension_ratio[..k], "step {}", s.step);
+            assert_eq!(cm.pulley_slip_speed, s.pulley_slip_speed[..k], "step {}", s.step);
+            let sticks: Vec<bool> = s.pulley_sticks[..k].iter().map(|f| *f == 1).collect();
+            assert_eq!(cm.pulley_sticks, sticks, "step {}", s.step);
             assert_eq!(pm.poses.len(), s.body_count as usize);
             for (i, pose) in pm.poses.iter().enumerate() {
                 let o = &pose.orientation;

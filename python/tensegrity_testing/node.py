@@ -118,6 +118,9 @@ class State:
     cable_slack: list = field(default_factory=list)
     actuator_rest_length: list = field(default_factory=list)
     actuator_rate: list = field(default_factory=list)
+    pulley_slip_speed: list = field(default_factory=list)
+    pulley_tension_ratio: list = field(default_factory=list)
+    pulley_sticks: list = field(default_factory=list)
     commands_rejected: int = 0
     contacts: list = field(default_factory=list)
 
@@ -136,6 +139,9 @@ class State:
             cable_slack=[bool(x) for x in s.cable_slack[:c]],
             actuator_rest_length=list(s.actuator_rest_length[:a]),
             actuator_rate=list(s.actuator_rate[:a]),
+            pulley_slip_speed=list(s.pulley_slip_speed[: s.pulley_count]),
+            pulley_tension_ratio=list(s.pulley_tension_ratio[: s.pulley_count]),
+            pulley_sticks=[bool(x) for x in s.pulley_sticks[: s.pulley_count]],
             commands_rejected=s.commands_rejected,
         )
 

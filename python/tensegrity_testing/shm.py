@@ -42,6 +42,7 @@ MAX_BODIES = 256
 MAX_CABLES = 1024
 MAX_ACTUATORS = 256
 MAX_CONTACTS = 512
+MAX_PULLEYS = 1024
 NAME_BYTES = 64
 MESSAGE_BYTES = 256
 
@@ -90,6 +91,11 @@ class StateSample(ctypes.Structure):
         ("actuator_rest_length", f64 * MAX_ACTUATORS),
         ("actuator_rate", f64 * MAX_ACTUATORS),
         ("cable_slack", u8 * MAX_CABLES),
+        ("pulley_count", u32),
+        ("pulley_reserved", u32),
+        ("pulley_slip_speed", f64 * MAX_PULLEYS),
+        ("pulley_tension_ratio", f64 * MAX_PULLEYS),
+        ("pulley_sticks", u8 * MAX_PULLEYS),
     ]
 
     @staticmethod

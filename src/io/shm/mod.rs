@@ -20,7 +20,8 @@
 //!   side busy-spins: after an answer each side polls for at most `NodeParams::shm_spin_us`
 //!   (`ShmClient::set_spin`), yielding its core between polls, then blocks on its listener.
 //!
-//! Capacities (`MAX_BODIES`, `MAX_CABLES`, `MAX_ACTUATORS`, `NAME_BYTES`) are compile-time
+//! Capacities (`MAX_BODIES`, `MAX_CABLES`, `MAX_ACTUATORS`, `MAX_CONTACTS`, `MAX_PULLEYS`,
+//! `NAME_BYTES`) are compile-time
 //! constants checked against the scene at start-up. Dead iceoryx2 nodes (a controller or node
 //! killed with SIGKILL) are cleaned up at start and every `CLEANUP_PERIOD`, so their ports do not
 //! hold the service's slots. Only one node can serve a namespace: a second fails to start.

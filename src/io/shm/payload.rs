@@ -18,6 +18,8 @@ pub const MAX_BODIES: usize = 256;
 pub const MAX_CABLES: usize = 1024;
 /// Most actuators a scene may have on this transport (and entries in one command).
 pub const MAX_ACTUATORS: usize = 256;
+/// Most pulleys (interior route points, over all cables) a scene may have on this transport.
+pub const MAX_PULLEYS: usize = 1024;
 /// Most contacts (ground pairs and strut pairs, `Model::contact_pairs`) a scene may have on this
 /// transport.
 pub const MAX_CONTACTS: usize = 512;
@@ -92,6 +94,18 @@ pub struct StateSample {
     pub actuator_rate: [f64; MAX_ACTUATORS],
     /// Cable slack flags: 1 when the cable is not taut.
     pub cable_slack: [u8; MAX_CABLES],
+    /// Pulleys of all cables, in cable then route order (`segment_count - 1` per cable).
+    pub pulley_count: u32,
+    /// Zero (keeps the arrays after it 8-byte aligned).
+    pub pulley_reserved: u32,
+    /// Per pulley with friction: its slip speed over the last step, m/s, positive toward the
+    /// cable's last anchor (0 for a frictionless pulley).
+    pub pulley_slip_speed: [f64; MAX_PULLEYS],
+    /// Per pulley: tension after it over tension before it (0 when either side is slack; 1 on a
+    /// taut frictionless cable).
+    pub pulley_tension_ratio: [f64; MAX_PULLEYS],
+    /// Per pulley: 1 while a pulley with friction holds the cable.
+    pub pulley_sticks: [u8; MAX_PULLEYS],
 }
 
 /// Names and array order of the structure, published once (history 1) so late joiners get it.

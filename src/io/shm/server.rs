@@ -55,6 +55,32 @@ fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64)
         out.actuator_rest_length[i] = state.rest_lengths[a.cable.0];
         out.actuator_rate[i] = v.rates[a.cable.0];
     }
+    // pulleys: with friction from the return map, else one tension along the route
+    let mut k = 0;
+    for (cable, c) in model.cables.iter().zip(&ws.cables) {
+        let pulleys = cable.pulley_count();
+        match cable.friction {
+            Some(f) => {
+                let f = &model.pulley_friction[f];
+                let w = &ws.friction;
+                for i in 0..pulleys {
+                    let (j, s) = (f.pulley_offset + i, f.segment_offset + i);
+                    let (before, after) = (w.tensions[s], w.tensions[s + 1]);
+                    out.pulley_slip_speed[k + i] = -w.slip_speeds[j];
+                    out.pulley_tension_ratio[k + i] = if before > 0.0 { after / before } else { 0.0 };
+                    out.pulley_sticks[k + i] =
+                        u8::from(w.states[j] == crate::forces::pulley::PulleyState::Stick);
+                }
+            }
+            None => {
+                for i in 0..pulleys {
+                    out.pulley_tension_ratio[k + i] = if c.tension > 0.0 { 1.0 } else { 0.0 };
+                }
+            }
+        }
+        k += pulleys;
+    }
+    out.pulley_count = k as u32;
     out.published_ns = realtime_ns();
 }
 

@@ -91,6 +91,7 @@ pub fn check_capacity(model: &Model, frame_id: &str) -> Result<(), ShmError> {
         ("cables", model.cables.len(), MAX_CABLES, "MAX_CABLES"),
         ("actuators", model.actuators.len(), MAX_ACTUATORS, "MAX_ACTUATORS"),
         ("contacts", model.contact_pairs(), MAX_CONTACTS, "MAX_CONTACTS"),
+        ("pulleys", model.cables.iter().map(|c| c.pulley_count()).sum(), MAX_PULLEYS, "MAX_PULLEYS"),
     ];
     for (what, count, limit, constant) in counts {
         if count > limit {
