@@ -239,6 +239,37 @@ fn zero_friction_is_the_frictionless_element() {
     let with_zero = atwood(3.0, 1.0, 0.0);
     assert!(with_zero.pulley_friction.is_empty() && with_zero.cables[0].friction.is_none());
     assert!(with_zero.initial_segment_rest_lengths.is_empty());
+    // bit for bit the run of a scene that never mentions friction
+    let text = std::fs::read_to_string(
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/atwood.toml"),
+    )
+    .unwrap();
+    let runs: Vec<Vec<u64>> = [text.clone(), format!("pulley_friction = 0.0\n{text}")]
+        .iter()
+        .map(|t| {
+            let mut sim =
+                Simulator::new(model_from_toml(t), SimSettings { dt: 1e-3, ..SimSettings::default() })
+                    .unwrap();
+            let mut bits = Vec::new();
+            for _ in 0..300 {
+                sim.step().unwrap();
+                bits.extend(sim.state().poses.iter().map(|p| p.position.z.to_bits()));
+                bits.push(sim.workspace().cables[0].tension.to_bits());
+            }
+            bits
+        })
+        .collect();
+    assert_eq!(runs[0], runs[1]);
+}
+
+#[test]
+fn the_atwood_machine_holds_just_above_its_threshold_and_slips_just_below() {
+    // ln 3 / pi = 0.349699
+    let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };
+    let below = run(atwood(3.0, 1.0, 0.34), ga, 2e-4, 0.6);
+    assert!(point_velocity(&below, "m2").norm() > 0.01, "slips at mu 0.34");
+    let above = run(atwood(3.0, 1.0, 0.36), ga, 2e-4, 0.6);
+    assert!(point_velocity(&above, "m2").norm() < 1e-6, "holds at mu 0.36");
 }
 
 #[test]
