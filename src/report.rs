@@ -92,8 +92,9 @@ pub fn pulley_reports(model: &Model, state: &State, ws: &Workspace, c: usize) ->
                 wrap_angle_rad: w.wrap_angles[j],
                 tension_before_n: w.tensions[k],
                 tension_after_n: w.tensions[k + 1],
-                slip_m: -(crossed - if f.fed_segment <= i { wound } else { 0.0 }),
-                slip_speed_m_s: -w.slip_speeds[j],
+                // (+ 0.0: no negative zero in the outputs)
+                slip_m: 0.0 - (crossed - if f.fed_segment <= i { wound } else { 0.0 }),
+                slip_speed_m_s: 0.0 - w.slip_speeds[j],
             }
         })
         .collect()

@@ -66,7 +66,7 @@ fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64)
                 for i in 0..pulleys {
                     let (j, s) = (f.pulley_offset + i, f.segment_offset + i);
                     let (before, after) = (w.tensions[s], w.tensions[s + 1]);
-                    out.pulley_slip_speed[k + i] = -w.slip_speeds[j];
+                    out.pulley_slip_speed[k + i] = 0.0 - w.slip_speeds[j];
                     out.pulley_tension_ratio[k + i] = if before > 0.0 { after / before } else { 0.0 };
                     out.pulley_sticks[k + i] =
                         u8::from(w.states[j] == crate::forces::pulley::PulleyState::Stick);
