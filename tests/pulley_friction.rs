@@ -20,7 +20,12 @@ const G: f64 = 9.81;
 /// An Atwood machine: `m1` and `m2` (kg) hang on one cable over a pulley with friction `mu`,
 /// both straight below it (wrap angle pi), the rope taut at zero tension at the start.
 fn atwood(m1: f64, m2: f64, mu: f64) -> Model {
-    model_from_toml(&format!(
+    model_from_toml(&atwood_text(m1, m2, mu, "ea = 1e5\ndamping_ratio = 0.5"))
+}
+
+/// The Atwood machine's scene text (`atwood`), its rope's `ea` and damping given by `rope`.
+fn atwood_text(m1: f64, m2: f64, mu: f64, rope: &str) -> String {
+    format!(
         r#"
 gravity = [0.0, 0.0, -9.81]
 [[bodies]]
@@ -40,12 +45,11 @@ position = [0.0, 0.0, -1.5]
 [[cables]]
 name = "rope"
 route = ["m1", "ceiling.wheel", "m2"]
-ea = 1e5
-damping_ratio = 0.5
+{rope}
 rest_length = 2.5
 pulley_friction = {mu}
 "#
-    ))
+    )
 }
 
 /// A 1 kg block on a frictionless table (a slider) pulled by a hanging 1 kg mass over the
@@ -397,38 +401,8 @@ fn thousands_of_stick_slip_switches_stay_finite_and_keep_newton_short() {
     // an Atwood machine held just past its threshold (mu 0.36 > ln 3 / pi) with a winch at the
     // heavy mass shaking its end: each swing drives the pulley from stick into slip and back
     let text = |mu: f64| {
-        format!(
-            r#"
-gravity = [0.0, 0.0, -9.81]
-[[bodies]]
-name = "ceiling"
-kind = "fixed"
-points = {{ wheel = [0.0, 0.0, 0.0] }}
-[[bodies]]
-name = "m1"
-kind = "node"
-mass = 3.0
-position = [0.0, 0.0, -1.0]
-[[bodies]]
-name = "m2"
-kind = "node"
-mass = 1.0
-position = [0.0, 0.0, -1.5]
-[[cables]]
-name = "rope"
-route = ["m1", "ceiling.wheel", "m2"]
-ea = 1e6
-damping_ratio = 0.2
-rest_length = 2.5
-pulley_friction = {mu}
-[[actuators]]
-name = "winch"
-cable = "rope"
-min_rest_length = 1.5
-max_rest_length = 3.5
-max_rate = 1.0
-"#
-        )
+        atwood_text(3.0, 1.0, mu, "ea = 1e6\ndamping_ratio = 0.2")
+            + "[[actuators]]\nname = \"winch\"\ncable = \"rope\"\nmin_rest_length = 1.5\nmax_rest_length = 3.5\nmax_rate = 1.0\n"
     };
     for (settings, label, duration, least) in [
         (SimSettings { dt: 1e-3, ..SimSettings::default() }, "fixed step", 20.0, 1000),

@@ -28,7 +28,10 @@ def fields(msgtype, m):
     if msgtype == 'tensegrity_msgs/msg/CableStates':
         return {'stamp': [m.header.stamp.sec, m.header.stamp.nanosec], 'name': list(m.name),
                 'tension': [float(t) for t in m.tension], 'rest_length': [float(x) for x in m.rest_length],
-                'slack': [bool(b) for b in m.slack]}
+                'slack': [bool(b) for b in m.slack],
+                'pulley_sticks': [bool(b) for b in m.pulley_sticks],
+                'pulley_slip_speed': [float(x) for x in m.pulley_slip_speed],
+                'pulley_tension_ratio': [float(x) for x in m.pulley_tension_ratio]}
     if msgtype == 'geometry_msgs/msg/PoseArray':
         return {'frame_id': m.header.frame_id,
                 'position': [[p.position.x, p.position.y, p.position.z] for p in m.poses],
