@@ -289,6 +289,19 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     ws.energies = Energies { elastic, gravitational, kinetic: kinetic_energy(model, v) };
 }
 
+/// `add_tangents` with everything it reads taken from `ws` (what `evaluate_forces` left there
+/// for `state`), for sinks that do not borrow the workspace (the Newton systems).
+pub fn add_workspace_tangents<S: TangentSink + ?Sized>(
+    model: &Model,
+    state: &State,
+    ws: &mut Workspace,
+    sink: &mut S,
+) {
+    let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
+    let scratch = (&mut ws.scratch, &mut *ws.friction);
+    add_tangents(model, state, &ws.points, &ws.cables, contacts, scratch, sink);
+}
+
 /// Adds the cables' and contacts' tangent stiffness and damping at `state` into `sink`, using the
 /// point kinematics `points` and cable responses `cables` that `evaluate_forces` left for this
 /// state (and the contact responses `contacts`, one per `Model::contact_pairs`, and the pulleys'

@@ -66,6 +66,13 @@ pub struct PulleyReport {
     pub slip_speed_m_s: f64,
 }
 
+impl PulleyReport {
+    /// Tension after the pulley over tension before it (`crate::forces::pulley::tension_ratio`).
+    pub fn tension_ratio(&self) -> f64 {
+        crate::forces::pulley::tension_ratio(self.tension_before_n, self.tension_after_n)
+    }
+}
+
 /// The pulley reports of cable `c` (empty when its pulleys have no friction).
 pub fn pulley_reports(model: &Model, state: &State, ws: &Workspace, c: usize) -> Vec<PulleyReport> {
     let Some(f) = model.cables[c].friction else {
@@ -73,28 +80,27 @@ pub fn pulley_reports(model: &Model, state: &State, ws: &Workspace, c: usize) ->
     };
     let f = &model.pulley_friction[f];
     let route = model.route(crate::model::CableId(c));
-    let w = &ws.friction;
     let (now, initial) = (&state.segment_rest_lengths, &model.initial_segment_rest_lengths);
     let wound = state.rest_lengths[c] - model.initial_rest_lengths[c];
     let mut crossed = 0.0;
     (0..f.mu.len())
         .map(|i| {
-            let (j, k) = (f.pulley_offset + i, f.segment_offset + i);
-            crossed += now[k] - initial[k];
-            let (before, after) = (w.tensions[k], w.tensions[k + 1]);
-            let bound = (f.mu[i] * w.wrap_angles[j]).exp();
+            let p = ws.friction.pulley(f, i);
+            crossed += now[f.segment_offset + i] - initial[f.segment_offset + i];
+            let (before, after) = (p.tension_before, p.tension_after);
+            let bound = (f.mu[i] * p.wrap_angle).exp();
             let ratio = if before > 0.0 && after > 0.0 { (before / after).max(after / before) } else { 0.0 };
             PulleyReport {
                 point: model.points[route[i + 1].0].name.clone(),
-                state: w.states[j].as_str(),
+                state: p.state.as_str(),
                 at_limit: f.mu[i] > 0.0 && (ratio - bound).abs() <= 1e-9 * bound,
                 mu: f.mu[i],
-                wrap_angle_rad: w.wrap_angles[j],
-                tension_before_n: w.tensions[k],
-                tension_after_n: w.tensions[k + 1],
-                // (+ 0.0: no negative zero in the outputs)
+                wrap_angle_rad: p.wrap_angle,
+                tension_before_n: before,
+                tension_after_n: after,
+                // (0.0 - x: no negative zero in the outputs)
                 slip_m: 0.0 - (crossed - if f.fed_segment <= i { wound } else { 0.0 }),
-                slip_speed_m_s: 0.0 - w.slip_speeds[j],
+                slip_speed_m_s: p.slip_speed,
             }
         })
         .collect()
@@ -190,7 +196,7 @@ pub fn push_pulley_csv(model: &Model, state: &State, ws: &Workspace, row: &mut S
                 "slip-start" => -1,
                 _ => 0,
             };
-            let ratio = if p.tension_before_n > 0.0 { p.tension_after_n / p.tension_before_n } else { 0.0 };
+            let ratio = p.tension_ratio();
             let _ = write!(row, ",{slipping},{:.12},{:.12e},{:.9e}", ratio, p.slip_m, p.slip_speed_m_s);
         }
     }

@@ -196,6 +196,50 @@ impl FrictionWork {
             right_rate: vec![Vector6::zeros(); longest],
         }
     }
+
+    /// Pulley `i` of friction cable `f` at the last evaluation (no allocation).
+    pub fn pulley(&self, f: &PulleyFriction, i: usize) -> PulleyNumbers {
+        let (j, k) = (f.pulley_offset + i, f.segment_offset + i);
+        let (before, after) = (self.tensions[k], self.tensions[k + 1]);
+        PulleyNumbers {
+            state: self.states[j],
+            wrap_angle: self.wrap_angles[j],
+            tension_before: before,
+            tension_after: after,
+            tension_ratio: tension_ratio(before, after),
+            // (0.0 - x: no negative zero in the outputs)
+            slip_speed: 0.0 - self.slip_speeds[j],
+        }
+    }
+}
+
+/// One pulley's numbers at the last evaluation, in the outputs' conventions (`FrictionWork::
+/// pulley`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PulleyNumbers {
+    /// What it does.
+    pub state: PulleyState,
+    /// Wrap angle, rad.
+    pub wrap_angle: f64,
+    /// Tension of the segment before it (toward the route's first anchor), N.
+    pub tension_before: f64,
+    /// Tension of the segment after it, N.
+    pub tension_after: f64,
+    /// `tension_ratio(tension_before, tension_after)`.
+    pub tension_ratio: f64,
+    /// Slip speed over the last accepted step, m/s, positive toward the route's last anchor
+    /// (0 after a static solve).
+    pub slip_speed: f64,
+}
+
+/// Tension after a pulley over tension before it: 0 when the side before is slack (the ratio
+/// the outputs publish).
+pub fn tension_ratio(before: f64, after: f64) -> f64 {
+    if before > 0.0 {
+        after / before
+    } else {
+        0.0
+    }
 }
 
 /// The rest lengths each friction cable's segments hold at t = 0 (`Model::

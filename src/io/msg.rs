@@ -125,7 +125,7 @@ impl CableStates {
             if c.pulleys.is_empty() {
                 // frictionless: one tension along the route
                 let pulleys = c.pulley_slip.len();
-                let ratio = if c.tension > 0.0 { 1.0 } else { 0.0 };
+                let ratio = crate::forces::pulley::tension_ratio(c.tension, c.tension);
                 m.pulley_sticks.extend(std::iter::repeat_n(false, pulleys));
                 m.pulley_slip_speed.extend(std::iter::repeat_n(0.0, pulleys));
                 m.pulley_tension_ratio.extend(std::iter::repeat_n(ratio, pulleys));
@@ -133,9 +133,7 @@ impl CableStates {
             for p in &c.pulleys {
                 m.pulley_sticks.push(p.state == "stick");
                 m.pulley_slip_speed.push(p.slip_speed_m_s);
-                let ratio =
-                    if p.tension_before_n > 0.0 { p.tension_after_n / p.tension_before_n } else { 0.0 };
-                m.pulley_tension_ratio.push(ratio);
+                m.pulley_tension_ratio.push(p.tension_ratio());
             }
             m.pulley_slip.extend(c.pulley_slip);
         }

@@ -47,7 +47,7 @@ use nalgebra::{DMatrix, DVector, SymmetricEigen};
 
 use crate::assembly::DenseTangents;
 use crate::constraints::{add_multiplier_hessian, add_multiplier_hessian_to};
-use crate::evaluate::{add_tangents, evaluate, evaluate_forces, Tangents, Workspace};
+use crate::evaluate::{add_workspace_tangents, evaluate, evaluate_forces, Tangents, Workspace};
 use crate::model::{CableId, Model, Pose, SolverSettings};
 use crate::solve::linear::{KktSystem, LinearBackend};
 use crate::state::{retract, State};
@@ -1609,16 +1609,7 @@ fn assemble_sparse(kkt: &mut KktSystem, model: &Model, state: &State, ws: &mut W
     kkt.clear();
     kkt.add_joints(model, &state.poses, &ws.points);
     let mut sink = kkt.tangents(1.0, 0.0);
-    let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
-    add_tangents(
-        model,
-        state,
-        &ws.points,
-        &ws.cables,
-        contacts,
-        (&mut ws.scratch, &mut ws.friction),
-        &mut sink,
-    );
+    add_workspace_tangents(model, state, ws, &mut sink);
     if model.constraint_count > 0 {
         add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
     }

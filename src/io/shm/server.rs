@@ -62,19 +62,17 @@ fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64)
         match cable.friction {
             Some(f) => {
                 let f = &model.pulley_friction[f];
-                let w = &ws.friction;
                 for i in 0..pulleys {
-                    let (j, s) = (f.pulley_offset + i, f.segment_offset + i);
-                    let (before, after) = (w.tensions[s], w.tensions[s + 1]);
-                    out.pulley_slip_speed[k + i] = 0.0 - w.slip_speeds[j];
-                    out.pulley_tension_ratio[k + i] = if before > 0.0 { after / before } else { 0.0 };
-                    out.pulley_sticks[k + i] =
-                        u8::from(w.states[j] == crate::forces::pulley::PulleyState::Stick);
+                    let p = ws.friction.pulley(f, i);
+                    out.pulley_slip_speed[k + i] = p.slip_speed;
+                    out.pulley_tension_ratio[k + i] = p.tension_ratio;
+                    out.pulley_sticks[k + i] = u8::from(p.state == crate::forces::pulley::PulleyState::Stick);
                 }
             }
             None => {
                 for i in 0..pulleys {
-                    out.pulley_tension_ratio[k + i] = if c.tension > 0.0 { 1.0 } else { 0.0 };
+                    out.pulley_tension_ratio[k + i] =
+                        crate::forces::pulley::tension_ratio(c.tension, c.tension);
                 }
             }
         }

@@ -27,7 +27,7 @@
 use nalgebra::Matrix6;
 
 use crate::constraints::{add_multiplier_hessian_to, add_reaction_force};
-use crate::evaluate::{add_tangents, evaluate_forces, Workspace};
+use crate::evaluate::{add_workspace_tangents, evaluate_forces, Workspace};
 use crate::forces::contact::contact_point;
 use crate::model::Model;
 use crate::solve::linear::{FactorKind, KktSystem};
@@ -450,16 +450,7 @@ pub fn assemble_newton_matrix(
 ) {
     assemble_mass_and_joints(model, ws, mass, kkt);
     let mut sink = kkt.tangents(1.0 / beta_p, gamma_p / beta_p);
-    let contacts = (ws.contacts.as_slice(), ws.strut_closest.as_slice());
-    add_tangents(
-        model,
-        state,
-        &ws.points,
-        &ws.cables,
-        contacts,
-        (&mut ws.scratch, &mut ws.friction),
-        &mut sink,
-    );
+    add_workspace_tangents(model, state, ws, &mut sink);
     add_gyroscopic_damping(model, &state.velocities, &mut sink);
     if model.constraint_count > 0 {
         add_multiplier_hessian_to(model, &state.poses, &state.multipliers, 1.0, &mut sink);
