@@ -10,7 +10,7 @@ use std::io::Write as _;
 use std::path::Path;
 
 use crate::evaluate::Workspace;
-use crate::model::{CableId, Model};
+use crate::model::Model;
 use crate::plot::{self, Chart, Series};
 use crate::report;
 use crate::solve::deploy::{deploy_quasi_static, PathKind};
@@ -193,7 +193,7 @@ pub fn friction_study(
         ),
         &out_dir.join("friction_route_tension"),
     )?;
-    Ok(FrictionStudy { point: name.clone(), cable: model.cable_names[CableId(cable).0].clone(), rows })
+    Ok(FrictionStudy { point: name.clone(), cable: model.cable_names[cable].clone(), rows })
 }
 
 /// The point that moves most along `model`'s quasi-static deployment.
