@@ -8,7 +8,13 @@
 //!   towards `L*` at `r` m/s and stays there;
 //! - rate only `r`: the rest length changes at `r` m/s (negative shortens) until a limit, where it
 //!   stops.
+//!
+//! An actuator with a `command_delay` of `k` steps gets each accepted command `k` steps late
+//! (`Control::tick`, once per `Simulator::step`). A winch's cable keeps its rest length here: its
+//! motor moves it (`crate::forces::winch`), and the mode becomes what the winch's controller is
+//! asked for (`Control::winch_command`).
 
+use crate::forces::winch::WinchCommand;
 use crate::model::{ActuatorId, Model};
 
 /// A command for one actuator. At least one field must be set.
@@ -72,16 +78,22 @@ pub enum ActuatorMode {
     Rate(f64),
 }
 
-/// The mode of every actuator.
+/// The mode of every actuator, and the commands still on their way to actuators with a
+/// `command_delay`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Control {
     modes: Vec<ActuatorMode>,
+    /// Accepted commands waiting for their step: `(steps left, actuator, mode)`, oldest first.
+    pending: std::collections::VecDeque<(usize, ActuatorId, ActuatorMode)>,
 }
 
 impl Control {
     /// Every actuator on the schedule.
     pub fn new(model: &Model) -> Self {
-        Self { modes: vec![ActuatorMode::Schedule; model.actuators.len()] }
+        Self {
+            modes: vec![ActuatorMode::Schedule; model.actuators.len()],
+            pending: std::collections::VecDeque::new(),
+        }
     }
 
     /// Current mode of actuator `id`.
@@ -121,15 +133,38 @@ impl Control {
         }
     }
 
-    /// Validates `cmd` for actuator `id` and, if valid, makes it the actuator's mode.
+    /// Validates `cmd` for actuator `id` and, if valid, makes it the actuator's mode from the
+    /// next step, or, with a `command_delay` of `k` steps, from the step after `k` more
+    /// `tick`s. A rejected command is refused at once, whatever the delay.
     pub fn command(
         &mut self,
         model: &Model,
         id: ActuatorId,
         cmd: ActuatorCommand,
     ) -> Result<(), CommandError> {
-        self.modes[id.0] = Self::validate(model, id, cmd)?;
+        let mode = Self::validate(model, id, cmd)?;
+        match model.actuators[id.0].command_delay {
+            0 => self.modes[id.0] = mode,
+            k => self.pending.push_back((k, id, mode)),
+        }
         Ok(())
+    }
+
+    /// Called once at the start of every `Simulator::step`: commands whose delay has run out
+    /// become their actuators' modes, in the order they arrived.
+    pub fn tick(&mut self) {
+        while let Some(&(0, id, mode)) = self.pending.front() {
+            self.modes[id.0] = mode;
+            self.pending.pop_front();
+        }
+        for (left, _, _) in self.pending.iter_mut() {
+            *left -= 1;
+        }
+    }
+
+    /// Commands accepted and still delayed.
+    pub fn pending_commands(&self) -> usize {
+        self.pending.len()
     }
 
     /// Like `command`, by actuator name.
@@ -146,20 +181,53 @@ impl Control {
     /// Rest lengths (m) at time `t + h` given those at `t` (`now`): scheduled actuators follow the
     /// schedule, commanded ones move as their mode says, clamped to their limits; cables without
     /// an actuator keep their rest length.
+    ///
+    /// A winch's cable keeps its rest length here: its motor moves it during the sub-step
+    /// (`winch_command`, `crate::forces::winch`).
     pub fn advance(&self, model: &Model, t: f64, h: f64, now: &[f64], out: &mut [f64]) {
         out.copy_from_slice(now);
         for (i, act) in model.actuators.iter().enumerate() {
-            let c = act.cable.0;
-            out[c] = match self.modes[i] {
-                ActuatorMode::Schedule => {
-                    model.schedule.rest_length(ActuatorId(i), model.initial_rest_lengths[c], t + h)
-                }
-                ActuatorMode::Target { rest_length, rate } => {
-                    let step = rate * h;
-                    now[c] + (rest_length - now[c]).clamp(-step, step)
-                }
-                ActuatorMode::Rate(r) => (now[c] + r * h).clamp(act.min_rest_length, act.max_rest_length),
-            };
+            if act.winch.is_none() {
+                out[act.cable.0] = self.ideal_rest_length(model, ActuatorId(i), t, h, now[act.cable.0]);
+            }
+        }
+    }
+
+    /// Where the ideal actuator `id` takes the rest length `now` (m) over the step from `t` to
+    /// `t + h` (s): the schedule's value, a move towards the target at its rate, or the signed
+    /// rate, held within the limits.
+    fn ideal_rest_length(&self, model: &Model, id: ActuatorId, t: f64, h: f64, now: f64) -> f64 {
+        let act = &model.actuators[id.0];
+        match self.modes[id.0] {
+            ActuatorMode::Schedule => {
+                model.schedule.rest_length(id, model.initial_rest_lengths[act.cable.0], t + h)
+            }
+            ActuatorMode::Target { rest_length, rate } => {
+                let step = rate * h;
+                now + (rest_length - now).clamp(-step, step)
+            }
+            ActuatorMode::Rate(r) => (now + r * h).clamp(act.min_rest_length, act.max_rest_length),
+        }
+    }
+
+    /// What winch `id`'s controller is asked for over the sub-step from `t` to `t + h` (s): a
+    /// signed rate is a speed command; the schedule and a target are a rest-length reference,
+    /// moved from `reference` (m, the last one) as the ideal actuator would move its rest
+    /// length, with its rate as the feed-forward.
+    pub fn winch_command(
+        &self,
+        model: &Model,
+        id: ActuatorId,
+        t: f64,
+        h: f64,
+        reference: f64,
+    ) -> WinchCommand {
+        match self.modes[id.0] {
+            ActuatorMode::Rate(r) => WinchCommand::Speed(r),
+            _ => {
+                let next = self.ideal_rest_length(model, id, t, h, reference);
+                WinchCommand::Position { reference: next, rate: (next - reference) / h }
+            }
         }
     }
 

@@ -231,15 +231,28 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     for (c, cable) in model.cables.iter().enumerate() {
         let route = model.route(CableId(c));
         let response = match cable.friction {
-            None => add_cable_force(
-                model,
-                route,
-                cable,
-                state.rest_lengths[c],
-                &ws.points,
-                &mut ws.scratch,
-                &mut ws.force,
-            ),
+            None => match cable.winch {
+                Some(w) if state.winches[w].step > 0.0 => crate::forces::winch::add_winch_cable_force(
+                    model,
+                    route,
+                    cable,
+                    &model.winches[w],
+                    &state.winches[w],
+                    state.rest_lengths[c],
+                    &ws.points,
+                    &mut ws.scratch,
+                    &mut ws.force,
+                ),
+                _ => add_cable_force(
+                    model,
+                    route,
+                    cable,
+                    state.rest_lengths[c],
+                    &ws.points,
+                    &mut ws.scratch,
+                    &mut ws.force,
+                ),
+            },
             Some(f) => {
                 let friction = &model.pulley_friction[f];
                 let o = friction.segment_offset;
@@ -353,7 +366,18 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
             continue;
         }
         let t = cables[c].tension;
-        if !cable::is_engaged(cable, state.rest_lengths[c], t) {
+        // the rest length the response was evaluated at: the state's, or where a winch under
+        // way takes it, with the winch's series compliance scaling EA and c
+        let (l0, scale) = match cable.winch {
+            Some(w) if state.winches[w].step > 0.0 => {
+                let (winch, s) = (&model.winches[w], &state.winches[w]);
+                let (l0, slope) =
+                    crate::forces::winch::rest_length_at(model, winch, s, state.rest_lengths[c], t);
+                (l0, crate::forces::winch::tangent_scale(cable, cables[c].length, l0, slope))
+            }
+            _ => (state.rest_lengths[c], 1.0),
+        };
+        if !cable::is_engaged(cable, l0, t) {
             continue;
         }
         cable::route_geometry(route, points, scratch);
@@ -363,9 +387,9 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
             &state.velocities,
             CableId(c),
             route,
-            cable::tangent_axial_stiffness(cable, state.rest_lengths[c], cables[c].length),
-            cable.damping,
-            state.rest_lengths[c],
+            scale * cable::tangent_axial_stiffness(cable, l0, cables[c].length),
+            scale * cable.damping,
+            l0,
             t,
             points,
             scratch,

@@ -213,6 +213,15 @@ pub struct EnergyAccount {
     /// Energy dissipated since the start by friction at the pulleys, booked per accepted step
     /// (`crate::forces::pulley::commit`).
     pub friction_loss: f64,
+    /// Work of the winch motors' line forces since the start, `sum h F_m v`
+    /// (`crate::forces::winch`); 0 without winches.
+    pub motor_work: f64,
+    /// Energy lost in the winch drums' viscous friction since the start.
+    pub winch_friction_loss: f64,
+    /// Kinetic energy of the winch rotors now, `sum J omega^2 / 2`. Outside `total()`: the
+    /// motors' balance is `motor_work - winch_friction_loss - winch_kinetic ~ ` the work the
+    /// drums do on their cables (part of `actuator_work`).
+    pub winch_kinetic: f64,
     /// Total energy at the start.
     pub initial_total: f64,
 }
@@ -269,6 +278,9 @@ pub struct Simulator {
     /// the sub-step under way, to undo a sub-step that carries one bar through another. `None`
     /// otherwise.
     pass_through_guard: Option<Vec<f64>>,
+    /// Per winch, `dV/dL0` of its cable at the start of the sub-step under way (N), for the
+    /// trapezoidal work of the rest length the motor moves; empty without winches.
+    winch_rest_force: Vec<f64>,
 }
 
 impl Simulator {
@@ -347,6 +359,7 @@ impl Simulator {
             ..Default::default()
         };
         let nc = model.cables.len();
+        let model_winches = model.winches.len();
         let control = Control::new(&model);
         Ok(Self {
             initial: state.clone(),
@@ -368,6 +381,7 @@ impl Simulator {
             implicit_guard: None,
             contact_events: None,
             pass_through_guard: None,
+            winch_rest_force: vec![0.0; model_winches],
         }
         .with_divergence_guard())
     }
@@ -460,6 +474,7 @@ impl Simulator {
             *energy = self.energy;
         }
         let start = Instant::now();
+        self.control.tick();
         let mut stats = StepStats::default();
         let dt = self.settings.dt;
         let target = self.state.time + dt;
@@ -493,6 +508,9 @@ impl Simulator {
                 for (side, closest) in sides.iter_mut().zip(&self.ws.strut_closest) {
                     *side = closest.side;
                 }
+            }
+            if !self.model.winches.is_empty() {
+                self.prepare_winches(h_try);
             }
             self.rest_now.copy_from_slice(&self.state.rest_lengths);
             self.control.advance(&self.model, self.state.time, h_try, &self.rest_now, &mut self.rest_next);
@@ -649,6 +667,9 @@ impl Simulator {
                     if !self.model.pulley_friction.is_empty() {
                         self.commit_pulley_friction(h_try);
                     }
+                    if !self.model.winches.is_empty() {
+                        self.commit_winches(h_try);
+                    }
                     stats.newton_iterations += a.iterations;
                     stats.factorizations += a.factorizations;
                     stats.evaluations += a.evaluations;
@@ -748,6 +769,46 @@ impl Simulator {
         );
     }
 
+    /// Before a sub-step of `h` (s): each winch's controller sets its drive for the sub-step
+    /// (`crate::forces::winch::prepare`, from its command in `Control`), and the work factor
+    /// `dV/dL0` of its cable now is kept for `commit_winches`. Out of line: scenes without
+    /// winches never run it.
+    #[cold]
+    #[inline(never)]
+    fn prepare_winches(&mut self, h: f64) {
+        for (w, winch) in self.model.winches.iter().enumerate() {
+            let c = winch.cable.0;
+            let s = &mut self.state.winches[w];
+            let command =
+                self.control.winch_command(&self.model, winch.actuator, self.state.time, h, s.reference);
+            crate::forces::winch::prepare(&self.model, winch, s, command, self.state.rest_lengths[c], h);
+            self.winch_rest_force[w] = rest_force(&self.model, &self.ws.cables[c], c);
+        }
+    }
+
+    /// After an accepted sub-step of `h` (s): each winch's cable takes the rest length its motor
+    /// reached (`crate::forces::winch::commit`), and the motors' work, friction and rotor energy
+    /// and the work the drums did on their cables (trapezoidal, into `actuator_work`) are
+    /// booked.
+    #[cold]
+    #[inline(never)]
+    fn commit_winches(&mut self, h: f64) {
+        let mut kinetic = 0.0;
+        for (w, winch) in self.model.winches.iter().enumerate() {
+            let c = winch.cable.0;
+            let (l0_start, l0_end) = (self.state.rest_lengths[c], self.ws.cables[c].rest_length);
+            let work = crate::forces::winch::commit(winch, &mut self.state.winches[w], l0_start, l0_end);
+            self.energy.motor_work += work.motor;
+            self.energy.winch_friction_loss += work.friction;
+            let rate = (l0_end - l0_start) / h;
+            let end = rest_force(&self.model, &self.ws.cables[c], c);
+            self.energy.actuator_work -= 0.5 * h * (self.winch_rest_force[w] + end) * rate;
+            self.state.rest_lengths[c] = l0_end;
+            kinetic += crate::forces::winch::rotor_energy(winch, self.state.winches[w].speed);
+        }
+        self.energy.winch_kinetic = kinetic;
+    }
+
     /// Arms the divergence guard of an integrator at a fixed step (`guard` for an explicit one,
     /// which stops the run; `implicit_guard` for generalized-alpha, which retries the sub-step in
     /// halves): the energy
@@ -784,6 +845,16 @@ impl Simulator {
 
 /// Undoes a sub-step: `state` back to `before`, `ws` evaluated there (`evaluate_forces`), and the
 /// integrator restarted from consistent accelerations (its history is the undone sub-step's).
+/// `dV/dL0` of cable `c` (N) at its response `r`, at a fixed length: `-T_el (L + L0) / (2 L0)`
+/// while taut, 0 slack: the force an actuator moving its rest length works against.
+fn rest_force(model: &Model, r: &crate::forces::cable::CableResponse, c: usize) -> f64 {
+    if r.slack || r.length <= r.rest_length {
+        return 0.0;
+    }
+    let t_el = model.cables[c].axial_stiffness / r.rest_length * (r.length - r.rest_length);
+    t_el * (r.length + r.rest_length) / (2.0 * r.rest_length)
+}
+
 fn undo_sub_step(
     model: &Model,
     dynamics: &mut Dynamics,

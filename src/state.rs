@@ -4,6 +4,7 @@
 
 use nalgebra::{DVector, UnitQuaternion, Vector3};
 
+use crate::forces::winch::WinchState;
 use crate::model::{Model, Pose};
 
 /// Everything that changes during a run. Built from a `Model` with `State::initial`
@@ -26,6 +27,8 @@ pub struct State {
     /// a pulley at the last accepted step, from which the next step's sticking and slipping
     /// start.
     pub segment_rest_lengths: Vec<f64>,
+    /// Every winch motor's state, parallel to `Model::winches` (empty without).
+    pub winches: Vec<WinchState>,
 }
 
 impl State {
@@ -38,6 +41,14 @@ impl State {
             rest_lengths: model.initial_rest_lengths.clone(),
             multipliers: DVector::zeros(model.constraint_count),
             segment_rest_lengths: model.initial_segment_rest_lengths.clone(),
+            winches: model
+                .winches
+                .iter()
+                .map(|w| WinchState {
+                    reference: model.initial_rest_lengths[w.cable.0],
+                    ..Default::default()
+                })
+                .collect(),
         }
     }
 
@@ -49,6 +60,7 @@ impl State {
         self.rest_lengths.copy_from_slice(&other.rest_lengths);
         self.multipliers.copy_from(&other.multipliers);
         self.segment_rest_lengths.copy_from_slice(&other.segment_rest_lengths);
+        self.winches.copy_from_slice(&other.winches);
     }
 
     /// True if every number in the state is finite.
@@ -58,6 +70,7 @@ impl State {
             && self.multipliers.iter().all(|v| v.is_finite())
             && self.rest_lengths.iter().all(|v| v.is_finite())
             && self.segment_rest_lengths.iter().all(|v| v.is_finite())
+            && self.winches.iter().all(|w| w.speed.is_finite() && w.integral.is_finite())
             && self.poses.iter().all(|p| {
                 p.position.iter().all(|v| v.is_finite()) && p.rotation.coords.iter().all(|v| v.is_finite())
             })

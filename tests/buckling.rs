@@ -38,6 +38,7 @@ fn member(p: f64) -> CableModel {
         tension_only: false,
         buckling_load: p,
         friction: None,
+        winch: None,
     }
 }
 

@@ -55,6 +55,7 @@ fn the_readme_field_reference_is_generated_and_lists_exactly_the_parsed_fields()
         let text = match key {
             "" => "bogus = 1\n".to_string(),
             "deployment.ramps" => "[deployment]\nsteps = 1\n[[deployment.ramps]]\nbogus = 1\n".to_string(),
+            "actuators.winch" => "[[actuators]]\nname = \"a\"\n[actuators.winch]\nbogus = 1\n".to_string(),
             k if table.starts_with("[[") => format!("[[{k}]]\nbogus = 1\n"),
             k => format!("[{k}]\nbogus = 1\n"),
         };

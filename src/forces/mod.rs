@@ -10,3 +10,4 @@ pub mod collision;
 pub mod contact;
 pub mod joint_damping;
 pub mod pulley;
+pub mod winch;

@@ -161,6 +161,9 @@ pub struct CableModel {
     /// Index into `Model::pulley_friction` when some pulley of this cable has friction (`None`:
     /// frictionless pulleys, one tension along the route, and friction costs nothing).
     pub friction: Option<usize>,
+    /// Index into `Model::winches` when a winch motor drives this cable (`None`: an ideal
+    /// actuator or none, and winches cost nothing).
+    pub winch: Option<usize>,
 }
 
 impl CableModel {
@@ -366,6 +369,12 @@ pub struct ActuatorModel {
     pub max_rest_length: f64,
     /// Largest allowed rate of change of the rest length, m/s (> 0).
     pub max_rate: f64,
+    /// Steps (`Simulator::step` calls) between a command's arrival and its effect (0: the next
+    /// step).
+    pub command_delay: usize,
+    /// Index into `Model::winches` when a winch motor drives the cable (`None`: the ideal
+    /// actuator, which follows its command exactly).
+    pub winch: Option<usize>,
 }
 
 /// One linear rest-length ramp of a deployment schedule.
@@ -512,6 +521,9 @@ pub struct Model {
     /// segment_offset`): the initial rest length shared in proportion to the initial segment
     /// lengths, as a frictionless cable would hold it.
     pub initial_segment_rest_lengths: Vec<f64>,
+    /// Winch motors (`crate::forces::winch`; none: every actuator is ideal, and winches cost
+    /// nothing).
+    pub winches: Vec<crate::forces::winch::WinchModel>,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
     /// Rayleigh damping (zero: none, and it costs nothing).

@@ -5,8 +5,11 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 
-use super::{limits, BodyKindSpec, CableSpec, CollisionPairsSpec, JointKindSpec, PointSpec, SceneSpec};
+use super::{
+    limits, BodyKindSpec, CableSpec, CollisionPairsSpec, JointKindSpec, PointSpec, SceneSpec, WinchSpec,
+};
 use crate::error::{readable_number, SceneError};
+use crate::forces::winch::{PositionGains, WinchModel};
 use crate::model::{
     ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, ContactMaterial, ContactSphere, GroundModel,
     JointModel, JointTarget, Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings, StrutPair,
@@ -101,7 +104,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let damped_joints = joints.iter().any(|j| j.damping > 0.0);
     let Cables { cables, cable_names, route_points, rest_specs, damping_ratios } =
         build_cables(spec, &cx, &point_names)?;
-    let (actuators, actuator_names) = build_actuators(spec, &cx, &cable_names)?;
+    let Actuators { actuators, actuator_names, winches } = build_actuators(spec, &cx, &cable_names)?;
     let solver = build_solver(spec, &cx)?;
     let contact_spheres = build_contact_spheres(spec, &cx, &bodies, &point_names)?;
     let grounds = build_grounds(spec, &cx, &bodies, &points)?;
@@ -131,6 +134,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
         pulley_friction: Vec::new(),
         initial_segment_rest_lengths: Vec::new(),
+        winches,
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
         damped_joints,
@@ -150,6 +154,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     set_rest_lengths(&mut model, &rest_specs, &damping_ratios, spec.cables.len(), &cx)?;
     set_buckling_loads(spec, &mut model, &cx)?;
     set_pulley_friction(spec, &mut model, &cx)?;
+    attach_winches(&mut model, &cx)?;
     model.schedule = build_schedule(spec, &model, &cx)?;
     Ok(model)
 }
@@ -226,6 +231,28 @@ fn set_pulley_friction(spec: &SceneSpec, model: &mut Model, cx: &Ctx) -> Result<
             .collect();
         model.initial_segment_rest_lengths =
             crate::forces::pulley::shared_rest_lengths(model, &kin, &model.initial_rest_lengths);
+    }
+    Ok(())
+}
+
+/// Marks each winch's cable (`CableModel::winch`) and refuses a winch on an element that cannot
+/// take one: a member (it pushes; a drum only pulls) or a cable with pulley friction.
+fn attach_winches(model: &mut Model, cx: &Ctx) -> Result<(), SceneError> {
+    for (w, winch) in model.winches.iter().enumerate() {
+        let i = winch.actuator.0;
+        let cable = &mut model.cables[winch.cable.0];
+        if !cable.tension_only {
+            return Err(cx.err("actuators", i, "winch", "a winch drives a cable, not a member that pushes"));
+        }
+        if cable.friction.is_some() {
+            return Err(cx.err(
+                "actuators",
+                i,
+                "winch",
+                "a winch on a cable with pulley friction is not modelled yet (use the ideal actuator)",
+            ));
+        }
+        cable.winch = Some(w);
     }
     Ok(())
 }
@@ -1379,6 +1406,7 @@ fn build_cables(
             tension_only: c.tension_only,
             buckling_load: f64::INFINITY,
             friction: None,
+            winch: None,
         });
         cable_names.push(c.name.clone());
     }
@@ -1388,11 +1416,8 @@ fn build_cables(
 
 /// Checks and builds `actuators` (one per cable, length and rate limits): the actuators and
 /// their names.
-fn build_actuators(
-    spec: &SceneSpec,
-    cx: &Ctx,
-    cable_names: &[String],
-) -> Result<(Vec<ActuatorModel>, Vec<String>), SceneError> {
+fn build_actuators(spec: &SceneSpec, cx: &Ctx, cable_names: &[String]) -> Result<Actuators, SceneError> {
+    let mut winches = Vec::new();
     let mut actuators = Vec::new();
     let mut actuator_names: Vec<String> = Vec::new();
     for (i, a) in spec.actuators.iter().enumerate() {
@@ -1416,16 +1441,101 @@ fn build_actuators(
             ));
         }
         in_range(a.max_rate, limits::RATE, "m/s").map_err(|r| e("max_rate", r))?;
+        if a.command_delay > limits::COMMAND_DELAY {
+            return Err(e(
+                "command_delay",
+                format!("must be at most {} steps, got {}", limits::COMMAND_DELAY, a.command_delay),
+            ));
+        }
+        let winch = match &a.winch {
+            Some(w) => {
+                let id = crate::model::ActuatorId(actuators.len());
+                winches.push(build_winch(w, id, crate::model::CableId(cable), &e)?);
+                Some(winches.len() - 1)
+            }
+            None => None,
+        };
         actuators.push(ActuatorModel {
             cable: crate::model::CableId(cable),
             min_rest_length: a.min_rest_length,
             max_rest_length: a.max_rest_length,
             max_rate: a.max_rate,
+            command_delay: a.command_delay,
+            winch,
         });
         actuator_names.push(a.name.clone());
     }
 
-    Ok((actuators, actuator_names))
+    Ok(Actuators { actuators, actuator_names, winches })
+}
+
+/// What `build_actuators` gives: the actuators, their names, and the winch motors of those that
+/// have one.
+struct Actuators {
+    actuators: Vec<ActuatorModel>,
+    actuator_names: Vec<String>,
+    winches: Vec<WinchModel>,
+}
+
+/// Checks one `[actuators.winch]` table and gives its model: the torque-speed line in rope units
+/// from `stall_tension` and `no_load_speed`, or from a DC motor (`T_s = N k_t V / (R r)`,
+/// `v0 = r V / (N k_t)`), never both; `e(field, reason)` names the actuator.
+fn build_winch(
+    w: &WinchSpec,
+    actuator: crate::model::ActuatorId,
+    cable: crate::model::CableId,
+    e: &dyn Fn(&str, String) -> SceneError,
+) -> Result<WinchModel, SceneError> {
+    let positive = |x: f64, field: &str, unit: &str| {
+        in_range(x, limits::WINCH, unit).map_err(|r| e(&format!("winch.{field}"), r))
+    };
+    let r = positive(w.drum_radius, "drum_radius", "m")?;
+    let dc = [w.torque_constant, w.resistance, w.voltage];
+    let (stall_tension, no_load_speed) = match (w.stall_tension, w.no_load_speed, dc) {
+        (Some(t), Some(v), [None, None, None]) if w.gear_ratio.is_none() => {
+            (positive(t, "stall_tension", "N")?, positive(v, "no_load_speed", "m/s")?)
+        }
+        (None, None, [Some(kt), Some(res), Some(volt)]) => {
+            let kt = positive(kt, "torque_constant", "N m/A")?;
+            let res = positive(res, "resistance", "ohm")?;
+            let volt = positive(volt, "voltage", "V")?;
+            let n = positive(w.gear_ratio.unwrap_or(1.0), "gear_ratio", "")?;
+            (n * kt * volt / (res * r), r * volt / (n * kt))
+        }
+        _ => {
+            return Err(e(
+                "winch",
+                "give either stall_tension and no_load_speed, or torque_constant, resistance and \
+                 voltage (with an optional gear_ratio)"
+                    .into(),
+            ))
+        }
+    };
+    let nonnegative = |x: f64, field: &str, unit: &str| {
+        in_range(x, (0.0, limits::WINCH.1), unit).map_err(|r| e(&format!("winch.{field}"), r))
+    };
+    let rotor_inertia = nonnegative(w.rotor_inertia, "rotor_inertia", "kg m^2")?;
+    let viscous_friction = nonnegative(w.viscous_friction, "viscous_friction", "N m s/rad")?;
+    let max_acceleration = match w.max_acceleration {
+        Some(a) => positive(a, "max_acceleration", "m/s^2")?,
+        None => f64::INFINITY,
+    };
+    let [kp, ki, kd] = w.position_gains.unwrap_or([20.0, 100.0, 0.0]);
+    for (g, name) in [(kp, "kp"), (ki, "ki"), (kd, "kd")] {
+        nonnegative(g, &format!("position_gains.{name}"), "")?;
+    }
+    Ok(WinchModel {
+        actuator,
+        cable,
+        drum_radius: r,
+        stall_tension,
+        no_load_speed,
+        rotor_inertia,
+        viscous_friction,
+        back_drivable: w.back_drivable,
+        max_acceleration,
+        gains: PositionGains { kp, ki, kd },
+    })
 }
 
 /// The `[damping]` coefficients, checked.

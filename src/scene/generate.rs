@@ -357,6 +357,8 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
                 min_rest_length: round6(0.5 * l0),
                 max_rest_length: round6(1.2 * l0),
                 max_rate: round6(l0),
+                command_delay: 0,
+                winch: None,
             });
             ramps.push(RampSpec {
                 actuator: format!("{name}_winch"),
@@ -487,6 +489,8 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
             min_rest_length: round6(0.5 * l0),
             max_rest_length: round6(1.2 * l0),
             max_rate: round6(l0),
+            command_delay: 0,
+            winch: None,
         });
         spec.deployment = Some(DeploymentSpec {
             steps: 40,
@@ -696,6 +700,8 @@ pub fn sixbar(p: &SixbarParams) -> SceneSpec {
         min_rest_length: round9s(0.2 * cable_length),
         max_rest_length: round9s(1.2 * cable_length),
         max_rate: round9s(cable_length),
+        command_delay: 0,
+        winch: None,
     };
     if p.all_winches {
         let actuators = cables.iter().map(|c| winch(format!("w_{}", c.name), &c.name)).collect();

@@ -57,6 +57,10 @@ pub mod limits {
     pub const FORCE_DENSITY: (f64, f64) = (0.0, 1e12);
     /// Actuator rates, m/s.
     pub const RATE: (f64, f64) = (1e-12, 1e6);
+    /// Winch parameters (radius, tension, speed, motor constants, inertia, gains).
+    pub const WINCH: (f64, f64) = (1e-12, 1e12);
+    /// Command delay, steps.
+    pub const COMMAND_DELAY: usize = 100_000;
     /// Largest |gravity| component, m/s^2.
     pub const MAX_GRAVITY: f64 = 1e3;
     /// Contact sphere radius, m.
@@ -496,6 +500,63 @@ pub struct ActuatorSpec {
     pub max_rest_length: f64,
     /// Largest rate, m/s (> 0).
     pub max_rate: f64,
+    /// Steps between a command's arrival and its effect (default 0: the next step).
+    #[serde(default, skip_serializing_if = "is_zero_usize")]
+    pub command_delay: usize,
+    /// A winch motor instead of the ideal actuator (`[actuators.winch]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub winch: Option<WinchSpec>,
+}
+
+fn is_zero_usize(n: &usize) -> bool {
+    *n == 0
+}
+
+/// A winch motor (`crate::forces::winch`): a drum, a linear torque-speed line given in rope
+/// units (`stall_tension`, `no_load_speed`) or as a DC motor (`torque_constant`, `resistance`,
+/// `voltage`, `gear_ratio`), rotor inertia, friction, gear and controller gains.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WinchSpec {
+    /// Drum radius, m (> 0).
+    pub drum_radius: f64,
+    /// Line force at full drive and zero speed, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stall_tension: Option<f64>,
+    /// Reel-in speed at full drive and zero tension, m/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub no_load_speed: Option<f64>,
+    /// DC motor torque constant k_t (= back-EMF constant), N m/A.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub torque_constant: Option<f64>,
+    /// DC motor winding resistance, ohm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resistance: Option<f64>,
+    /// DC motor supply voltage, V.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub voltage: Option<f64>,
+    /// Gear ratio, motor turns per drum turn (default 1; DC form only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gear_ratio: Option<f64>,
+    /// Rotor inertia reflected to the drum, kg m^2 (default 0).
+    #[serde(default)]
+    pub rotor_inertia: f64,
+    /// Viscous friction at the drum, N m s/rad (default 0).
+    #[serde(default)]
+    pub viscous_friction: f64,
+    /// False for a self-locking gear that the load cannot turn back (default true).
+    #[serde(default = "default_true")]
+    pub back_drivable: bool,
+    /// Largest change of the speed set-point, m/s^2 (default: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_acceleration: Option<f64>,
+    /// Position-mode gains `[kp (1/s), ki (1/s^2), kd]` (default `[20, 100, 0]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_gains: Option<[f64; 3]>,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 /// Deployment schedule.
@@ -646,6 +707,7 @@ fn plain_words(message: &str) -> String {
         ("struct JointSpec", "a [[joints]] table"),
         ("struct CableSpec", "a [[cables]] table"),
         ("struct ActuatorSpec", "an [[actuators]] table"),
+        ("struct WinchSpec", "an [actuators.winch] table"),
         ("struct DeploymentSpec", "a [deployment] table"),
         ("struct RampSpec", "a [[deployment.ramps]] table"),
         ("struct SolverSpec", "a [solver] table"),

@@ -25,13 +25,14 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 12] = [
+pub const TABLES: [(&str, &str); 13] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
     ("[[cables]]", "cables"),
     ("[[members]]", "members"),
     ("[[actuators]]", "actuators"),
+    ("[actuators.winch]", "actuators.winch"),
     ("[solver]", "solver"),
     ("[damping]", "damping"),
     ("[deployment]", "deployment"),
@@ -57,8 +58,9 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     let coord = format!("each within +-{}", readable_number(limits::MAX_COORDINATE));
     let top = TABLES[0].0;
     let (bodies, joints, cables, members) = (TABLES[1].0, TABLES[2].0, TABLES[3].0, TABLES[4].0);
-    let (actuators, solver, damping, deployment) = (TABLES[5].0, TABLES[6].0, TABLES[7].0, TABLES[8].0);
-    let (ramps, grounds, collisions) = (TABLES[9].0, TABLES[10].0, TABLES[11].0);
+    let (actuators, winch) = (TABLES[5].0, TABLES[6].0);
+    let (solver, damping, deployment) = (TABLES[7].0, TABLES[8].0, TABLES[9].0);
+    let (ramps, grounds, collisions) = (TABLES[10].0, TABLES[11].0, TABLES[12].0);
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -298,6 +300,62 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         f(actuators, "min_rest_length", "number", "m", "required", range(limits::LENGTH)),
         f(actuators, "max_rest_length", "number", "m", "required", format!("{}, >= min", range(limits::LENGTH))),
         f(actuators, "max_rate", "number", "m/s", "required", range(limits::RATE)),
+        f(
+            actuators,
+            "command_delay",
+            "integer",
+            "steps",
+            "0",
+            format!("0 to {}: each accepted command acts that many steps late", limits::COMMAND_DELAY),
+        ),
+        f(actuators, "winch", "table", "-", "none", "a winch motor instead of the ideal actuator, below".into()),
+        f(winch, "drum_radius", "number", "m", "required", range(limits::WINCH)),
+        f(
+            winch,
+            "stall_tension",
+            "number",
+            "N",
+            "required (or the DC form)",
+            format!("{}: line force at full drive and zero speed", range(limits::WINCH)),
+        ),
+        f(
+            winch,
+            "no_load_speed",
+            "number",
+            "m/s",
+            "required (or the DC form)",
+            format!("{}: reel-in speed at full drive and zero tension", range(limits::WINCH)),
+        ),
+        f(
+            winch,
+            "torque_constant",
+            "number",
+            "N m/A",
+            "none",
+            format!("{}; DC form, with resistance and voltage: T_s = N k_t V / (R r), v0 = r V / (N k_t)", range(limits::WINCH)),
+        ),
+        f(winch, "resistance", "number", "ohm", "none", format!("{}; DC form", range(limits::WINCH))),
+        f(winch, "voltage", "number", "V", "none", format!("{}; DC form, the supply at full drive", range(limits::WINCH))),
+        f(winch, "gear_ratio", "number", "-", "1", format!("{}; DC form, motor turns per drum turn", range(limits::WINCH))),
+        f(winch, "rotor_inertia", "number", "kg m^2", "0", format!("0 to {}, reflected to the drum", readable_number(limits::WINCH.1))),
+        f(winch, "viscous_friction", "number", "N m s/rad", "0", format!("0 to {}, at the drum", readable_number(limits::WINCH.1))),
+        f(winch, "back_drivable", "boolean", "-", "true", "false: a self-locking gear the load never turns back".into()),
+        f(
+            winch,
+            "max_acceleration",
+            "number",
+            "m/s^2",
+            "none",
+            format!("{}: the speed set-point's largest change", range(limits::WINCH)),
+        ),
+        f(
+            winch,
+            "position_gains",
+            "[kp, ki, kd]",
+            "1/s, 1/s^2, -",
+            "[20, 100, 0]",
+            format!("each 0 to {}: speed set-point from the rest-length error", readable_number(limits::WINCH.1)),
+        ),
         f(solver, "tolerance", "number", "-", "1e-11", "relative residual of the quasi-static Newton, in (0, 1)".into()),
         f(
             solver,

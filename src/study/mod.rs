@@ -164,6 +164,15 @@ pub fn dynamic_csv_header(model: &Model) -> String {
         cols.extend(crate::report::pulley_csv_columns(model));
         cols.push("friction_loss_J".into());
     }
+    if !model.winches.is_empty() {
+        for w in &model.winches {
+            let name = &model.actuator_names[w.actuator.0];
+            for q in ["winch_speed_m_s", "winch_setpoint_m_s", "winch_drive"] {
+                cols.push(format!("{name}_{q}"));
+            }
+        }
+        cols.extend(["motor_work_J", "winch_friction_loss_J", "winch_kinetic_J"].map(String::from));
+    }
     cols.join(",")
 }
 
@@ -201,6 +210,12 @@ pub fn dynamic_csv_row(sim: &Simulator, stats: &StepStats) -> String {
     if !sim.model().pulley_friction.is_empty() {
         crate::report::push_pulley_csv(sim.model(), sim.state(), ws, &mut row);
         let _ = write!(row, ",{:.9}", e.friction_loss);
+    }
+    if !sim.model().winches.is_empty() {
+        for w in &sim.state().winches {
+            let _ = write!(row, ",{:.12},{:.12},{:.9}", w.speed, w.setpoint, w.drive);
+        }
+        let _ = write!(row, ",{:.9},{:.9},{:.9}", e.motor_work, e.winch_friction_loss, e.winch_kinetic);
     }
     row
 }

@@ -84,6 +84,27 @@ pub fn run(scene: &Path) -> Result<(), String> {
         say!("pulley friction: {} (capstan stick and slip; dense Newton systems)", with.join("; "));
     }
     say!("actuators: {} (schedule: {})", s.actuators, counted(s.ramps, "ramp"));
+    for w in &model.winches {
+        let gear = if w.back_drivable { "back-drivable" } else { "self-locking" };
+        say!(
+            "winch: {} (drum {} m, stall {:.6} N, no-load {:.6} m/s, rotor {} kg m^2, {gear})",
+            model.actuator_names[w.actuator.0],
+            w.drum_radius,
+            w.stall_tension,
+            w.no_load_speed,
+            w.rotor_inertia
+        );
+    }
+    let delayed: Vec<String> = model
+        .actuators
+        .iter()
+        .zip(&model.actuator_names)
+        .filter(|(a, _)| a.command_delay > 0)
+        .map(|(a, name)| format!("{name} {} steps", a.command_delay))
+        .collect();
+    if !delayed.is_empty() {
+        say!("command delay: {}", delayed.join(", "));
+    }
     if s.planar {
         say!("planar: yes (xy plane)");
     }

@@ -335,6 +335,10 @@ impl Dynamics {
             for (r, (a, b)) in self.trial.rest_lengths.iter_mut().zip(rest_now.iter().zip(rest_next)) {
                 *r = a + c * (b - a);
             }
+            // a winch's motor has run for the stage's share of the step (none at c = 0)
+            for w in &mut self.trial.winches {
+                w.step = c * h;
+            }
             // the stage state leaves `self` while the rates borrow it (no allocation)
             let trial = std::mem::take(&mut self.trial);
             let ok = self.explicit_rates(model, &trial, i);
@@ -359,6 +363,7 @@ impl Dynamics {
         self.trial.time = state.time + h;
         self.trial.rest_lengths.copy_from_slice(rest_next);
         self.trial.multipliers.copy_from(&state.multipliers);
+        self.trial.winches.copy_from_slice(&state.winches);
         if !self.trial.is_finite() {
             self.explicit.fsal_valid = false;
             return Err(f64::INFINITY);
@@ -372,7 +377,8 @@ impl Dynamics {
         self.acceleration.copy_from(&self.vdot);
         self.pseudo_acceleration.copy_from(&self.vdot);
         state.copy_from(&self.trial);
-        self.explicit.fsal_valid = tableau.fsal && !moved;
+        // a winch's rest length moves when the step is committed: its last stage is stale
+        self.explicit.fsal_valid = tableau.fsal && !moved && model.winches.is_empty();
         Ok(ExplicitStep { error, evaluations })
     }
 

@@ -165,6 +165,7 @@ impl Dynamics {
         self.trial.time = state.time + h;
         self.trial.rest_lengths.copy_from_slice(rest_next);
         self.trial.segment_rest_lengths.copy_from_slice(&state.segment_rest_lengths);
+        self.trial.winches.copy_from_slice(&state.winches);
         let mut stats = AttemptStats::default();
         let coefficients = (beta_p, gamma_p);
         // with contacts, full Newton: the friction's slope changes by orders of magnitude between

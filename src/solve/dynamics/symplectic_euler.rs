@@ -33,6 +33,12 @@ impl Dynamics {
         self.trial.multipliers.copy_from(&state.multipliers);
         self.trial.rest_lengths.copy_from_slice(rest_now);
         self.trial.segment_rest_lengths.copy_from_slice(&state.segment_rest_lengths);
+        self.trial.winches.copy_from_slice(&state.winches);
+        // the force at the start sees a winch's cable at its rest length now: its motor moves it
+        // over the step, against the tension at the end (`crate::forces::winch`)
+        for w in &mut self.trial.winches {
+            w.step = 0.0;
+        }
         evaluate_forces(model, &self.trial, &mut self.ws);
         // f = Q - gyro (in `residual`), M v_n (in `vdot`)
         self.v.fill(0.0);
