@@ -35,6 +35,7 @@ pub mod model;
 pub mod plot;
 pub mod report;
 pub mod scene;
+pub mod sensors;
 pub mod sim;
 pub mod solve;
 pub mod state;

@@ -112,6 +112,7 @@ fn every_parameter_in_the_help_table_is_understood_with_its_default() {
         let value = match *default {
             "(bundled prism3)" => "scene.toml",
             "(scene's, else 0.001)" => "0.001",
+            "(scene's)" => "7",
             "(every one built)" if built.is_empty() => continue,
             "(every one built)" => built.as_str(),
             "(off)" | "(<ns>/<node>)" => "",

@@ -579,3 +579,76 @@ fn a_run_with_pulley_friction_records_its_pulleys_and_replays_bit_for_bit() {
     let ever_slipped = cables.iter().any(|m| floats(&m["pulley_slip_speed"]).iter().any(|s| s.abs() > 0.0));
     assert!(ever_slipped, "the winch pulls rope over the pulleys at some step");
 }
+
+/// Records `deploy --dynamic` of a 10 kg load hanging on a winch's rope, with noisy sensors
+/// seeded `seed`, into a fresh bag `name`; gives the bag and every `(cable_states,
+/// ground_truth/cable_states)` tension of the rope.
+fn sensed_hoist(name: &str, seed: u64) -> (PathBuf, Vec<(f64, f64)>) {
+    let text = "name = \"hanging\"\ngravity = [0.0, 0.0, -9.81]\nphysics_dt = 1e-5\n\
+        [[bodies]]\nname = \"ceiling\"\nkind = \"fixed\"\npoints = { hook = [0.0, 0.0, 0.0] }\n\
+        [[bodies]]\nname = \"load\"\nkind = \"node\"\nmass = 10.0\nposition = [0.0, 0.0, -1.0]\n\
+        [[cables]]\nname = \"rope\"\nroute = [\"ceiling.hook\", \"load\"]\nea = 1e5\nrest_length = 1.0\n\
+        [[actuators]]\nname = \"winch\"\ncable = \"rope\"\nmin_rest_length = 0.5\nmax_rest_length = 1.5\n\
+        max_rate = 0.1\n";
+    let scene = common::scratch("sensors").join(format!("{name}.toml"));
+    let sensors = format!(
+        "\n[sensors]\nseed = {seed}\n[sensors.tension]\nsigma = 0.5\n\
+         [sensors.rest_length]\nresolution = 1e-4\ndelay = 3\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\n"
+    );
+    std::fs::write(&scene, text.to_string() + &sensors).unwrap();
+    let dir = bag_dir(name);
+    let out = cli(&[
+        "deploy",
+        scene.to_str().unwrap(),
+        "--dynamic",
+        "--from-equilibrium",
+        "--duration",
+        "0.02",
+        "--record",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let reader = BagReader::open(&dir).unwrap();
+    let tensions = |topic: &str| -> Vec<f64> {
+        reader
+            .messages()
+            .map(Result::unwrap)
+            .filter(|m| m.topic == topic)
+            .map(|m| m.decode::<msg::CableStates>().unwrap().tension[0])
+            .collect()
+    };
+    let measured = tensions("/tensegrity_sim/cable_states");
+    let truth = tensions("/tensegrity_sim/ground_truth/cable_states");
+    assert_eq!(measured.len(), truth.len());
+    (dir, measured.into_iter().zip(truth).collect())
+}
+
+#[test]
+fn a_run_with_sensors_records_measured_and_true_states_and_replays_bit_for_bit() {
+    let (dir, tensions) = sensed_hoist("sensors_a", 5);
+    assert_eq!(tensions.len(), 2001, "a state per step and at the start");
+    // the cable states carry the noisy tension, the ground truth the exact one
+    let errors: Vec<f64> = tensions.iter().map(|(m, t)| m - t).collect();
+    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    assert!(rms > 0.3 && rms < 0.7, "noise of 0.5 N, rms {rms}");
+    assert!(tensions.iter().all(|(_, t)| (t - 98.1).abs() < 1e-3), "at rest the rope carries the load");
+    assert_replays_identically(&dir);
+    // the same seed gives the same bag's numbers, another seed other ones
+    let (_, again) = sensed_hoist("sensors_b", 5);
+    assert_eq!(
+        tensions.iter().map(|t| t.0.to_bits()).collect::<Vec<_>>(),
+        again.iter().map(|t| t.0.to_bits()).collect::<Vec<_>>()
+    );
+    let (_, other) = sensed_hoist("sensors_c", 6);
+    assert!(tensions.iter().zip(&other).filter(|(a, b)| a.0 != b.0).count() > 1990);
+    assert_eq!(
+        tensions.iter().map(|t| t.1).collect::<Vec<_>>(),
+        other.iter().map(|t| t.1).collect::<Vec<_>>()
+    );
+    if let Some(v) = rosbags_read(&dir) {
+        let truth = v["messages"]["/tensegrity_sim/ground_truth/cable_states"].as_array().unwrap();
+        assert_eq!(truth.len(), 2001);
+        let poses = v["messages"]["/tensegrity_sim/ground_truth/body_poses"].as_array().unwrap();
+        assert_eq!(poses.len(), 2001);
+    }
+}

@@ -327,6 +327,8 @@ TOPICS = {
     "/diagnostics": (DiagnosticArray, 16, False),
     "~/markers": (MarkerArray, 16, False),
     "~/contacts": (ContactStates, 16, False),
+    "~/ground_truth/body_poses": (PoseArray, 16, False),
+    "~/ground_truth/cable_states": (CableStates, 16, False),
     "~/actuator_commands": (ActuatorCommand, 1, False),
     "~/joint_commands": (JointState, 1, False),
 }

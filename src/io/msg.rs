@@ -100,6 +100,34 @@ pub struct CableStates {
 }
 
 impl CableStates {
+    /// Replaces the tensions, lengths and rest lengths by what the scene's sensors report in
+    /// `measured` (`crate::sensors::Sensors::measured`), where it declares them; the strains
+    /// follow the reported lengths and rest lengths.
+    pub fn measure(&mut self, model: &Model, measured: &[f64]) {
+        use crate::sensors::{reading, SensorKind};
+        if measured.is_empty() {
+            return;
+        }
+        if let Some(t) = reading(model, measured, SensorKind::Tension) {
+            self.tension.copy_from_slice(t);
+        }
+        let lengths = reading(model, measured, SensorKind::Length);
+        if let Some(l) = lengths {
+            self.length.copy_from_slice(l);
+        }
+        let rest_lengths = reading(model, measured, SensorKind::RestLength);
+        if let Some(l0) = rest_lengths {
+            for (a, l0) in model.actuators.iter().zip(l0) {
+                self.rest_length[a.cable.0] = *l0;
+            }
+        }
+        if lengths.is_some() || rest_lengths.is_some() {
+            for ((e, l), l0) in self.strain.iter_mut().zip(&self.length).zip(&self.rest_length) {
+                *e = (l - l0) / l0;
+            }
+        }
+    }
+
     /// The cables of an evaluated state; `reference` holds each cable's pulley coordinates at the
     /// start (`report::all_pulley_coordinates`).
     pub fn from_state(
@@ -283,6 +311,22 @@ impl PoseArray {
         Self {
             header: Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() },
             poses: state.poses.iter().map(pose_of).collect(),
+        }
+    }
+
+    /// Replaces the positions and orientations by what the scene's sensors report in `measured`
+    /// (`crate::sensors::Sensors::measured`), where it declares them.
+    pub fn measure(&mut self, model: &Model, measured: &[f64]) {
+        use crate::sensors::{reading, SensorKind};
+        if let Some(x) = reading(model, measured, SensorKind::Position) {
+            for (p, x) in self.poses.iter_mut().zip(x.chunks_exact(3)) {
+                p.position = Point { x: x[0], y: x[1], z: x[2] };
+            }
+        }
+        if let Some(q) = reading(model, measured, SensorKind::Orientation) {
+            for (p, q) in self.poses.iter_mut().zip(q.chunks_exact(4)) {
+                p.orientation = Quaternion { w: q[0], x: q[1], y: q[2], z: q[3] };
+            }
         }
     }
 }

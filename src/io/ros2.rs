@@ -62,6 +62,11 @@ struct Publishers {
     contacts_topic: ros2_client::dds::rustdds::Topic,
     contacts: Option<Publisher<msg::ContactStates>>,
     contacts_qos: TopicQos,
+    /// `~/ground_truth/body_poses` and `~/ground_truth/cable_states`: their topics, and their
+    /// writers once a scene with sensors publishes on them (a scene without has none).
+    truth_topics: [ros2_client::dds::rustdds::Topic; 2],
+    truth: Option<(Publisher<msg::PoseArray>, Publisher<msg::CableStates>)>,
+    truth_qos: TopicQos,
 }
 
 impl Message for msg::Empty {}
@@ -138,8 +143,27 @@ impl NodeSink for DdsTransport {
                 .map_err(|e| PublishError::Failed(format!("~/contacts writer: {e:?}")))?;
             self.publishers.contacts = Some(writer);
         }
+        let truth = matches!(topic, Topic::GroundTruthPoses | Topic::GroundTruthCables);
+        if truth && self.publishers.truth.is_none() {
+            let (depth, transient) =
+                (self.publishers.truth_qos.depth, self.publishers.truth_qos.transient_local);
+            let [poses, cables] = &self.publishers.truth_topics;
+            let qos = Some(writer_qos(depth as usize, transient));
+            let failed = |e| PublishError::Failed(format!("~/ground_truth writer: {e:?}"));
+            let poses = self._node.create_publisher(poses, qos.clone()).map_err(failed)?;
+            let cables = self._node.create_publisher(cables, qos).map_err(failed)?;
+            self.publishers.truth = Some((poses, cables));
+        }
         let p = &self.publishers;
         match (topic, M::build(topic, v)?) {
+            (Topic::GroundTruthPoses, Some(M::Poses(m))) => match &p.truth {
+                Some((w, _)) => sent(w.publish(m)),
+                None => Ok(()),
+            },
+            (Topic::GroundTruthCables, Some(M::Cables(m))) => match &p.truth {
+                Some((_, w)) => sent(w.publish(m)),
+                None => Ok(()),
+            },
             (_, Some(M::Clock(m))) => sent(p.clock.publish(m)),
             (Topic::TfStatic, Some(M::Tf(m))) => sent(p.tf_static.publish(m)),
             (_, Some(M::Tf(m))) => sent(p.tf.publish(m)),
@@ -231,10 +255,15 @@ impl DdsTransport {
         // every topic as the bags and the Python kit declare it (`topics::topic_type`,
         // `topics::INPUT_TOPICS`): one table of names, types and QoS
         let declare = |short: &str, type_name: &str, offered: TopicQos| {
+            // `~/a/b` is topic `b` in the namespace `<private>/a`
             let (ns, name) = match short.strip_prefix("~/") {
-                Some(rest) => (private.as_str(), rest),
-                None => ("/", short.trim_start_matches('/')),
+                Some(rest) => match rest.rsplit_once('/') {
+                    Some((sub, base)) => (format!("{private}/{sub}"), base),
+                    None => (private.clone(), rest),
+                },
+                None => ("/".to_string(), short.trim_start_matches('/')),
             };
+            let ns = ns.as_str();
             let (pkg, ty) = type_name.split_once("/msg/").ok_or_else(|| {
                 NodeError::Ros(format!("topic {short}: type '{type_name}' is not pkg/msg/Type"))
             })?;
@@ -280,6 +309,11 @@ impl DdsTransport {
                 .clone(),
             contacts: None,
             contacts_qos: topics::topic_type(Topic::Contacts).expect("a ROS topic").1,
+            truth_topics: [Topic::GroundTruthPoses, Topic::GroundTruthCables].map(|topic| {
+                outputs.iter().find(|(t, _, _)| *t == topic).expect("every ROS topic is declared").1.clone()
+            }),
+            truth: None,
+            truth_qos: topics::topic_type(Topic::GroundTruthPoses).expect("a ROS topic").1,
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,

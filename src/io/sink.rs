@@ -58,6 +58,9 @@ pub struct NodeView<'a> {
     pub stats: NodeStats,
     /// The node's step (one `tick`), s.
     pub dt: f64,
+    /// What the scene's sensors report now (`crate::sensors::Sensors::measured`; empty without
+    /// sensors): the state topics carry these values, `~/ground_truth/...` the exact ones.
+    pub measured: &'a [f64],
 }
 
 /// Names one set of a view's constants (`NodeView::reference`, `frame_id`, `node_name`).
@@ -170,9 +173,17 @@ impl TopicMessage {
             Topic::Clock => Self::Clock(Clock { clock: Time::from_seconds(state.time) }),
             Topic::Tf => Self::Tf(TfMessage::from_state(model, state, frame, false)),
             Topic::TfStatic => Self::Tf(TfMessage::from_state(model, state, frame, true)),
-            Topic::BodyPoses => Self::Poses(PoseArray::from_state(state, frame)),
-            Topic::CableStates => {
-                let cables = CableStates::from_state(model, state, ws, view.reference, frame);
+            Topic::BodyPoses => {
+                let mut poses = PoseArray::from_state(state, frame);
+                poses.measure(model, view.measured);
+                Self::Poses(poses)
+            }
+            Topic::GroundTruthPoses => Self::Poses(PoseArray::from_state(state, frame)),
+            Topic::CableStates | Topic::GroundTruthCables => {
+                let mut cables = CableStates::from_state(model, state, ws, view.reference, frame);
+                if topic == Topic::CableStates {
+                    cables.measure(model, view.measured);
+                }
                 if !cables.is_finite() {
                     return Err(crate::io::sink::PublishError::Failed(
                         "refusing to publish non-finite cable states".into(),
@@ -180,7 +191,15 @@ impl TopicMessage {
                 }
                 Self::Cables(cables)
             }
-            Topic::ActuatorStates => Self::Actuators(JointState::actuators(model, state, ws, view.rates)),
+            Topic::ActuatorStates => {
+                let mut actuators = JointState::actuators(model, state, ws, view.rates);
+                if let Some(l0) =
+                    crate::sensors::reading(model, view.measured, crate::sensors::SensorKind::RestLength)
+                {
+                    actuators.position.copy_from_slice(l0);
+                }
+                Self::Actuators(actuators)
+            }
             Topic::Structure => Self::Structure(Structure::from_model(model, frame)),
             Topic::Diagnostics => {
                 let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.to_string() };

@@ -32,11 +32,17 @@ pub enum Topic {
     /// The whole state in one sample (body poses, cables, actuators, time and step index), for
     /// transports that carry it so (shared memory); published with the other state topics.
     State,
+    /// `~/ground_truth/body_poses`: the exact poses, where the scene's sensors make
+    /// `~/body_poses` report measured ones (only such scenes publish it).
+    GroundTruthPoses,
+    /// `~/ground_truth/cable_states`: the exact cable states, where sensors make
+    /// `~/cable_states` report measured tensions, lengths or rest lengths.
+    GroundTruthCables,
 }
 
 impl Topic {
     /// Every topic, in the order of `NodeStats::publish_failures`.
-    pub const ALL: [Topic; 11] = [
+    pub const ALL: [Topic; 13] = [
         Topic::Clock,
         Topic::Tf,
         Topic::TfStatic,
@@ -48,6 +54,8 @@ impl Topic {
         Topic::Markers,
         Topic::Contacts,
         Topic::State,
+        Topic::GroundTruthPoses,
+        Topic::GroundTruthCables,
     ];
     /// The topic's name (`~/` is the node's private namespace).
     pub fn name(self) -> &'static str {
@@ -63,6 +71,8 @@ impl Topic {
             Topic::Markers => "~/markers",
             Topic::Contacts => "~/contacts",
             Topic::State => "~/state",
+            Topic::GroundTruthPoses => "~/ground_truth/body_poses",
+            Topic::GroundTruthCables => "~/ground_truth/cable_states",
         }
     }
     /// The topic's position in `Topic::ALL` (and in `NodeStats::publish_failures`).
@@ -71,20 +81,26 @@ impl Topic {
     }
     /// The topics of one state, in publish order: the whole-state sample first (a shared-memory
     /// sample takes microseconds, so it does not wait for the DDS messages' serialization).
-    pub const STATE: [Topic; 6] = [
+    pub const STATE: [Topic; 8] = [
         Topic::State,
         Topic::BodyPoses,
         Topic::Tf,
         Topic::CableStates,
         Topic::ActuatorStates,
         Topic::Contacts,
+        Topic::GroundTruthPoses,
+        Topic::GroundTruthCables,
     ];
 
     /// Whether a node of `model` publishes this topic: `~/contacts` only where the scene declares
-    /// grounds and contact spheres (a scene without contact has no such topic, no writer and no
-    /// bag channel), every other topic always.
+    /// grounds and contact spheres, `~/ground_truth/...` only where it declares sensors (a scene
+    /// without has no such topic, no writer and no bag channel), every other topic always.
     pub fn published_by(self, model: &crate::model::Model) -> bool {
-        self != Topic::Contacts || model.contact_pairs() > 0
+        match self {
+            Topic::Contacts => model.contact_pairs() > 0,
+            Topic::GroundTruthPoses | Topic::GroundTruthCables => !model.sensors.channels.is_empty(),
+            _ => true,
+        }
     }
 }
 
@@ -135,6 +151,8 @@ pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
         Topic::Markers => ("visualization_msgs/msg/MarkerArray", q(16, false)),
         Topic::Contacts => ("tensegrity_msgs/msg/ContactStates", q(16, false)),
         Topic::State => return None,
+        Topic::GroundTruthPoses => ("geometry_msgs/msg/PoseArray", q(16, false)),
+        Topic::GroundTruthCables => ("tensegrity_msgs/msg/CableStates", q(16, false)),
     })
 }
 

@@ -524,6 +524,8 @@ pub struct Model {
     /// Winch motors (`crate::forces::winch`; none: every actuator is ideal, and winches cost
     /// nothing).
     pub winches: Vec<crate::forces::winch::WinchModel>,
+    /// Sensor models (`crate::sensors`; empty: no sensors). The physics never reads them.
+    pub sensors: crate::sensors::SensorModel,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
     /// Rayleigh damping (zero: none, and it costs nothing).

@@ -137,6 +137,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         winches,
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
+        sensors: build_sensors(spec, &cx)?,
         damped_joints,
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
@@ -1539,6 +1540,55 @@ fn build_winch(
 }
 
 /// The `[damping]` coefficients, checked.
+/// Checks `[sensors]` and gives the sensor model: each channel's noise, bias and resolution
+/// (`>= 0`, bias of either sign), delay, rate (> 0) and dropout (`[0, 1)`); an orientation takes
+/// no bias or resolution.
+fn build_sensors(spec: &SceneSpec, cx: &Ctx) -> Result<crate::sensors::SensorModel, SceneError> {
+    use crate::sensors::{ChannelModel, SensorKind, SensorModel};
+    let Some(s) = &spec.sensors else {
+        return Ok(SensorModel::default());
+    };
+    let declared = [&s.tension, &s.length, &s.rest_length, &s.position, &s.orientation];
+    let mut channels = Vec::new();
+    for (kind, c) in SensorKind::ALL.into_iter().zip(declared) {
+        let Some(c) = c else { continue };
+        let table = format!("sensors.{}", kind.name());
+        let e = |field: &str, r: String| cx.top(&format!("{table}.{field}"), r);
+        let value = |x: f64, field: &str| in_range(x, limits::SENSOR_VALUE, "").map_err(|r| e(field, r));
+        let sigma = value(c.sigma, "sigma")?;
+        let resolution = value(c.resolution, "resolution")?;
+        let bias = if c.bias.is_finite() && c.bias.abs() <= limits::SENSOR_VALUE.1 {
+            c.bias
+        } else {
+            return Err(e("bias", format!("must be finite, within +-1e12, got {}", c.bias)));
+        };
+        if kind == SensorKind::Orientation && (bias != 0.0 || resolution != 0.0) {
+            return Err(e(
+                "bias",
+                "an orientation sensor has noise (sigma, rad) but no bias or resolution".into(),
+            ));
+        }
+        if c.delay > limits::COMMAND_DELAY {
+            return Err(e(
+                "delay",
+                format!("must be at most {} steps, got {}", limits::COMMAND_DELAY, c.delay),
+            ));
+        }
+        let period = match c.rate {
+            Some(r) => 1.0 / in_range(r, limits::SENSOR_RATE, "Hz").map_err(|r| e("rate", r))?,
+            None => 0.0,
+        };
+        if !(c.dropout >= 0.0 && c.dropout < 1.0) {
+            return Err(e("dropout", format!("must be in [0, 1), got {}", c.dropout)));
+        }
+        channels.push((
+            kind,
+            ChannelModel { sigma, bias, resolution, delay: c.delay, period, dropout: c.dropout },
+        ));
+    }
+    Ok(SensorModel { seed: s.seed, channels })
+}
+
 fn build_rayleigh(spec: &SceneSpec, cx: &Ctx) -> Result<crate::model::RayleighDamping, SceneError> {
     let Some(d) = &spec.damping else { return Ok(Default::default()) };
     let alpha = match d.alpha {

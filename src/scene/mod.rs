@@ -59,8 +59,12 @@ pub mod limits {
     pub const RATE: (f64, f64) = (1e-12, 1e6);
     /// Winch parameters (radius, tension, speed, motor constants, inertia, gains).
     pub const WINCH: (f64, f64) = (1e-12, 1e12);
-    /// Command delay, steps.
+    /// Command delay, steps (and a sensor's delay).
     pub const COMMAND_DELAY: usize = 100_000;
+    /// A sensor's noise, bias and resolution, in its unit.
+    pub const SENSOR_VALUE: (f64, f64) = (0.0, 1e12);
+    /// A sensor's update rate, Hz.
+    pub const SENSOR_RATE: (f64, f64) = (1e-6, 1e9);
     /// Largest |gravity| component, m/s^2.
     pub const MAX_GRAVITY: f64 = 1e3;
     /// Contact sphere radius, m.
@@ -165,6 +169,57 @@ pub struct SceneSpec {
     /// Strut-strut collision between bars' capsules (off unless declared).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub collisions: Option<CollisionSpec>,
+    /// Sensor models (`[sensors]`; none: what the node publishes is the exact state).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensors: Option<SensorsSpec>,
+}
+
+/// The scene's sensors (`crate::sensors`): a seed and one table per channel.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorsSpec {
+    /// Seed of the noise generators (default 0).
+    #[serde(default)]
+    pub seed: u64,
+    /// Every cable's tension, N.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tension: Option<ChannelSpec>,
+    /// Every cable's length, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length: Option<ChannelSpec>,
+    /// Every actuator's rest length (the winch's encoder), m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rest_length: Option<ChannelSpec>,
+    /// Every body's position, m.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<ChannelSpec>,
+    /// Every body's orientation (noise in rad; no bias or resolution).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<ChannelSpec>,
+}
+
+/// One sensor channel's imperfections; every field defaults to a perfect sensor.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelSpec {
+    /// Gaussian noise's standard deviation, in the channel's unit.
+    #[serde(default)]
+    pub sigma: f64,
+    /// Constant offset, in the channel's unit.
+    #[serde(default)]
+    pub bias: f64,
+    /// Quantization step (0: none).
+    #[serde(default)]
+    pub resolution: f64,
+    /// Steps between a measurement and its report.
+    #[serde(default)]
+    pub delay: usize,
+    /// Updates per second (none: every step), held in between.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate: Option<f64>,
+    /// Probability that an update is lost (the last value is held), in [0, 1).
+    #[serde(default)]
+    pub dropout: f64,
 }
 
 /// Which bars collide with which, and the contact law between them
@@ -708,6 +763,8 @@ fn plain_words(message: &str) -> String {
         ("struct CableSpec", "a [[cables]] table"),
         ("struct ActuatorSpec", "an [[actuators]] table"),
         ("struct WinchSpec", "an [actuators.winch] table"),
+        ("struct SensorsSpec", "a [sensors] table"),
+        ("struct ChannelSpec", "a [sensors.CHANNEL] table"),
         ("struct DeploymentSpec", "a [deployment] table"),
         ("struct RampSpec", "a [[deployment.ramps]] table"),
         ("struct SolverSpec", "a [solver] table"),

@@ -25,7 +25,7 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 13] = [
+pub const TABLES: [(&str, &str); 15] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
@@ -39,6 +39,8 @@ pub const TABLES: [(&str, &str); 13] = [
     ("[[deployment.ramps]]", "deployment.ramps"),
     ("[[grounds]]", "grounds"),
     ("[collisions]", "collisions"),
+    ("[sensors]", "sensors"),
+    ("[sensors.CHANNEL]", "sensors.tension"),
 ];
 
 fn range((lo, hi): (f64, f64)) -> String {
@@ -61,6 +63,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     let (actuators, winch) = (TABLES[5].0, TABLES[6].0);
     let (solver, damping, deployment) = (TABLES[7].0, TABLES[8].0, TABLES[9].0);
     let (ramps, grounds, collisions) = (TABLES[10].0, TABLES[11].0, TABLES[12].0);
+    let (sensors, channel) = (TABLES[13].0, TABLES[14].0);
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -471,6 +474,18 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "1e-5",
             format!("friction regularization v_s, as a ground's; {}", range(limits::STICTION_SPEED)),
         ),
+        f(sensors, "seed", "integer", "-", "0", "seed of the noise generators, 0 to 2^64 - 1 (the node's sensor_seed overrides it)".into()),
+        f(sensors, "tension", "table", "-", "none", "every cable's tension, N".into()),
+        f(sensors, "length", "table", "-", "none", "every cable's length, m".into()),
+        f(sensors, "rest_length", "table", "-", "none", "every actuator's rest length (the winch's encoder), m".into()),
+        f(sensors, "position", "table", "-", "none", "every body's position, m".into()),
+        f(sensors, "orientation", "table", "-", "none", "every body's orientation (noise in rad; no bias or resolution)".into()),
+        f(channel, "sigma", "number", "the channel's", "0", format!("Gaussian noise's standard deviation, 0 to {}", readable_number(limits::SENSOR_VALUE.1))),
+        f(channel, "bias", "number", "the channel's", "0", format!("constant offset, within +-{}", readable_number(limits::SENSOR_VALUE.1))),
+        f(channel, "resolution", "number", "the channel's", "0", format!("quantization step (0: none), 0 to {}", readable_number(limits::SENSOR_VALUE.1))),
+        f(channel, "delay", "integer", "steps", "0", format!("0 to {}: reports what was measured that many steps before", limits::COMMAND_DELAY)),
+        f(channel, "rate", "number", "Hz", "every step", format!("{}: updates per second, held in between", range(limits::SENSOR_RATE))),
+        f(channel, "dropout", "number", "-", "0", "probability in [0, 1) that an update is lost (the last value is held)".into()),
     ]
 }
 

@@ -105,6 +105,27 @@ pub fn run(scene: &Path) -> Result<(), String> {
     if !delayed.is_empty() {
         say!("command delay: {}", delayed.join(", "));
     }
+    if !model.sensors.channels.is_empty() {
+        let channels: Vec<String> = model
+            .sensors
+            .channels
+            .iter()
+            .map(|(kind, c)| {
+                let rate =
+                    if c.period > 0.0 { format!("{} Hz", 1.0 / c.period) } else { "every step".into() };
+                format!(
+                    "{} (sigma {}, bias {}, resolution {}, delay {}, {rate}, dropout {})",
+                    kind.name(),
+                    c.sigma,
+                    c.bias,
+                    c.resolution,
+                    c.delay,
+                    c.dropout
+                )
+            })
+            .collect();
+        say!("sensors: {} (seed {}; truth on ~/ground_truth/...)", channels.join("; "), model.sensors.seed);
+    }
     if s.planar {
         say!("planar: yes (xy plane)");
     }

@@ -206,10 +206,23 @@ fn deploy_dynamic(
     let label = scene.display().to_string();
     let mut run = record::offline::OfflineRun::start(model, &label, settings, from_equilibrium, record)?;
     let mut file = csv_output(out)?;
-    writeln!(file, "{}", study::dynamic_csv_header(model)).map_err(|e| e.to_string())?;
+    // the scene's sensors, where it declares them, add what they report after the columns of
+    // the exact state
+    let mut header = study::dynamic_csv_header(model);
+    for c in tensegrity::sensors::csv_columns(model) {
+        header.push(',');
+        header.push_str(&c);
+    }
+    let row = |run: &record::offline::OfflineRun, stats: &tensegrity::sim::StepStats| {
+        let mut row = study::dynamic_csv_row(run.simulator(), stats);
+        for v in run.sensors().measured() {
+            let _ = std::fmt::Write::write_fmt(&mut row, format_args!(",{v:.12}"));
+        }
+        row
+    };
+    writeln!(file, "{header}").map_err(|e| e.to_string())?;
     // the row of t = 0: the start, before any step
-    writeln!(file, "{}", study::dynamic_csv_row(run.simulator(), &Default::default()))
-        .map_err(|e| e.to_string())?;
+    writeln!(file, "{}", row(&run, &Default::default())).map_err(|e| e.to_string())?;
     let steps = (duration / settings.dt).round().max(1.0) as u64;
     let bar = progress(steps, "steps");
     let mut totals = study::RunTotals::default();
@@ -223,8 +236,7 @@ fn deploy_dynamic(
             *touched |= c.in_contact();
         }
         bar.inc(1);
-        writeln!(file, "{}", study::dynamic_csv_row(run.simulator(), &stats))
-            .map_err(|e| write_error(out, e))?;
+        writeln!(file, "{}", row(&run, &stats)).map_err(|e| write_error(out, e))?;
     }
     bar.finish_and_clear();
     file.flush().map_err(|e| write_error(out, e))?;

@@ -28,6 +28,7 @@
 pub mod params;
 pub mod runner;
 
+use crate::sensors::Sensors;
 use std::time::Duration;
 
 use crate::control::ActuatorCommand;
@@ -96,6 +97,8 @@ pub struct NodeCore {
     commands_this_step: usize,
     statuses: Vec<DiagnosticStatus>,
     last_step: StepStats,
+    /// The scene's sensor models (`crate::sensors`), measured after every step; empty without.
+    sensors: Sensors,
 }
 
 /// Why the core could not be built.
@@ -127,6 +130,8 @@ impl NodeCore {
         let reference = report::all_pulley_coordinates(sim.model(), sim.state(), sim.workspace());
         let n_cables = sim.state().rest_lengths.len();
         let n_actuators = sim.model().actuators.len();
+        let mut sensors = Sensors::new(sim.model(), params.sensor_seed);
+        sensors.update(sim.model(), sim.state(), sim.workspace());
         let mut core = Self {
             paused: params.start_paused,
             previous_rest: sim.state().rest_lengths.clone(),
@@ -156,6 +161,7 @@ impl NodeCore {
             commands_this_step: 0,
             statuses: Vec::new(),
             last_step: StepStats::default(),
+            sensors,
         };
         if !core.params.follow_schedule {
             core.command_every_actuator(false);
@@ -166,6 +172,10 @@ impl NodeCore {
     /// The simulator (read-only).
     pub fn simulator(&self) -> &Simulator {
         &self.sim
+    }
+    /// The sensors (what the state topics report where the scene declares sensor models).
+    pub fn sensors(&self) -> &Sensors {
+        &self.sensors
     }
     /// What the last physics step cost.
     pub fn last_step(&self) -> StepStats {
@@ -378,6 +388,9 @@ impl NodeCore {
     pub fn reset(&mut self, sink: &mut dyn NodeSink) {
         self.interrupt_step_request(sink, "reset");
         self.sim.reset();
+        // the sensors start over with the same seed: a reset run reports what a fresh one does
+        self.sensors = Sensors::new(self.sim.model(), self.params.sensor_seed);
+        self.sensors.update(self.sim.model(), self.sim.state(), self.sim.workspace());
         sink.simulation_reset(self.sim.state().time, self.stats.steps);
         self.steps_since_reset = 0;
         self.fault = None;
@@ -524,6 +537,9 @@ impl NodeCore {
             self.physics_failure(sink, "the state is not finite".into());
             return false;
         }
+        if !self.sensors.is_empty() {
+            self.sensors.update(self.sim.model(), self.sim.state(), self.sim.workspace());
+        }
         self.stats.steps += 1;
         self.steps_since_reset += 1;
         let dt = self.sim.settings().dt;
@@ -621,6 +637,7 @@ impl NodeCore {
             faulted: self.fault.is_some(),
             stats: self.stats,
             dt: self.sim.settings().dt,
+            measured: self.sensors.measured(),
         }
     }
 

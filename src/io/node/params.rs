@@ -58,6 +58,8 @@ pub struct NodeParams {
     pub follow_schedule: bool,
     /// RViz markers per second of sim time (`markers_rate`, default 30, 0 = off).
     pub markers_rate: f64,
+    /// Seed of the scene's sensor noise (`sensor_seed`; `None`: the scene's `[sensors] seed`).
+    pub sensor_seed: Option<u64>,
     /// Sim-time seconds without an accepted command after which `command_timeout_action` is
     /// taken (`command_timeout`, default 0 = never).
     pub command_timeout: f64,
@@ -171,6 +173,7 @@ impl Default for NodeParams {
             tolerance: 0.0,
             follow_schedule: false,
             markers_rate: 30.0,
+            sensor_seed: None,
             command_timeout: 0.0,
             command_timeout_action: "hold".into(),
             service_mapping: "enhanced".into(),
@@ -219,6 +222,7 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("rho_inf", "0.8", "generalized-alpha spectral radius, 0 to 1"),
     ("tolerance", "0.0", "local error tolerance, m, 0 = fixed steps (generalized-alpha, dormand-prince)"),
     ("markers_rate", "30.0", "RViz markers per second of sim time, 0 = off"),
+    ("sensor_seed", "(scene's)", "seed of the scene's sensor noise, 0 to 2^64 - 1"),
     ("command_timeout", "0.0", "sim-time s without a command before the action, 0 = never"),
     ("command_timeout_action", "hold", "hold (winches stop) or initial (back to start)"),
     ("service_mapping", "enhanced", "enhanced (Fast DDS, RustDDS), cyclone or basic"),
@@ -323,6 +327,12 @@ impl NodeParams {
             }
             "tolerance" => self.tolerance = within(num(value)?, TOLERANCE_RANGE)?,
             "markers_rate" => self.markers_rate = within(num(value)?, MARKERS_RATE_RANGE)?,
+            "sensor_seed" => {
+                let v = text(value);
+                self.sensor_seed = Some(v.parse::<u64>().map_err(|_| {
+                    err(format!("parameter sensor_seed: '{v}' is not an integer from 0 to 2^64 - 1"))
+                })?);
+            }
             "command_timeout" => self.command_timeout = within(num(value)?, COMMAND_TIMEOUT_RANGE)?,
             "command_timeout_action" => {
                 let v = text(value).to_ascii_lowercase();

@@ -17,8 +17,16 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 /// The topics whose messages the writer thread builds from a `StepBatch`'s states. `/clock`
 /// goes in the batch too (its time alone); the others are built on the node's thread: those
 /// sent once or rarely.
-pub(super) const DEFERRED: [Topic; 6] =
-    [Topic::Tf, Topic::BodyPoses, Topic::CableStates, Topic::ActuatorStates, Topic::Markers, Topic::Contacts];
+pub(super) const DEFERRED: [Topic; 8] = [
+    Topic::Tf,
+    Topic::BodyPoses,
+    Topic::CableStates,
+    Topic::ActuatorStates,
+    Topic::Markers,
+    Topic::Contacts,
+    Topic::GroundTruthPoses,
+    Topic::GroundTruthCables,
+];
 
 /// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
 /// record is one step's `/clock` or one state, whatever topics it is published on): one queue
@@ -92,6 +100,7 @@ pub(super) fn rebuilt_view<'a>(
         faulted: false,
         stats: NodeStats { steps, ..NodeStats::default() },
         dt: 0.0,
+        measured: &unpacked.measured,
     }
 }
 
@@ -131,6 +140,8 @@ pub(super) struct UnpackedState {
     /// Points (positions only), cable responses and segment lengths.
     workspace: Workspace,
     rates: Vec<f64>,
+    /// What the sensors reported (`NodeView::measured`; empty without sensors).
+    measured: Vec<f64>,
 }
 
 impl StepBatch {
@@ -151,6 +162,7 @@ impl StepBatch {
                 state: State::initial(&model),
                 workspace: Workspace::for_forces(&model),
                 rates: vec![0.0; model.cables.len()],
+                measured: vec![0.0; crate::sensors::layout(&model).map(|(_, _, n)| n).sum()],
                 model,
             },
             buffer: Vec::new(),
@@ -266,6 +278,8 @@ pub(super) fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
     for ((s, theta), speed) in f.states.iter().zip(&f.wrap_angles).zip(&f.slip_speeds) {
         out.extend_from_slice(&[s.code(), *theta, *speed]);
     }
+    // what the sensors reported
+    out.extend_from_slice(view.measured);
     debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
 
@@ -279,6 +293,7 @@ pub(super) fn packed_len(model: &Model) -> usize {
         + 14 * model.contact_pairs()
         + 2 * model.initial_segment_rest_lengths.len()
         + 3 * model.pulley_friction.iter().map(|f| f.mu.len()).sum::<usize>()
+        + crate::sensors::layout(model).map(|(_, _, n)| n).sum::<usize>()
 }
 
 /// Appends every point's position (3 each) of `view` to `out`.
@@ -347,6 +362,8 @@ pub(super) fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut Unp
         f.wrap_angles[i] = v[1];
         f.slip_speeds[i] = v[2];
     }
+    let n = to.measured.len();
+    to.measured.copy_from_slice(take(n));
     if let Some(points) = points {
         for (p, xyz) in ws.points.iter_mut().zip(points.chunks_exact(3)) {
             p.position = Vector3::from_column_slice(xyz);

@@ -69,6 +69,11 @@ impl OfflineRun {
         self.core.simulator()
     }
 
+    /// What the scene's sensors report after the last step (`crate::sensors`).
+    pub fn sensors(&self) -> &crate::sensors::Sensors {
+        self.core.sensors()
+    }
+
     /// Takes one step (the core's tick at the current simulation time) and returns its
     /// statistics, or the core's fault (the step failed even at the smallest sub-step, or its
     /// state was not finite).

@@ -313,6 +313,7 @@ impl PathPublisher {
             faulted: false,
             stats: NodeStats { steps: self.rows, ..Default::default() },
             dt: 0.0,
+            measured: &[],
         }
     }
 

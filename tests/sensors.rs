@@ -1,0 +1,268 @@
+//! Sensor models (`tensegrity::sensors`): noise statistics against the declared sigma and bias,
+//! update rates, delays, quantization, dropouts, orientation noise, seeds that reproduce and
+//! seeds that differ, the physics untouched, and careless `[sensors]` tables.
+
+mod common;
+
+use common::model_from_toml;
+use tensegrity::model::Model;
+use tensegrity::sensors::{SensorKind, Sensors};
+use tensegrity::sim::{SimSettings, Simulator};
+
+/// A 10 kg load hanging at rest on a rope from a fixed anchor (98.1 N), with `sensors` appended.
+fn hanging(sensors: &str) -> Model {
+    model_from_toml(&hanging_text(sensors))
+}
+
+fn hanging_text(sensors: &str) -> String {
+    format!(
+        r#"
+name = "hanging"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "ceiling"
+kind = "fixed"
+points = {{ hook = [0.0, 0.0, 0.0] }}
+[[bodies]]
+name = "load"
+kind = "node"
+mass = 10.0
+position = [0.0, 0.0, -1.0]
+[[cables]]
+name = "rope"
+route = ["ceiling.hook", "load"]
+ea = 1e5
+rest_length = 1.0
+[[actuators]]
+name = "winch"
+cable = "rope"
+min_rest_length = 0.5
+max_rest_length = 1.5
+max_rate = 0.1
+{sensors}"#
+    )
+}
+
+/// Steps a simulator at rest in its equilibrium `steps` times at 1 ms, updating `sensors` after
+/// each step (and once before), and gives `f(sim, sensors)` at every update.
+fn run<T>(
+    model: Model,
+    seed: Option<u64>,
+    steps: usize,
+    mut f: impl FnMut(&Simulator, &Sensors) -> T,
+) -> Vec<T> {
+    let mut sensors = Sensors::new(&model, seed);
+    let mut sim = Simulator::at_equilibrium(model, SimSettings::default()).unwrap();
+    let mut out = Vec::with_capacity(steps + 1);
+    sensors.update(sim.model(), sim.state(), sim.workspace());
+    out.push(f(&sim, &sensors));
+    for _ in 0..steps {
+        sim.step().unwrap();
+        sensors.update(sim.model(), sim.state(), sim.workspace());
+        out.push(f(&sim, &sensors));
+    }
+    out
+}
+
+fn tension(s: &Sensors) -> f64 {
+    s.readings(SensorKind::Tension).unwrap()[0]
+}
+
+#[test]
+fn tension_noise_has_the_declared_mean_and_spread() {
+    let n = 100_000;
+    let samples =
+        run(hanging("[sensors]\nseed = 3\n[sensors.tension]\nsigma = 0.5\n"), None, n - 1, |sim, s| {
+            (tension(s) - sim.workspace().cables[0].tension, sim.workspace().cables[0].tension)
+        });
+    assert!((samples[n / 2].1 - 98.1).abs() < 1e-4, "the load hangs at rest: {}", samples[n / 2].1);
+    let mean = samples.iter().map(|s| s.0).sum::<f64>() / n as f64;
+    let var = samples.iter().map(|s| (s.0 - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    assert!(mean.abs() < 4.0 * 0.5 / (n as f64).sqrt(), "mean error {mean} N");
+    assert!((var.sqrt() / 0.5 - 1.0).abs() < 0.01, "standard deviation {} N", var.sqrt());
+    // with a bias, the mean moves by it
+    let biased = run(hanging("[sensors.tension]\nsigma = 0.5\nbias = 2.0\n"), None, 9999, |sim, s| {
+        tension(s) - sim.workspace().cables[0].tension
+    });
+    let mean = biased.iter().sum::<f64>() / biased.len() as f64;
+    assert!((mean - 2.0).abs() < 4.0 * 0.5 / 100.0, "biased mean {mean}");
+}
+
+#[test]
+fn a_100_hz_sensor_updates_once_every_10_steps_and_holds_between() {
+    let fresh = run(hanging("[sensors.tension]\nsigma = 0.5\nrate = 100.0\n"), None, 1000, |_, s| {
+        (s.is_fresh(SensorKind::Tension), tension(s))
+    });
+    for (k, (is_fresh, value)) in fresh.iter().enumerate() {
+        assert_eq!(*is_fresh, k % 10 == 0, "step {k}");
+        if k % 10 != 0 {
+            assert_eq!(*value, fresh[k - 1].1, "held at step {k}");
+        }
+    }
+    assert_eq!(fresh.iter().filter(|f| f.0).count(), 101);
+}
+
+#[test]
+fn the_same_seed_gives_the_same_stream_and_another_seed_another() {
+    let text = "[sensors]\nseed = 11\n[sensors.tension]\nsigma = 0.5\n[sensors.position]\nsigma = 1e-3\n";
+    let stream = |seed: Option<u64>| {
+        run(hanging(text), seed, 500, |_, s| {
+            let p = s.readings(SensorKind::Position).unwrap();
+            (tension(s).to_bits(), p[5].to_bits())
+        })
+    };
+    let a = stream(None);
+    assert_eq!(a, stream(None), "the scene's seed reproduces");
+    assert_eq!(a, stream(Some(11)), "the same seed given directly");
+    let b = stream(Some(12));
+    assert!(a.iter().zip(&b).all(|(x, y)| x.0 != y.0 && x.1 != y.1), "another seed, other values");
+    // adding a channel leaves the others' streams as they were
+    let more = run(hanging(&(text.to_string() + "[sensors.length]\nsigma = 1e-3\n")), None, 500, |_, s| {
+        tension(s).to_bits()
+    });
+    assert_eq!(more, a.iter().map(|x| x.0).collect::<Vec<_>>());
+}
+
+#[test]
+fn a_delay_of_k_steps_reports_what_was_measured_k_steps_before() {
+    let at = |delay: usize| {
+        run(hanging(&format!("[sensors.tension]\nsigma = 0.5\ndelay = {delay}\n")), None, 200, |_, s| {
+            tension(s)
+        })
+    };
+    let now = at(0);
+    for k in [1, 4, 25] {
+        let late = at(k);
+        assert!(late[..=k].iter().all(|v| *v == now[0]), "delay {k}: the first measurement until then");
+        assert_eq!(&late[k..], &now[..now.len() - k], "delay {k}");
+    }
+}
+
+#[test]
+fn quantization_dropout_and_orientation_noise() {
+    let values =
+        run(hanging("[sensors.rest_length]\nsigma = 1e-4\nresolution = 1e-3\n"), None, 300, |_, s| {
+            s.readings(SensorKind::RestLength).unwrap()[0]
+        });
+    for v in &values {
+        assert!(((v / 1e-3) - (v / 1e-3).round()).abs() < 1e-9, "{v} is not a multiple of 1 mm");
+    }
+    // dropouts: about the declared fraction lost, each loss holding the last value
+    let p = 0.2;
+    let n = 20_000;
+    let (readings, dropped) = {
+        let mut last = 0;
+        let r = run(hanging(&format!("[sensors.tension]\nsigma = 0.5\ndropout = {p}\n")), None, n, |_, s| {
+            let lost = s.dropped(SensorKind::Tension) > last;
+            last = s.dropped(SensorKind::Tension);
+            (tension(s), lost)
+        });
+        (r.iter().map(|x| x.0).collect::<Vec<_>>(), r.iter().map(|x| x.1).collect::<Vec<_>>())
+    };
+    let lost = dropped.iter().filter(|d| **d).count() as f64 / n as f64;
+    let sd = (p * (1.0 - p) / n as f64).sqrt();
+    assert!((lost - p).abs() < 5.0 * sd, "lost {lost}");
+    for k in 1..readings.len() {
+        if dropped[k] {
+            assert_eq!(readings[k], readings[k - 1], "a lost update holds at {k}");
+        }
+    }
+    // orientation noise: unit quaternions whose error angle has E[angle^2] = 3 sigma^2
+    let sigma = 0.01;
+    let angles =
+        run(hanging(&format!("[sensors.orientation]\nsigma = {sigma}\n")), None, 20_000, |sim, s| {
+            let q = s.readings(SensorKind::Orientation).unwrap();
+            let q = &q[4..8]; // the load's
+            let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+            assert!((norm - 1.0).abs() < 1e-12);
+            let truth = sim.state().poses[1].rotation;
+            let measured =
+                nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+            truth.angle_to(&measured).powi(2)
+        });
+    let mean = angles.iter().sum::<f64>() / angles.len() as f64;
+    assert!((mean / (3.0 * sigma * sigma) - 1.0).abs() < 0.03, "E[angle^2] = {mean}");
+}
+
+#[test]
+fn sensors_never_touch_the_physics() {
+    let with = run(
+        hanging("[sensors.tension]\nsigma = 5.0\n[sensors.position]\nsigma = 0.1\n"),
+        None,
+        300,
+        |sim, _| sim.state().clone(),
+    );
+    let without = run(hanging(""), None, 300, |sim, _| sim.state().clone());
+    assert_eq!(with, without);
+}
+
+#[test]
+fn careless_sensors_are_refused_naming_the_field() {
+    for (table, field, reason) in [
+        ("[sensors.tension]\nsigma = -1.0", "sensors.tension.sigma", ">= 0"),
+        ("[sensors.tension]\nsigma = nan", "sensors.tension.sigma", "finite"),
+        ("[sensors.length]\nrate = 0.0", "sensors.length.rate", "positive"),
+        ("[sensors.length]\ndropout = 1.0", "sensors.length.dropout", "[0, 1)"),
+        ("[sensors.position]\nbias = inf", "sensors.position.bias", "finite"),
+        ("[sensors.orientation]\nbias = 0.1", "sensors.orientation.bias", "no bias"),
+        ("[sensors.tension]\ndelay = 1000000", "sensors.tension.delay", "at most"),
+        ("[sensors.voltage]\nsigma = 1.0", "sensors", "voltage"),
+        ("[sensors]\nseed = -3", "sensors", ""),
+    ] {
+        let text = hanging_text(table);
+        let err = tensegrity::scene::from_toml(&text, "careless.toml").expect_err(table).to_string();
+        assert!(err.contains("careless.toml"), "{err}");
+        assert!(err.contains(field), "{table}: {err}");
+        assert!(err.contains(reason), "{table}: {err}");
+    }
+}
+
+struct Nowhere;
+
+impl tensegrity::io::sink::NodeSink for Nowhere {
+    fn publish(
+        &mut self,
+        _topic: tensegrity::io::topics::Topic,
+        _view: &tensegrity::io::sink::NodeView<'_>,
+    ) -> Result<(), tensegrity::io::sink::PublishError> {
+        Ok(())
+    }
+    fn step_request_done(
+        &mut self,
+        _ticket: u64,
+        _result: tensegrity::io::msg::SimResult,
+        _view: &tensegrity::io::sink::NodeView<'_>,
+    ) {
+    }
+}
+
+#[test]
+fn the_nodes_sensor_seed_parameter_overrides_the_scenes_and_a_reset_starts_the_stream_over() {
+    use tensegrity::io::node::{params::NodeParams, NodeCore};
+    let model = hanging("[sensors]\nseed = 21\n[sensors.tension]\nsigma = 0.5\n");
+    let stream = |seed: Option<u64>, reset: bool| {
+        let params = NodeParams { start_paused: true, sensor_seed: seed, ..NodeParams::default() };
+        let mut core = NodeCore::new(model.clone(), params).unwrap();
+        let mut out = vec![tension(core.sensors())];
+        for _ in 0..2 {
+            let ticket = core.request_steps(50, &mut Nowhere).unwrap();
+            assert!(ticket > 0);
+            for k in 0..200 {
+                core.tick(std::time::Duration::from_millis(k), &mut Nowhere);
+            }
+            out.push(tension(core.sensors()));
+            if reset {
+                core.reset(&mut Nowhere);
+                assert_eq!(tension(core.sensors()), out[0], "a reset measures the start again");
+            }
+        }
+        assert_eq!(core.stats().steps, 100);
+        out
+    };
+    let scene = stream(None, false);
+    assert_eq!(scene, stream(Some(21), false), "the parameter at the scene's seed");
+    assert!(stream(Some(22), false).iter().zip(&scene).all(|(a, b)| a != b));
+    let with_resets = stream(None, true);
+    assert_eq!(with_resets[1], with_resets[2], "after a reset the same 50 steps measure the same");
+    assert_eq!(with_resets[1], scene[1]);
+}
