@@ -437,7 +437,9 @@ fn python_client_reads_state_sends_commands_and_runs_lockstep() {
     let out = Command::new(&python).arg(&script).arg("--sizes").output().unwrap();
     let sizes = String::from_utf8_lossy(&out.stdout);
     use std::mem::{align_of, size_of};
-    use tensegrity::io::shm::{CommandSample, LockstepRequest, LockstepResponse, StructureSample};
+    use tensegrity::io::shm::{
+        CommandSample, ContactsSample, LockstepRequest, LockstepResponse, MeasuredSample, StructureSample,
+    };
     for (name, size, align) in [
         ("TensegrityState", size_of::<StateSample>(), align_of::<StateSample>()),
         ("TensegrityStructure", size_of::<StructureSample>(), align_of::<StructureSample>()),
@@ -445,6 +447,8 @@ fn python_client_reads_state_sends_commands_and_runs_lockstep() {
         ("TensegrityCommand", size_of::<CommandSample>(), align_of::<CommandSample>()),
         ("TensegrityLockstepRequest", size_of::<LockstepRequest>(), align_of::<LockstepRequest>()),
         ("TensegrityLockstepResponse", size_of::<LockstepResponse>(), align_of::<LockstepResponse>()),
+        ("TensegrityContacts", size_of::<ContactsSample>(), align_of::<ContactsSample>()),
+        ("TensegrityMeasured", size_of::<MeasuredSample>(), align_of::<MeasuredSample>()),
     ] {
         let line = format!("{name} {size} {align}");
         assert!(sizes.lines().any(|l| l == line), "Python mirror differs: want '{line}' in\n{sizes}");
@@ -633,4 +637,44 @@ fn a_robot_on_the_ground_serves_its_contacts_with_each_lockstep_answer() {
     assert!(client.structure(WAIT).unwrap().contact_names.is_empty());
     client.lockstep(1, &[], WAIT).unwrap();
     assert!(client.latest_contacts().unwrap().is_none());
+}
+
+#[test]
+fn a_scene_with_sensors_serves_what_they_report_with_each_lockstep_answer() {
+    use tensegrity::io::shm::{MEASURED_POSITION, MEASURED_TENSION};
+    let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let model = tensegrity::scene::load(&root.join("config/examples/sensors.toml")).unwrap();
+    let params = NodeParams {
+        start_paused: true,
+        state_publish_rate: 0.0,
+        start_from_equilibrium: true,
+        ..shm_params("measured")
+    };
+    let prefix = params.shm_prefix();
+    let _node = RunningNode::start_serving(model.clone(), params);
+    let client = ShmClient::connect(&prefix, WAIT).unwrap();
+    let mut errors = Vec::new();
+    for _ in 0..200 {
+        let answer = client.lockstep(1, &[], WAIT).unwrap();
+        let state = &answer.payload().state;
+        let measured = client.latest_measured().unwrap().expect("the sensors with the answer");
+        let m = measured.payload();
+        assert_eq!((m.step, m.time.to_bits()), (state.step, state.time.to_bits()));
+        assert_eq!(m.channels & (MEASURED_TENSION | MEASURED_POSITION), MEASURED_TENSION | MEASURED_POSITION);
+        // the state keeps the truth: a load at rest on its rope
+        assert!((state.cable_tension[0] - 98.1).abs() < 1e-6);
+        errors.push((m.cable_tension[0], m.cable_tension[0] - state.cable_tension[0]));
+        assert!((m.body_position[1][2] - state.body_position[1][2]).abs() < 0.01);
+    }
+    // 100 Hz at 1 ms: 20 updates of sigma 0.5 N, held in between
+    let distinct = errors.windows(2).filter(|w| w[0].0 != w[1].0).count();
+    assert!((18..=20).contains(&distinct), "{distinct} changes in 200 steps");
+    assert!(errors.iter().any(|e| e.1.abs() > 0.05) && errors.iter().all(|e| e.1.abs() < 3.0));
+    // a scene without sensors has no such service
+    let params = NodeParams { start_paused: true, state_publish_rate: 0.0, ..shm_params("no_measured") };
+    let prefix = params.shm_prefix();
+    let _plain = RunningNode::start_serving(bundled("prism3.toml"), params);
+    let client = ShmClient::connect(&prefix, WAIT).unwrap();
+    client.lockstep(1, &[], WAIT).unwrap();
+    assert!(client.latest_measured().unwrap().is_none());
 }

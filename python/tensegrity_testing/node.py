@@ -123,6 +123,9 @@ class State:
     pulley_sticks: list = field(default_factory=list)
     commands_rejected: int = 0
     contacts: list = field(default_factory=list)
+    # what the scene's sensors report (lockstep, scenes with [sensors]): channel name to values,
+    # in the arrays' layout ("tension", "length", "rest_length", "position", "orientation")
+    measured: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, s):
@@ -144,6 +147,25 @@ class State:
             pulley_sticks=[bool(x) for x in s.pulley_sticks[: s.pulley_count]],
             commands_rejected=s.commands_rejected,
         )
+
+
+def measured_of(m):
+    """The declared channels of a `MeasuredSample` `m`, as lists in the state's layout."""
+    from . import shm
+
+    b, c, a = m.body_count, m.cable_count, m.actuator_count
+    out = {}
+    if m.channels & shm.MEASURED_TENSION:
+        out["tension"] = list(m.cable_tension[:c])
+    if m.channels & shm.MEASURED_LENGTH:
+        out["length"] = list(m.cable_length[:c])
+    if m.channels & shm.MEASURED_REST_LENGTH:
+        out["rest_length"] = list(m.actuator_rest_length[:a])
+    if m.channels & shm.MEASURED_POSITION:
+        out["position"] = [tuple(m.body_position[i]) for i in range(b)]
+    if m.channels & shm.MEASURED_ORIENTATION:
+        out["orientation"] = [tuple(m.body_orientation[i]) for i in range(b)]
+    return out
 
 
 class TensegrityNode:
@@ -339,6 +361,9 @@ class TensegrityNode:
                         tuple(c.position[i]), tuple(c.normal[i]), tuple(c.friction[i]), c.slip_speed[i])
                 for i, (point, other) in enumerate(self.names["contacts"])
             ]
+        m = self.shm.latest_measured()
+        if m is not None and m.step == state.step:
+            state.measured = measured_of(m)
         return state
 
     # ----- the end -------------------------------------------------------------------------

@@ -152,6 +152,36 @@ class ContactsSample(ctypes.Structure):
         return "TensegrityContacts"
 
 
+class MeasuredSample(ctypes.Structure):
+    """`TensegrityMeasured`: what the scene's sensors report after a step (scenes with [sensors]
+    only); `channels` has a bit per declared channel (MEASURED_*), the state keeps the truth."""
+
+    _fields_ = [
+        ("time", f64),
+        ("step", u64),
+        ("channels", u32),
+        ("body_count", u32),
+        ("cable_count", u32),
+        ("actuator_count", u32),
+        ("body_position", (f64 * 3) * MAX_BODIES),
+        ("body_orientation", (f64 * 4) * MAX_BODIES),
+        ("cable_tension", f64 * MAX_CABLES),
+        ("cable_length", f64 * MAX_CABLES),
+        ("actuator_rest_length", f64 * MAX_ACTUATORS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "TensegrityMeasured"
+
+
+MEASURED_TENSION = 1
+MEASURED_LENGTH = 2
+MEASURED_REST_LENGTH = 4
+MEASURED_POSITION = 8
+MEASURED_ORIENTATION = 16
+
+
 class CommandEntry(ctypes.Structure):
     """`TensegrityCommandEntry`: one actuator's target rest length and/or rate."""
 
@@ -301,6 +331,13 @@ class TensegrityClient:
             )
         except Exception:
             self.contacts_sub = None
+        # likewise the sensors' service, for a scene with [sensors]
+        try:
+            self.measured_sub = (
+                self._service("measured").publish_subscribe(MeasuredSample).open().subscriber_builder().create()
+            )
+        except Exception:
+            self.measured_sub = None
 
     def _wait(self, ready, timeout):
         """Polls `ready()` for the spin time, then blocks on the node's events until `timeout`.
@@ -373,6 +410,21 @@ class TensegrityClient:
                 break
             newest = ContactsSample()
             ctypes.memmove(ctypes.byref(newest), sample.payload_ptr, ctypes.sizeof(ContactsSample))
+        return newest
+
+    def latest_measured(self):
+        """A copy of the newest sensors sample received (older ones are released), or None when
+        none arrived or the scene declares no sensors. After a lockstep answer it is that
+        answer's step: the node publishes it before the answer."""
+        if self.measured_sub is None:
+            return None
+        newest = None
+        while True:
+            sample = self.measured_sub.receive()
+            if sample is None:
+                break
+            newest = MeasuredSample()
+            ctypes.memmove(ctypes.byref(newest), sample.payload_ptr, ctypes.sizeof(MeasuredSample))
         return newest
 
     @staticmethod
@@ -477,7 +529,16 @@ def main():
     args = ap.parse_args()
     iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
     if args.sizes:
-        for t in (StateSample, StructureSample, CommandEntry, CommandSample, LockstepRequest, LockstepResponse):
+        for t in (
+            StateSample,
+            StructureSample,
+            CommandEntry,
+            CommandSample,
+            LockstepRequest,
+            LockstepResponse,
+            ContactsSample,
+            MeasuredSample,
+        ):
             print(t.type_name(), ctypes.sizeof(t), ctypes.alignment(t))
         return 0
     client = TensegrityClient(args.prefix, spin_us=args.spin_us)

@@ -47,6 +47,8 @@ pub struct ShmClient {
     structure: Subscriber<Svc, StructureSample, ()>,
     /// The contacts (None: the scene has none).
     contacts: Option<Subscriber<Svc, ContactsSample, ()>>,
+    /// What the sensors report (None: the scene declares none).
+    measured: Option<Subscriber<Svc, MeasuredSample, ()>>,
     commands: Publisher<Svc, CommandSample, ()>,
     lockstep: Client<Svc, LockstepRequest, (), LockstepResponse, ()>,
     updates: Listener<Svc>,
@@ -58,6 +60,8 @@ pub struct ShmClient {
 pub type StateRef = Sample<Svc, StateSample, ()>;
 /// A contacts sample as received (zero-copy; `payload()` is the `ContactsSample`).
 pub type ContactsRef = Sample<Svc, ContactsSample, ()>;
+/// A sensors sample as received (zero-copy; `payload()` is the `MeasuredSample`).
+pub type MeasuredRef = Sample<Svc, MeasuredSample, ()>;
 /// A lockstep answer as received (zero-copy; `payload()` is the `LockstepResponse`).
 pub type LockstepAnswer = Response<Svc, LockstepResponse, ()>;
 
@@ -125,8 +129,18 @@ impl ShmClient {
             Ok(service) => Some(service.subscriber_builder().create().map_err(ipc("contacts subscriber"))?),
             Err(_) => None,
         };
+        // likewise the sensors' service, for a scene with sensors
+        let measured = match node
+            .service_builder(&service_name(&names.measured)?)
+            .publish_subscribe::<MeasuredSample>()
+            .open()
+        {
+            Ok(service) => Some(service.subscriber_builder().create().map_err(ipc("measured subscriber"))?),
+            Err(_) => None,
+        };
         Ok(Self {
             contacts,
+            measured,
             prefix: String::new(),
             state: state.subscriber_builder().create().map_err(ipc("state subscriber"))?,
             structure: structure.subscriber_builder().create().map_err(ipc("structure subscriber"))?,
@@ -253,6 +267,18 @@ impl ShmClient {
         let Some(contacts) = &self.contacts else { return Ok(None) };
         let mut newest = None;
         while let Some(s) = contacts.receive().map_err(ipc("contacts"))? {
+            newest = Some(s);
+        }
+        Ok(newest)
+    }
+
+    /// The newest sensors sample received so far (older ones are released), or None when none
+    /// arrived since the last call or the scene declares no sensors. After a lockstep answer it
+    /// is that answer's step (the node publishes it before the answer).
+    pub fn latest_measured(&self) -> Result<Option<MeasuredRef>, ShmError> {
+        let Some(measured) = &self.measured else { return Ok(None) };
+        let mut newest = None;
+        while let Some(s) = measured.receive().map_err(ipc("measured"))? {
             newest = Some(s);
         }
         Ok(newest)

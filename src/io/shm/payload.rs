@@ -181,6 +181,51 @@ pub struct ContactsSample {
     pub in_contact: [u8; MAX_CONTACTS],
 }
 
+/// What the scene's sensors report after a step (`crate::sensors`; scenes with `[sensors]`
+/// only), published with every state sample and before every lockstep answer, like the
+/// contacts: the state sample keeps the exact values. Only the channels whose bit is set in
+/// `channels` are filled, and only the first `body_count`, `cable_count` and `actuator_count`
+/// entries of their arrays.
+#[derive(Debug, Clone, ZeroCopySend)]
+#[repr(C)]
+#[type_name("TensegrityMeasured")]
+pub struct MeasuredSample {
+    /// Simulation time, s.
+    pub time: f64,
+    /// Steps taken since the start or the last reset (as `StateSample::step`).
+    pub step: u64,
+    /// The declared channels: `MEASURED_TENSION` | `MEASURED_LENGTH` | `MEASURED_REST_LENGTH` |
+    /// `MEASURED_POSITION` | `MEASURED_ORIENTATION`.
+    pub channels: u32,
+    /// Bodies in use.
+    pub body_count: u32,
+    /// Cables in use.
+    pub cable_count: u32,
+    /// Actuators in use.
+    pub actuator_count: u32,
+    /// Measured body positions, m, world frame.
+    pub body_position: [[f64; 3]; MAX_BODIES],
+    /// Measured body orientations, unit quaternions `[x, y, z, w]` (ROS order).
+    pub body_orientation: [[f64; 4]; MAX_BODIES],
+    /// Measured cable tensions, N.
+    pub cable_tension: [f64; MAX_CABLES],
+    /// Measured cable lengths, m.
+    pub cable_length: [f64; MAX_CABLES],
+    /// Measured actuator rest lengths (the winches' encoders), m.
+    pub actuator_rest_length: [f64; MAX_ACTUATORS],
+}
+
+/// `MeasuredSample::channels` bit: tensions.
+pub const MEASURED_TENSION: u32 = 1;
+/// `MeasuredSample::channels` bit: lengths.
+pub const MEASURED_LENGTH: u32 = 2;
+/// `MeasuredSample::channels` bit: actuator rest lengths.
+pub const MEASURED_REST_LENGTH: u32 = 4;
+/// `MeasuredSample::channels` bit: body positions.
+pub const MEASURED_POSITION: u32 = 8;
+/// `MeasuredSample::channels` bit: body orientations.
+pub const MEASURED_ORIENTATION: u32 = 16;
+
 /// One actuator command: a target rest length (reached at the given or the actuator's largest
 /// rate), or a rate alone (the winch runs at it until told otherwise).
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
@@ -342,6 +387,8 @@ unsafe impl ZeroValid for StateSample {}
 unsafe impl ZeroValid for StructureSample {}
 #[allow(unsafe_code)]
 unsafe impl ZeroValid for ContactsSample {}
+#[allow(unsafe_code)]
+unsafe impl ZeroValid for MeasuredSample {}
 #[allow(unsafe_code)]
 unsafe impl ZeroValid for CommandSample {}
 #[allow(unsafe_code)]

@@ -82,6 +82,43 @@ fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64)
     out.published_ns = realtime_ns();
 }
 
+/// Fills `out` (all zero on entry) with what the sensors of `v` report (`NodeView::measured`).
+fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
+    use crate::sensors::{reading, SensorKind};
+    let model = v.model;
+    out.time = v.state.time;
+    out.step = v.step;
+    out.body_count = model.bodies.len() as u32;
+    out.cable_count = model.cables.len() as u32;
+    out.actuator_count = model.actuators.len() as u32;
+    let measured = |kind| reading(model, v.measured, kind);
+    if let Some(t) = measured(SensorKind::Tension) {
+        out.channels |= MEASURED_TENSION;
+        out.cable_tension[..t.len()].copy_from_slice(t);
+    }
+    if let Some(l) = measured(SensorKind::Length) {
+        out.channels |= MEASURED_LENGTH;
+        out.cable_length[..l.len()].copy_from_slice(l);
+    }
+    if let Some(l0) = measured(SensorKind::RestLength) {
+        out.channels |= MEASURED_REST_LENGTH;
+        out.actuator_rest_length[..l0.len()].copy_from_slice(l0);
+    }
+    if let Some(x) = measured(SensorKind::Position) {
+        out.channels |= MEASURED_POSITION;
+        for (to, x) in out.body_position.iter_mut().zip(x.chunks_exact(3)) {
+            to.copy_from_slice(x);
+        }
+    }
+    if let Some(q) = measured(SensorKind::Orientation) {
+        out.channels |= MEASURED_ORIENTATION;
+        // the sensors' w, x, y, z into ROS order
+        for (to, q) in out.body_orientation.iter_mut().zip(q.chunks_exact(4)) {
+            *to = [q[1], q[2], q[3], q[0]];
+        }
+    }
+}
+
 /// Fills `out` (all zero on entry) with every contact of `v`.
 fn fill_contacts(out: &mut ContactsSample, v: &NodeView<'_>) {
     out.time = v.state.time;
@@ -127,6 +164,8 @@ pub struct ShmTransport {
     structure: Publisher<Svc, StructureSample, ()>,
     /// The contacts' publisher (scenes with contacts only).
     contacts: Option<Publisher<Svc, ContactsSample, ()>>,
+    /// The sensors' publisher (scenes with sensors only).
+    measured: Option<Publisher<Svc, MeasuredSample, ()>>,
     commands: Subscriber<Svc, CommandSample, ()>,
     lockstep: Server<Svc, LockstepRequest, (), LockstepResponse, ()>,
     wake: Listener<Svc>,
@@ -162,6 +201,12 @@ impl ShmTransport {
             Some(service.publisher_builder().create().map_err(|e| taken(format!("{e:?}")))?)
         } else {
             None
+        };
+        let measured = if model.sensors.channels.is_empty() {
+            None
+        } else {
+            let service = per_step_service::<MeasuredSample>(&node, &names.measured, "measured service")?;
+            Some(service.publisher_builder().create().map_err(|e| taken(format!("{e:?}")))?)
         };
         let state = per_step_service::<StateSample>(&node, &names.state, "state service")?;
         let structure = node
@@ -221,6 +266,7 @@ impl ShmTransport {
             state: state_publisher,
             structure,
             contacts,
+            measured,
             commands,
             lockstep,
             wake,
@@ -254,8 +300,22 @@ impl ShmTransport {
         Ok(())
     }
 
+    /// Publishes what the sensors of `v` report (nothing for a scene without sensors).
+    fn publish_measured(&mut self, v: &NodeView<'_>) -> Result<(), PublishError> {
+        let Some(publisher) = &self.measured else { return Ok(()) };
+        let fail = |e: String| PublishError::Failed(format!("measured: {e}"));
+        let mut sample = publisher.loan_uninit().map_err(|e| fail(format!("{e:?}")))?;
+        fill_measured(zeroed(sample.payload_mut()), v);
+        // SAFETY: `zeroed` initialized the whole payload
+        #[allow(unsafe_code)]
+        let sample = unsafe { sample.assume_init() };
+        sample.send().map_err(|e| fail(format!("{e:?}")))?;
+        Ok(())
+    }
+
     fn publish_state(&mut self, v: &NodeView<'_>) -> Result<(), PublishError> {
         self.publish_contacts(v)?;
+        self.publish_measured(v)?;
         let mut sample =
             self.state.loan_uninit().map_err(|e| PublishError::Failed(format!("state: {e:?}")))?;
         fill_state(zeroed(sample.payload_mut()), v, self.commands_applied_ns);
@@ -307,6 +367,7 @@ impl ShmTransport {
     fn answer(&mut self, request: Lockstep, result: &SimResult, steps_taken: u64, view: &NodeView<'_>) {
         // the contacts of the answer's step first (a failure to publish them is the state's too)
         let _ = self.publish_contacts(view);
+        let _ = self.publish_measured(view);
         if let Ok(mut response) = request.loan_uninit() {
             let r = zeroed(response.payload_mut());
             r.result = result.result;

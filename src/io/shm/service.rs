@@ -126,6 +126,8 @@ pub struct ServiceNames {
     pub lockstep: String,
     /// `<prefix>/contacts` (scenes with contacts only).
     pub contacts: String,
+    /// `<prefix>/measured` (scenes with sensors only).
+    pub measured: String,
     /// `<prefix>/to_node` (event).
     pub to_node: String,
     /// `<prefix>/from_node` (event).
@@ -142,6 +144,7 @@ impl ServiceNames {
             commands: n("actuator_commands"),
             lockstep: n("lockstep"),
             contacts: n("contacts"),
+            measured: n("measured"),
             to_node: n("to_node"),
             from_node: n("from_node"),
         }
