@@ -130,6 +130,8 @@ fn stepping_allocates_nothing() {
             controlled(Integrator::GeneralizedAlpha { rho_inf: 0.8 }),
             "generalized-alpha, error-controlled, pulley friction",
         ),
+        ("../examples/hoist.toml", explicit(Integrator::GeneralizedAlpha { rho_inf: 0.8 }, 1e-5), "a winch"),
+        ("../examples/hoist.toml", explicit(Integrator::Rk4, 1e-5), "RK4, a winch"),
     ] {
         let n = allocations_per_run(scene, settings);
         assert_eq!(n, 0, "{scene} with {what}: {n} allocations in 100 steps");
@@ -167,26 +169,29 @@ fn allocations_per_ticks(core: &mut NodeCore, next: &mut u64, sink: &mut dyn Nod
 /// baseline.
 #[test]
 fn recording_a_step_allocates_nothing_on_the_node_thread() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/scenes/prism3.toml");
-    let model = tensegrity::scene::load(&path).unwrap();
-    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
-    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
-    let dir = std::env::temp_dir().join(format!("tensegrity-allocation-bag-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let run = record::run_info(record::KIND_NODE, &model, "prism3", sim.settings(), &params);
-    let mut recorder =
-        BagRecorder::create(&dir, &model, &params, &run, LogTime::Step, &BagOptions::default()).unwrap();
-    let mut core = NodeCore::with_simulator(sim, params);
-    core.start(&mut recorder);
-    let mut next = 0;
-    let baseline = allocations_per_ticks(&mut core, &mut next, &mut Nowhere);
-    // warm-up: the writer's first batches are new
-    allocations_per_ticks(&mut core, &mut next, &mut recorder);
-    let recording = allocations_per_ticks(&mut core, &mut next, &mut recorder);
-    recorder.finish().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert_eq!(baseline, 0, "the core alone allocates {baseline} times in 96 ticks");
-    assert_eq!(recording, 0, "recording allocates {recording} times in 96 ticks");
+    // and the sensors' measuring and packing, with a scene that declares them
+    for scene in ["config/scenes/prism3.toml", "config/examples/sensors.toml"] {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(scene);
+        let model = tensegrity::scene::load(&path).unwrap();
+        let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+        let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+        let dir = std::env::temp_dir().join(format!("tensegrity-allocation-bag-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let run = record::run_info(record::KIND_NODE, &model, scene, sim.settings(), &params);
+        let mut recorder =
+            BagRecorder::create(&dir, &model, &params, &run, LogTime::Step, &BagOptions::default()).unwrap();
+        let mut core = NodeCore::with_simulator(sim, params);
+        core.start(&mut recorder);
+        let mut next = 0;
+        let baseline = allocations_per_ticks(&mut core, &mut next, &mut Nowhere);
+        // warm-up: the writer's first batches are new
+        allocations_per_ticks(&mut core, &mut next, &mut recorder);
+        let recording = allocations_per_ticks(&mut core, &mut next, &mut recorder);
+        recorder.finish().unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(baseline, 0, "{scene}: the core alone allocates {baseline} times in 96 ticks");
+        assert_eq!(recording, 0, "{scene}: recording allocates {recording} times in 96 ticks");
+    }
 }
 
 /// A bag of 24 MiB (384 messages of 64 KiB that zstd cannot shrink, in chunks of 1 MiB): reading

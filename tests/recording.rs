@@ -652,3 +652,13 @@ fn a_run_with_sensors_records_measured_and_true_states_and_replays_bit_for_bit()
         assert_eq!(poses.len(), 2001);
     }
 }
+
+#[test]
+fn a_winch_driven_run_replays_bit_for_bit() {
+    let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/examples/hoist.toml");
+    let dir = bag_dir("winch");
+    let args = ["deploy", scene.to_str().unwrap(), "--dynamic", "--from-equilibrium", "--duration", "0.03"];
+    let out = cli(&[&args[..], &["--record", dir.to_str().unwrap()]].concat());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_replays_identically(&dir);
+}
