@@ -51,6 +51,17 @@ fn deploy_recorded(name: &str, args: &[&str]) -> PathBuf {
     dir
 }
 
+/// Records `tensegrity deploy SCENE --dynamic --from-equilibrium --duration DURATION --record
+/// DIR` into a fresh bag directory `name`.
+fn record_from_equilibrium(scene: &Path, name: &str, duration: &str) -> PathBuf {
+    let dir = bag_dir(name);
+    let (scene, bag) = (scene.to_str().unwrap(), dir.to_str().unwrap());
+    let out =
+        cli(&["deploy", scene, "--dynamic", "--from-equilibrium", "--duration", duration, "--record", bag]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    dir
+}
+
 /// `tensegrity replay DIR` succeeds and says "identical".
 fn assert_replays_identically(dir: &Path) {
     let out = cli(&["replay", dir.to_str().unwrap()]);
@@ -64,19 +75,8 @@ fn assert_replays_identically(dir: &Path) {
 
 #[test]
 fn a_robot_on_the_ground_records_its_contacts_and_replays_them_bit_for_bit() {
-    let dir = bag_dir("contacts");
     let scene = scene_path("sixbar.toml");
-    let out = cli(&[
-        "deploy",
-        scene.to_str().unwrap(),
-        "--dynamic",
-        "--from-equilibrium",
-        "--duration",
-        "0.3",
-        "--record",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let dir = record_from_equilibrium(&scene, "contacts", "0.3");
     let ours = our_counts(&dir);
     let contacts = "/tensegrity_sim/contacts";
     assert_eq!(ours.get(contacts), Some(&("tensegrity_msgs/msg/ContactStates".to_string(), 301)), "{ours:?}");
@@ -596,18 +596,7 @@ fn sensed_hoist(name: &str, seed: u64) -> (PathBuf, Vec<(f64, f64)>) {
          [sensors.rest_length]\nresolution = 1e-4\ndelay = 3\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\n"
     );
     std::fs::write(&scene, text.to_string() + &sensors).unwrap();
-    let dir = bag_dir(name);
-    let out = cli(&[
-        "deploy",
-        scene.to_str().unwrap(),
-        "--dynamic",
-        "--from-equilibrium",
-        "--duration",
-        "0.02",
-        "--record",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let dir = record_from_equilibrium(&scene, name, "0.02");
     let reader = BagReader::open(&dir).unwrap();
     let tensions = |topic: &str| -> Vec<f64> {
         reader
@@ -656,9 +645,5 @@ fn a_run_with_sensors_records_measured_and_true_states_and_replays_bit_for_bit()
 #[test]
 fn a_winch_driven_run_replays_bit_for_bit() {
     let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/examples/hoist.toml");
-    let dir = bag_dir("winch");
-    let args = ["deploy", scene.to_str().unwrap(), "--dynamic", "--from-equilibrium", "--duration", "0.03"];
-    let out = cli(&[&args[..], &["--record", dir.to_str().unwrap()]].concat());
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    assert_replays_identically(&dir);
+    assert_replays_identically(&record_from_equilibrium(&scene, "winch", "0.03"));
 }
