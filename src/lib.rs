@@ -33,6 +33,7 @@ pub mod kinematics;
 pub mod machine;
 pub mod model;
 pub mod plot;
+pub mod randomize;
 pub mod report;
 pub mod scene;
 pub mod sensors;

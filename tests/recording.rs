@@ -647,3 +647,50 @@ fn a_winch_driven_run_replays_bit_for_bit() {
     let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/examples/hoist.toml");
     assert_replays_identically(&record_from_equilibrium(&scene, "winch", "0.03"));
 }
+
+#[test]
+fn a_node_randomized_per_reset_records_each_episode_and_replays_bit_for_bit() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("config/examples/randomized.toml")).unwrap();
+    let text = text.replace("seed = 11\n", "seed = 11\nper = \"reset\"\n");
+    let model = tensegrity::scene::from_toml(&text, "randomized.toml").unwrap();
+    let dir = bag_dir("randomized");
+    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
+    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
+    let run = record::run_info(record::KIND_NODE, &model, "randomized", sim.settings(), &params);
+    let mut recorder = record::BagRecorder::create(
+        &dir,
+        &model,
+        &params,
+        &run,
+        record::LogTime::Step,
+        &BagOptions::default(),
+    )
+    .unwrap();
+    let mut core = NodeCore::with_simulator(sim, params);
+    core.start(&mut recorder);
+    for k in 0..90 {
+        if k % 30 == 29 {
+            core.reset(&mut recorder);
+        }
+        core.tick(Duration::from_millis(k), &mut recorder);
+        assert!(core.fault().is_none());
+    }
+    recorder.finish().unwrap();
+    // a structure per episode, each with its own draws
+    let reader = BagReader::open(&dir).unwrap();
+    let structures: Vec<msg::Structure> = reader
+        .messages()
+        .map(Result::unwrap)
+        .filter(|m| m.topic == "/tensegrity_sim/structure")
+        .map(|m| m.decode().unwrap())
+        .collect();
+    assert_eq!(structures.iter().map(|s| s.randomize_episode).collect::<Vec<_>>(), [0, 1, 2, 3]);
+    assert!(structures.windows(2).all(|w| w[0].randomized_value != w[1].randomized_value));
+    assert_replays_identically(&dir);
+    if let Some(v) = rosbags_read(&dir) {
+        let read = v["messages"]["/tensegrity_sim/structure"].as_array().unwrap();
+        assert_eq!(read.len(), 4);
+        assert_eq!(floats(&read[2]["randomized_value"]), structures[2].randomized_value);
+    }
+}

@@ -121,6 +121,12 @@ class Structure(IdlStruct, typename="tensegrity_msgs::msg::dds_::Structure_"):
     actuator_min_rest_length: types.sequence[types.float64] = field(default_factory=list)
     actuator_max_rest_length: types.sequence[types.float64] = field(default_factory=list)
     actuator_max_rate: types.sequence[types.float64] = field(default_factory=list)
+    randomize_seed: types.uint64 = 0
+    randomize_episode: types.uint32 = 0
+    randomized_parameter: types.sequence[str] = field(default_factory=list)
+    randomized_element: types.sequence[str] = field(default_factory=list)
+    randomized_drawn: types.sequence[types.float64] = field(default_factory=list)
+    randomized_value: types.sequence[types.float64] = field(default_factory=list)
 
 
 @dataclass

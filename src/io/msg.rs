@@ -231,6 +231,18 @@ pub struct Structure {
     pub actuator_max_rest_length: Vec<f64>,
     /// Maximum rates, m/s.
     pub actuator_max_rate: Vec<f64>,
+    /// The scene's `[randomize]` seed (0 without).
+    pub randomize_seed: u64,
+    /// Resets that drew anew (0 at the start, and without per-reset randomization).
+    pub randomize_episode: u32,
+    /// Each draw's parameter.
+    pub randomized_parameter: Vec<String>,
+    /// Each draw's element (cable, or body for mass).
+    pub randomized_element: Vec<String>,
+    /// Each draw's factor, or offset for a rest length.
+    pub randomized_drawn: Vec<f64>,
+    /// Each draw's value used.
+    pub randomized_value: Vec<f64>,
 }
 
 impl Structure {
@@ -252,6 +264,12 @@ impl Structure {
             actuator_min_rest_length: model.actuators.iter().map(|a| a.min_rest_length).collect(),
             actuator_max_rest_length: model.actuators.iter().map(|a| a.max_rest_length).collect(),
             actuator_max_rate: model.actuators.iter().map(|a| a.max_rate).collect(),
+            randomize_seed: model.randomization.map_or(0, |r| r.seed),
+            randomize_episode: model.randomization.map_or(0, |r| r.episode as u32),
+            randomized_parameter: model.randomized.iter().map(|d| d.parameter.name().to_string()).collect(),
+            randomized_element: model.randomized.iter().map(|d| d.element.clone()).collect(),
+            randomized_drawn: model.randomized.iter().map(|d| d.drawn).collect(),
+            randomized_value: model.randomized.iter().map(|d| d.value).collect(),
         }
     }
 }

@@ -526,6 +526,11 @@ pub struct Model {
     pub winches: Vec<crate::forces::winch::WinchModel>,
     /// Sensor models (`crate::sensors`; empty: no sensors). The physics never reads them.
     pub sensors: crate::sensors::SensorModel,
+    /// The scene's `[randomize]` draws, as applied when the model was built (empty: the scene
+    /// as written).
+    pub randomized: Vec<crate::randomize::Draw>,
+    /// The scene's randomization settings (`None` without `[randomize]`).
+    pub randomization: Option<crate::randomize::RandomizationRun>,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
     /// Rayleigh damping (zero: none, and it costs nothing).

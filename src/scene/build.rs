@@ -138,6 +138,8 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         solver,
         rayleigh: build_rayleigh(spec, &cx)?,
         sensors: build_sensors(spec, &cx)?,
+        randomized: Vec::new(),
+        randomization: None,
         damped_joints,
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
@@ -155,6 +157,17 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     set_rest_lengths(&mut model, &rest_specs, &damping_ratios, spec.cables.len(), &cx)?;
     set_buckling_loads(spec, &mut model, &cx)?;
     set_pulley_friction(spec, &mut model, &cx)?;
+    if let Some(r) = &spec.randomize {
+        let per_reset = match r.per.as_deref() {
+            None | Some("run") => false,
+            Some("reset") => true,
+            Some(other) => return Err(cx.top("randomize.per", format!("'{other}' is not run or reset"))),
+        };
+        let randomization = build_randomization(r, &model, &cx)?;
+        model.randomized = crate::randomize::apply(&mut model, &randomization, r.seed);
+        model.randomization =
+            Some(crate::randomize::RandomizationRun { seed: r.seed, per_reset, episode: 0 });
+    }
     attach_winches(&mut model, &cx)?;
     model.schedule = build_schedule(spec, &model, &cx)?;
     Ok(model)
@@ -1587,6 +1600,115 @@ fn build_sensors(spec: &SceneSpec, cx: &Ctx) -> Result<crate::sensors::SensorMod
         ));
     }
     Ok(SensorModel { seed: s.seed, channels })
+}
+
+/// Checks `[randomize]` against `model` (built as written) and gives the declarations: a known
+/// parameter, elements that have it (a cable for `ea`, `damping`, `rest_length` and
+/// `pulley_friction`, a body with mass for `mass`; every such one by default), a distribution with
+/// its fields, factors that stay positive and rest lengths that stay above zero within six
+/// standard deviations, and no `rest_length` on a cable with pulley friction.
+fn build_randomization(
+    r: &super::RandomizeSpec,
+    model: &Model,
+    cx: &Ctx,
+) -> Result<crate::randomize::Randomization, SceneError> {
+    use crate::randomize::{DrawDistribution, Parameter, RandomParameter};
+    let mut parameters = Vec::new();
+    for (i, p) in r.parameters.iter().enumerate() {
+        let e = |field: &str, reason: String| cx.err("randomize.parameters", i, field, reason);
+        let parameter = Parameter::parse(&p.parameter).ok_or_else(|| {
+            e(
+                "parameter",
+                format!("'{}' is not ea, damping, mass, rest_length or pulley_friction", p.parameter),
+            )
+        })?;
+        let finite = |x: Option<f64>, field: &str| match x {
+            Some(x) if x.is_finite() => Ok(x),
+            Some(x) => Err(e(field, format!("must be finite, got {x}"))),
+            None => Err(e(field, format!("a {} distribution needs {field}", p.distribution))),
+        };
+        let distribution = match p.distribution.as_str() {
+            "uniform" => {
+                let (low, high) = (finite(p.low, "low")?, finite(p.high, "high")?);
+                if high <= low {
+                    return Err(e("high", format!("must be above low ({low}), got {high}")));
+                }
+                DrawDistribution::Uniform { low, high }
+            }
+            "normal" | "lognormal" => {
+                let (mean, sigma) = (finite(p.mean, "mean")?, finite(p.sigma, "sigma")?);
+                if sigma <= 0.0 {
+                    return Err(e("sigma", format!("must be positive, got {sigma}")));
+                }
+                if p.distribution == "normal" {
+                    DrawDistribution::Normal { mean, sigma }
+                } else {
+                    DrawDistribution::LogNormal { mean, sigma }
+                }
+            }
+            other => {
+                return Err(e("distribution", format!("'{other}' is not uniform, normal or lognormal")));
+            }
+        };
+        let names: Vec<&String> = if parameter == Parameter::Mass {
+            model.bodies.iter().map(|b| &b.name).collect()
+        } else {
+            model.cable_names.iter().collect()
+        };
+        let has = |k: usize| match parameter {
+            Parameter::Mass => model.bodies[k].mass > 0.0 && model.bodies[k].dof_count > 0,
+            Parameter::PulleyFriction => model.cables[k].friction.is_some(),
+            _ => true,
+        };
+        let elements: Vec<usize> = match &p.elements {
+            None => (0..names.len()).filter(|&k| has(k)).collect(),
+            Some(list) => {
+                let mut out = Vec::new();
+                for name in list {
+                    let k = names.iter().position(|n| *n == name).ok_or_else(|| {
+                        let what = if parameter == Parameter::Mass { "body" } else { "cable" };
+                        e("elements", format!("unknown {what} '{name}'"))
+                    })?;
+                    if !has(k) {
+                        let why = match parameter {
+                            Parameter::Mass => "has no mass that moves",
+                            _ => "has no pulley friction",
+                        };
+                        return Err(e("elements", format!("'{name}' {why}")));
+                    }
+                    out.push(k);
+                }
+                out
+            }
+        };
+        let low = distribution.practical_minimum();
+        if parameter.is_factor() && low <= 0.0 && !matches!(distribution, DrawDistribution::LogNormal { .. })
+        {
+            return Err(e(
+                "distribution",
+                format!("a factor on {} must stay positive: the draws reach {low}", parameter.name()),
+            ));
+        }
+        if parameter == Parameter::RestLength {
+            for &k in &elements {
+                if model.cables[k].friction.is_some() {
+                    return Err(e(
+                        "elements",
+                        format!("'{}' has pulley friction: its rest length is shared by segments", names[k]),
+                    ));
+                }
+                let l0 = model.initial_rest_lengths[k];
+                if l0 + low <= limits::LENGTH.0 {
+                    return Err(e(
+                        "distribution",
+                        format!("'{}': its rest length {l0} m would reach {} m", names[k], l0 + low),
+                    ));
+                }
+            }
+        }
+        parameters.push(RandomParameter { parameter, elements, distribution });
+    }
+    Ok(crate::randomize::Randomization { seed: r.seed, parameters })
 }
 
 fn build_rayleigh(spec: &SceneSpec, cx: &Ctx) -> Result<crate::model::RayleighDamping, SceneError> {

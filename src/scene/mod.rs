@@ -172,6 +172,52 @@ pub struct SceneSpec {
     /// Sensor models (`[sensors]`; none: what the node publishes is the exact state).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sensors: Option<SensorsSpec>,
+    /// Seeded randomization of parameters (`[randomize]`; none: the scene as written).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub randomize: Option<RandomizeSpec>,
+}
+
+/// Seeded randomization of scene parameters (`crate::randomize`), drawn when the model is built.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RandomizeSpec {
+    /// Seed of the draws (default 0).
+    #[serde(default)]
+    pub seed: u64,
+    /// `run` (default): one draw for every run of the scene; `reset`: the node draws anew at
+    /// every reset (episode `k` with seed `seed + k`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub per: Option<String>,
+    /// The parameters drawn, in order.
+    #[serde(default)]
+    pub parameters: Vec<RandomParameterSpec>,
+}
+
+/// One randomized parameter: which, of which elements, from which distribution.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RandomParameterSpec {
+    /// `ea`, `damping`, `mass` or `pulley_friction` (factors on the nominal value), or
+    /// `rest_length` (an offset, m).
+    pub parameter: String,
+    /// Cable names (bodies for `mass`); default every one that has the parameter.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elements: Option<Vec<String>>,
+    /// `uniform` (`low`, `high`), `normal` (`mean`, `sigma`) or `lognormal` (`mean`, `sigma` of
+    /// the logarithm).
+    pub distribution: String,
+    /// Uniform: lower bound.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub low: Option<f64>,
+    /// Uniform: upper bound.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub high: Option<f64>,
+    /// Normal and lognormal: mean (of the logarithm for lognormal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean: Option<f64>,
+    /// Normal and lognormal: standard deviation (of the logarithm for lognormal).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma: Option<f64>,
 }
 
 /// The scene's sensors (`crate::sensors`): a seed and one table per channel.
@@ -738,6 +784,25 @@ pub fn from_toml(text: &str, file: &str) -> Result<Model, SceneError> {
     build_model(&spec, file, Some(text))
 }
 
+/// `model` (built from a scene with `[randomize]`) drawn anew for episode `episode`: its scene
+/// text built again with the seed `seed + episode` (`Model::randomization`). The same episode
+/// gives the same model to the bit; a model without randomization comes back as it is.
+pub fn redraw(model: &Model, episode: u64) -> Result<Model, SceneError> {
+    let Some(r) = &model.randomization else { return Ok(model.clone()) };
+    let file = format!("{} (episode {episode})", model.name);
+    let mut spec = parse(&model.source, &file)?;
+    if let Some(declared) = &mut spec.randomize {
+        declared.seed = r.seed.wrapping_add(episode);
+    }
+    let mut drawn = build_model(&spec, &file, Some(&model.source))?;
+    drawn.name.clone_from(&model.name);
+    if let Some(d) = &mut drawn.randomization {
+        d.seed = r.seed;
+        d.episode = episode;
+    }
+    Ok(drawn)
+}
+
 /// Parses scene text into a `SceneSpec` without validating the structure.
 pub fn parse(text: &str, file: &str) -> Result<SceneSpec, SceneError> {
     toml::from_str::<SceneSpec>(text).map_err(|e| {
@@ -765,6 +830,8 @@ fn plain_words(message: &str) -> String {
         ("struct WinchSpec", "an [actuators.winch] table"),
         ("struct SensorsSpec", "a [sensors] table"),
         ("struct ChannelSpec", "a [sensors.CHANNEL] table"),
+        ("struct RandomizeSpec", "a [randomize] table"),
+        ("struct RandomParameterSpec", "a [[randomize.parameters]] table"),
         ("struct DeploymentSpec", "a [deployment] table"),
         ("struct RampSpec", "a [[deployment.ramps]] table"),
         ("struct SolverSpec", "a [solver] table"),

@@ -25,7 +25,7 @@ pub struct FieldDoc {
 }
 
 /// The tables in file order, with the key the parser reports them under (for tests).
-pub const TABLES: [(&str, &str); 15] = [
+pub const TABLES: [(&str, &str); 17] = [
     ("(top level)", ""),
     ("[[bodies]]", "bodies"),
     ("[[joints]]", "joints"),
@@ -41,6 +41,8 @@ pub const TABLES: [(&str, &str); 15] = [
     ("[collisions]", "collisions"),
     ("[sensors]", "sensors"),
     ("[sensors.CHANNEL]", "sensors.tension"),
+    ("[randomize]", "randomize"),
+    ("[[randomize.parameters]]", "randomize.parameters"),
 ];
 
 fn range((lo, hi): (f64, f64)) -> String {
@@ -64,6 +66,7 @@ pub fn scene_fields() -> Vec<FieldDoc> {
     let (solver, damping, deployment) = (TABLES[7].0, TABLES[8].0, TABLES[9].0);
     let (ramps, grounds, collisions) = (TABLES[10].0, TABLES[11].0, TABLES[12].0);
     let (sensors, channel) = (TABLES[13].0, TABLES[14].0);
+    let (randomize, random) = (TABLES[15].0, TABLES[16].0);
     vec![
         f(top, "name", "string", "-", "empty", "scene name (reports, node topics)".into()),
         f(top, "description", "string", "-", "empty", "free text".into()),
@@ -486,6 +489,30 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         f(channel, "delay", "integer", "steps", "0", format!("0 to {}: reports what was measured that many steps before", limits::COMMAND_DELAY)),
         f(channel, "rate", "number", "Hz", "every step", format!("{}: updates per second, held in between", range(limits::SENSOR_RATE))),
         f(channel, "dropout", "number", "-", "0", "probability in [0, 1) that an update is lost (the last value is held)".into()),
+        f(randomize, "seed", "integer", "-", "0", "seed of the draws, 0 to 2^64 - 1: the same seed, the same model".into()),
+        f(
+            randomize,
+            "per",
+            "string",
+            "-",
+            "run",
+            "run: one draw for every run; reset: the node draws anew at every reset (episode k: seed + k)".into(),
+        ),
+        f(randomize, "parameters", "array of tables", "-", "none", "the parameters drawn, in order, below".into()),
+        f(
+            random,
+            "parameter",
+            "string",
+            "-",
+            "required",
+            "ea, damping, mass or pulley_friction (a factor on the value as written), or rest_length (an offset, m)".into(),
+        ),
+        f(random, "elements", "array of strings", "-", "every one", "cables (bodies for mass) whose parameter is drawn, each on its own".into()),
+        f(random, "distribution", "string", "-", "required", "uniform (low, high), normal or lognormal (mean, sigma; of the logarithm for lognormal)".into()),
+        f(random, "low", "number", "-", "required for uniform", "lower bound; a factor's above 0".into()),
+        f(random, "high", "number", "-", "required for uniform", "upper bound, above low".into()),
+        f(random, "mean", "number", "-", "required for normal, lognormal", "mean; a factor's normal above 6 sigma".into()),
+        f(random, "sigma", "number", "-", "required for normal, lognormal", "standard deviation, positive".into()),
     ]
 }
 

@@ -43,7 +43,10 @@ def fields(msgtype, m):
     if msgtype == 'sensor_msgs/msg/JointState':
         return {'name': list(m.name), 'position': [float(x) for x in m.position]}
     if msgtype == 'tensegrity_msgs/msg/Structure':
-        return {'scene_name': m.scene_name, 'cable_names': list(m.cable_names)}
+        return {'scene_name': m.scene_name, 'cable_names': list(m.cable_names),
+                'randomize_episode': int(m.randomize_episode),
+                'randomized_parameter': list(m.randomized_parameter),
+                'randomized_value': [float(x) for x in m.randomized_value]}
     if msgtype == 'tf2_msgs/msg/TFMessage':
         return {'child_frame_id': [t.child_frame_id for t in m.transforms]}
     if msgtype == 'diagnostic_msgs/msg/DiagnosticArray':

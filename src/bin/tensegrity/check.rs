@@ -105,6 +105,16 @@ pub fn run(scene: &Path) -> Result<(), String> {
     if !delayed.is_empty() {
         say!("command delay: {}", delayed.join(", "));
     }
+    for d in &model.randomized {
+        say!(
+            "randomized: {} of {} drawn {:.6} ({:.9} -> {:.9})",
+            d.parameter.name(),
+            d.element,
+            d.drawn,
+            d.written,
+            d.value
+        );
+    }
     if !model.sensors.channels.is_empty() {
         let channels: Vec<String> = model
             .sensors

@@ -387,7 +387,28 @@ impl NodeCore {
     /// pending commands dropped, the fault cleared), and publishes that state and clock.
     pub fn reset(&mut self, sink: &mut dyn NodeSink) {
         self.interrupt_step_request(sink, "reset");
-        self.sim.reset();
+        // a scene randomized per reset draws its next episode's model; any other starts over
+        let redrawn = match self.sim.model().randomization {
+            Some(r) if r.per_reset => Some(self.redraw(r.episode + 1)),
+            _ => None,
+        };
+        let redraw_failure = match redrawn {
+            Some(Ok(sim)) => {
+                self.sim = sim;
+                self.reference =
+                    report::all_pulley_coordinates(self.sim.model(), self.sim.state(), self.sim.workspace());
+                self.constants = ConstantsId::fresh();
+                None
+            }
+            Some(Err(e)) => {
+                self.sim.reset();
+                Some(e)
+            }
+            None => {
+                self.sim.reset();
+                None
+            }
+        };
         // the sensors start over with the same seed: a reset run reports what a fresh one does
         self.sensors = Sensors::new(self.sim.model(), self.params.sensor_seed);
         self.sensors.update(self.sim.model(), self.sim.state(), self.sim.workspace());
@@ -405,8 +426,23 @@ impl NodeCore {
         self.last_command = None;
         self.timed_out = false;
         self.anchor = None;
+        if redrawn_structure(self.sim.model()) {
+            // the new episode's draws
+            self.publish(sink, Topic::Structure);
+        }
         self.publish_state(sink);
         self.publish(sink, Topic::Clock);
+        if let Some(e) = redraw_failure {
+            self.physics_failure(sink, format!("the next episode's randomized scene: {e}"));
+        }
+    }
+
+    /// The simulator of episode `episode` of a scene randomized per reset
+    /// (`crate::scene::redraw`), started as the first was.
+    fn redraw(&self, episode: u64) -> Result<Simulator, String> {
+        let model = crate::scene::redraw(self.sim.model(), episode).map_err(|e| e.to_string())?;
+        Simulator::start(model, *self.sim.settings(), self.params.start_from_equilibrium)
+            .map_err(|e| e.to_string())
     }
 
     /// SetSimulationState: PLAYING, PAUSED, STOPPED (reset and pause) or QUITTING.
@@ -750,4 +786,10 @@ impl NodeCore {
         };
         self.status(level, "simulation", message, values)
     }
+}
+
+/// True when a reset draws a new model (`[randomize] per = "reset"`), whose structure carries
+/// the new draws.
+fn redrawn_structure(model: &crate::model::Model) -> bool {
+    model.randomization.is_some_and(|r| r.per_reset)
 }
