@@ -12,47 +12,9 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, LogNormal, Normal, Uniform};
 use rand_pcg::Pcg64;
 
+pub use crate::model::{Draw, Parameter, RandomizationRun};
+
 use crate::model::Model;
-
-/// Which parameter a declaration draws.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Parameter {
-    /// A cable's or member's axial stiffness EA (factor).
-    AxialStiffness,
-    /// A cable's or member's damping coefficient (factor).
-    Damping,
-    /// A body's mass, and its inertia with it (factor).
-    Mass,
-    /// A cable's initial rest length (offset, m).
-    RestLength,
-    /// Every friction coefficient of a cable's pulleys (one factor).
-    PulleyFriction,
-}
-
-impl Parameter {
-    /// The scene's name of the parameter.
-    pub fn name(self) -> &'static str {
-        match self {
-            Parameter::AxialStiffness => "ea",
-            Parameter::Damping => "damping",
-            Parameter::Mass => "mass",
-            Parameter::RestLength => "rest_length",
-            Parameter::PulleyFriction => "pulley_friction",
-        }
-    }
-
-    /// The parameter of a scene name.
-    pub fn parse(name: &str) -> Option<Self> {
-        [Self::AxialStiffness, Self::Damping, Self::Mass, Self::RestLength, Self::PulleyFriction]
-            .into_iter()
-            .find(|p| p.name() == name)
-    }
-
-    /// True when a draw is a factor on the value as written (else an offset).
-    pub fn is_factor(self) -> bool {
-        self != Parameter::RestLength
-    }
-}
 
 /// A distribution of draws.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -126,34 +88,6 @@ pub struct Randomization {
     pub seed: u64,
     /// The declarations, in scene order.
     pub parameters: Vec<RandomParameter>,
-}
-
-/// How a scene's randomization runs: its seed, whether the node draws anew at every reset, and
-/// the episode this model was drawn for (drawn with seed `seed + episode`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct RandomizationRun {
-    /// The scene's seed.
-    pub seed: u64,
-    /// True: each reset draws anew (`crate::scene::redraw`); false: one draw per run.
-    pub per_reset: bool,
-    /// Resets that drew anew before this model (0 at the start).
-    pub episode: u64,
-}
-
-/// One draw as applied.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Draw {
-    /// Which parameter.
-    pub parameter: Parameter,
-    /// The element's name (cable, or body for `mass`).
-    pub element: String,
-    /// The factor or offset drawn.
-    pub drawn: f64,
-    /// The value as written and the value used (EA in N, damping in N s/m, mass in kg, rest
-    /// length in m, the first pulley's coefficient).
-    pub written: f64,
-    /// The value used.
-    pub value: f64,
 }
 
 /// Applies `randomization` to `model` (built as written) with `seed`: each declared element's

@@ -18,82 +18,10 @@ use rand_distr::StandardNormal;
 use rand_pcg::Pcg64;
 
 use crate::evaluate::Workspace;
+pub use crate::model::{ChannelModel, SensorKind, SensorModel};
+
 use crate::model::Model;
 use crate::state::State;
-
-/// What one channel measures.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SensorKind {
-    /// Every cable's tension, N (one value per cable).
-    Tension,
-    /// Every cable's length, m (one per cable).
-    Length,
-    /// Every actuator's cable rest length, m (one per actuator): the winch's encoder.
-    RestLength,
-    /// Every body's position, m (x, y, z per body).
-    Position,
-    /// Every body's orientation (a unit quaternion w, x, y, z per body); its noise is a rotation
-    /// vector of `sigma` rad per axis, no bias or quantization.
-    Orientation,
-}
-
-impl SensorKind {
-    /// Every kind, in the order channels are kept and seeded.
-    pub const ALL: [SensorKind; 5] = [
-        SensorKind::Tension,
-        SensorKind::Length,
-        SensorKind::RestLength,
-        SensorKind::Position,
-        SensorKind::Orientation,
-    ];
-
-    /// The scene's name of the channel (`[sensors.NAME]`).
-    pub fn name(self) -> &'static str {
-        match self {
-            SensorKind::Tension => "tension",
-            SensorKind::Length => "length",
-            SensorKind::RestLength => "rest_length",
-            SensorKind::Position => "position",
-            SensorKind::Orientation => "orientation",
-        }
-    }
-
-    /// Values the channel carries for `model`.
-    pub fn len(self, model: &Model) -> usize {
-        match self {
-            SensorKind::Tension | SensorKind::Length => model.cables.len(),
-            SensorKind::RestLength => model.actuators.len(),
-            SensorKind::Position => 3 * model.bodies.len(),
-            SensorKind::Orientation => 4 * model.bodies.len(),
-        }
-    }
-}
-
-/// One channel's imperfections (all default to a perfect sensor).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ChannelModel {
-    /// Standard deviation of the Gaussian noise, in the channel's unit (rad for orientation).
-    pub sigma: f64,
-    /// Constant offset, in the channel's unit.
-    pub bias: f64,
-    /// Quantization step, in the channel's unit (0: none).
-    pub resolution: f64,
-    /// Steps between a measurement and its report.
-    pub delay: usize,
-    /// Time between updates, s (0: every step); held in between.
-    pub period: f64,
-    /// Probability that an update is lost, in `[0, 1)`: the value is held.
-    pub dropout: f64,
-}
-
-/// The scene's sensors: a seed and the channels it declares (none: no sensors, nothing drawn).
-#[derive(Debug, Clone, PartialEq, Default)]
-pub struct SensorModel {
-    /// Seed of every channel's generator.
-    pub seed: u64,
-    /// The declared channels, in `SensorKind::ALL` order.
-    pub channels: Vec<(SensorKind, ChannelModel)>,
-}
 
 /// One channel's state: its generator, the held values, the delay line.
 #[derive(Debug, Clone)]

@@ -4,7 +4,6 @@
 
 use nalgebra::{DVector, UnitQuaternion, Vector3};
 
-use crate::forces::winch::WinchState;
 use crate::model::{Model, Pose};
 
 /// Everything that changes during a run. Built from a `Model` with `State::initial`
@@ -94,4 +93,29 @@ pub fn retract(model: &Model, poses: &mut [Pose], dq: &DVector<f64>, scale: f64)
             pose.rotation.renormalize();
         }
     }
+}
+
+/// A winch's state: what it carries from sub-step to sub-step (`speed`, `integral`, `setpoint`,
+/// `reference`) and what the sub-step under way holds fixed (`drive`, `step`, `floor`, set by
+/// `crate::forces::winch::prepare`).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct WinchState {
+    /// Reel-in speed `v = r omega` at the last accepted sub-step, m/s.
+    pub speed: f64,
+    /// Integral of the position error, m s.
+    pub integral: f64,
+    /// Speed set-point of the last accepted sub-step, m/s (what `max_acceleration` limits).
+    pub setpoint: f64,
+    /// Rest-length reference at the last accepted sub-step, m (position mode).
+    pub reference: f64,
+    /// Drive `u` in `[-1, 1]` over the sub-step under way.
+    pub drive: f64,
+    /// Length of the sub-step under way, s; 0 between sub-steps, when the cable keeps its rest
+    /// length (statics, outputs).
+    pub step: f64,
+    /// Lowest speed the gear allows over the sub-step under way, m/s (`-inf` when back-drivable).
+    pub floor: f64,
+    /// What `crate::forces::winch::prepare` computed for the sub-step under way, kept for `commit`: the set-point, the
+    /// reference and the position error.
+    pub pending: [f64; 3],
 }

@@ -28,89 +28,10 @@
 
 use crate::forces::cable::{self, CableResponse, CableScratch};
 use crate::kinematics::PointKinematics;
-use crate::model::{ActuatorId, CableId, CableModel, Model, PointId};
+pub use crate::model::{PositionGains, WinchModel};
+pub use crate::state::WinchState;
 
-/// Position-mode gains of a winch's controller: the speed set-point (m/s, reel-in positive) is
-/// `v* = v_ff + kp e + ki int e dt - kd de/dt` with `e = L0 - L_ref` (m) the rest length's excess
-/// over its reference, `v_ff` the reference's own reel-in speed.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PositionGains {
-    /// Proportional gain, 1/s.
-    pub kp: f64,
-    /// Integral gain, 1/s^2.
-    pub ki: f64,
-    /// Derivative gain (on the measured reel-in speed), dimensionless.
-    pub kd: f64,
-}
-
-/// A winch motor driving one actuator's cable (module docs; rope units at the drum).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct WinchModel {
-    /// The actuator it drives.
-    pub actuator: ActuatorId,
-    /// The actuator's cable.
-    pub cable: CableId,
-    /// Drum radius `r`, m (> 0).
-    pub drum_radius: f64,
-    /// Stall tension `T_s`, N (> 0): the line force at full drive and zero speed.
-    pub stall_tension: f64,
-    /// No-load reel-in speed `v0`, m/s (> 0): the speed at full drive and zero tension.
-    pub no_load_speed: f64,
-    /// Rotor inertia at the drum `J`, kg m^2 (>= 0).
-    pub rotor_inertia: f64,
-    /// Viscous friction at the drum `b`, N m s/rad (>= 0).
-    pub viscous_friction: f64,
-    /// False for a self-locking gear: the load never turns the drum back.
-    pub back_drivable: bool,
-    /// Largest change of the speed set-point, m/s^2 (`f64::INFINITY`: none).
-    pub max_acceleration: f64,
-    /// Position-mode gains.
-    pub gains: PositionGains,
-}
-
-impl WinchModel {
-    /// Equivalent mass of the rotor on the rope, `M = J / r^2`, kg.
-    pub fn equivalent_mass(&self) -> f64 {
-        self.rotor_inertia / (self.drum_radius * self.drum_radius)
-    }
-
-    /// Speed-proportional resistance on the rope, `T_s / v0 + b / r^2`, N s/m: the torque-speed
-    /// line's slope plus the drum's viscous friction.
-    pub fn speed_resistance(&self) -> f64 {
-        self.stall_tension / self.no_load_speed
-            + self.viscous_friction / (self.drum_radius * self.drum_radius)
-    }
-
-    /// The motor's line force at drive `u` and reel-in speed `v` (m/s), `T_s (u - v / v0)`, N.
-    pub fn motor_force(&self, drive: f64, v: f64) -> f64 {
-        self.stall_tension * (drive - v / self.no_load_speed)
-    }
-}
-
-/// A winch's state: what it carries from sub-step to sub-step (`speed`, `integral`, `setpoint`,
-/// `reference`) and what the sub-step under way holds fixed (`drive`, `step`, `floor`, set by
-/// `prepare`).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct WinchState {
-    /// Reel-in speed `v = r omega` at the last accepted sub-step, m/s.
-    pub speed: f64,
-    /// Integral of the position error, m s.
-    pub integral: f64,
-    /// Speed set-point of the last accepted sub-step, m/s (what `max_acceleration` limits).
-    pub setpoint: f64,
-    /// Rest-length reference at the last accepted sub-step, m (position mode).
-    pub reference: f64,
-    /// Drive `u` in `[-1, 1]` over the sub-step under way.
-    pub drive: f64,
-    /// Length of the sub-step under way, s; 0 between sub-steps, when the cable keeps its rest
-    /// length (statics, outputs).
-    pub step: f64,
-    /// Lowest speed the gear allows over the sub-step under way, m/s (`-inf` when back-drivable).
-    pub floor: f64,
-    /// What `prepare` computed for the sub-step under way, kept for `commit`: the set-point, the
-    /// reference and the position error.
-    pub pending: [f64; 3],
-}
+use crate::model::{CableModel, Model, PointId};
 
 /// What the controller asks of a winch over one sub-step.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -377,6 +377,205 @@ pub struct ActuatorModel {
     pub winch: Option<usize>,
 }
 
+/// Position-mode gains of a winch's controller: the speed set-point (m/s, reel-in positive) is
+/// `v* = v_ff + kp e + ki int e dt - kd de/dt` with `e = L0 - L_ref` (m) the rest length's excess
+/// over its reference, `v_ff` the reference's own reel-in speed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PositionGains {
+    /// Proportional gain, 1/s.
+    pub kp: f64,
+    /// Integral gain, 1/s^2.
+    pub ki: f64,
+    /// Derivative gain (on the measured reel-in speed), dimensionless.
+    pub kd: f64,
+}
+
+/// A winch motor driving one actuator's cable (`crate::forces::winch`, rope units at the drum).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WinchModel {
+    /// The actuator it drives.
+    pub actuator: ActuatorId,
+    /// The actuator's cable.
+    pub cable: CableId,
+    /// Drum radius `r`, m (> 0).
+    pub drum_radius: f64,
+    /// Stall tension `T_s`, N (> 0): the line force at full drive and zero speed.
+    pub stall_tension: f64,
+    /// No-load reel-in speed `v0`, m/s (> 0): the speed at full drive and zero tension.
+    pub no_load_speed: f64,
+    /// Rotor inertia at the drum `J`, kg m^2 (>= 0).
+    pub rotor_inertia: f64,
+    /// Viscous friction at the drum `b`, N m s/rad (>= 0).
+    pub viscous_friction: f64,
+    /// False for a self-locking gear: the load never turns the drum back.
+    pub back_drivable: bool,
+    /// Largest change of the speed set-point, m/s^2 (`f64::INFINITY`: none).
+    pub max_acceleration: f64,
+    /// Position-mode gains.
+    pub gains: PositionGains,
+}
+
+impl WinchModel {
+    /// Equivalent mass of the rotor on the rope, `M = J / r^2`, kg.
+    pub fn equivalent_mass(&self) -> f64 {
+        self.rotor_inertia / (self.drum_radius * self.drum_radius)
+    }
+
+    /// Speed-proportional resistance on the rope, `T_s / v0 + b / r^2`, N s/m: the torque-speed
+    /// line's slope plus the drum's viscous friction.
+    pub fn speed_resistance(&self) -> f64 {
+        self.stall_tension / self.no_load_speed
+            + self.viscous_friction / (self.drum_radius * self.drum_radius)
+    }
+
+    /// The motor's line force at drive `u` and reel-in speed `v` (m/s), `T_s (u - v / v0)`, N.
+    pub fn motor_force(&self, drive: f64, v: f64) -> f64 {
+        self.stall_tension * (drive - v / self.no_load_speed)
+    }
+}
+
+/// What one channel measures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SensorKind {
+    /// Every cable's tension, N (one value per cable).
+    Tension,
+    /// Every cable's length, m (one per cable).
+    Length,
+    /// Every actuator's cable rest length, m (one per actuator): the winch's encoder.
+    RestLength,
+    /// Every body's position, m (x, y, z per body).
+    Position,
+    /// Every body's orientation (a unit quaternion w, x, y, z per body); its noise is a rotation
+    /// vector of `sigma` rad per axis, no bias or quantization.
+    Orientation,
+}
+
+impl SensorKind {
+    /// Every kind, in the order channels are kept and seeded.
+    pub const ALL: [SensorKind; 5] = [
+        SensorKind::Tension,
+        SensorKind::Length,
+        SensorKind::RestLength,
+        SensorKind::Position,
+        SensorKind::Orientation,
+    ];
+
+    /// The scene's name of the channel (`[sensors.NAME]`).
+    pub fn name(self) -> &'static str {
+        match self {
+            SensorKind::Tension => "tension",
+            SensorKind::Length => "length",
+            SensorKind::RestLength => "rest_length",
+            SensorKind::Position => "position",
+            SensorKind::Orientation => "orientation",
+        }
+    }
+
+    /// Values the channel carries for `model`.
+    pub fn len(self, model: &Model) -> usize {
+        match self {
+            SensorKind::Tension | SensorKind::Length => model.cables.len(),
+            SensorKind::RestLength => model.actuators.len(),
+            SensorKind::Position => 3 * model.bodies.len(),
+            SensorKind::Orientation => 4 * model.bodies.len(),
+        }
+    }
+}
+
+/// One channel's imperfections (all default to a perfect sensor).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ChannelModel {
+    /// Standard deviation of the Gaussian noise, in the channel's unit (rad for orientation).
+    pub sigma: f64,
+    /// Constant offset, in the channel's unit.
+    pub bias: f64,
+    /// Quantization step, in the channel's unit (0: none).
+    pub resolution: f64,
+    /// Steps between a measurement and its report.
+    pub delay: usize,
+    /// Time between updates, s (0: every step); held in between.
+    pub period: f64,
+    /// Probability that an update is lost, in `[0, 1)`: the value is held.
+    pub dropout: f64,
+}
+
+/// The scene's sensors: a seed and the channels it declares (none: no sensors, nothing drawn).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct SensorModel {
+    /// Seed of every channel's generator.
+    pub seed: u64,
+    /// The declared channels, in `SensorKind::ALL` order.
+    pub channels: Vec<(SensorKind, ChannelModel)>,
+}
+
+/// Which parameter a declaration draws.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Parameter {
+    /// A cable's or member's axial stiffness EA (factor).
+    AxialStiffness,
+    /// A cable's or member's damping coefficient (factor).
+    Damping,
+    /// A body's mass, and its inertia with it (factor).
+    Mass,
+    /// A cable's initial rest length (offset, m).
+    RestLength,
+    /// Every friction coefficient of a cable's pulleys (one factor).
+    PulleyFriction,
+}
+
+impl Parameter {
+    /// The scene's name of the parameter.
+    pub fn name(self) -> &'static str {
+        match self {
+            Parameter::AxialStiffness => "ea",
+            Parameter::Damping => "damping",
+            Parameter::Mass => "mass",
+            Parameter::RestLength => "rest_length",
+            Parameter::PulleyFriction => "pulley_friction",
+        }
+    }
+
+    /// The parameter of a scene name.
+    pub fn parse(name: &str) -> Option<Self> {
+        [Self::AxialStiffness, Self::Damping, Self::Mass, Self::RestLength, Self::PulleyFriction]
+            .into_iter()
+            .find(|p| p.name() == name)
+    }
+
+    /// True when a draw is a factor on the value as written (else an offset).
+    pub fn is_factor(self) -> bool {
+        self != Parameter::RestLength
+    }
+}
+
+/// How a scene's randomization runs: its seed, whether the node draws anew at every reset, and
+/// the episode this model was drawn for (drawn with seed `seed + episode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RandomizationRun {
+    /// The scene's seed.
+    pub seed: u64,
+    /// True: each reset draws anew (`crate::scene::redraw`); false: one draw per run.
+    pub per_reset: bool,
+    /// Resets that drew anew before this model (0 at the start).
+    pub episode: u64,
+}
+
+/// One draw as applied.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Draw {
+    /// Which parameter.
+    pub parameter: Parameter,
+    /// The element's name (cable, or body for `mass`).
+    pub element: String,
+    /// The factor or offset drawn.
+    pub drawn: f64,
+    /// The value as written and the value used (EA in N, damping in N s/m, mass in kg, rest
+    /// length in m, the first pulley's coefficient).
+    pub written: f64,
+    /// The value used.
+    pub value: f64,
+}
+
 /// One linear rest-length ramp of a deployment schedule.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ramp {
@@ -523,14 +722,14 @@ pub struct Model {
     pub initial_segment_rest_lengths: Vec<f64>,
     /// Winch motors (`crate::forces::winch`; none: every actuator is ideal, and winches cost
     /// nothing).
-    pub winches: Vec<crate::forces::winch::WinchModel>,
+    pub winches: Vec<WinchModel>,
     /// Sensor models (`crate::sensors`; empty: no sensors). The physics never reads them.
-    pub sensors: crate::sensors::SensorModel,
+    pub sensors: SensorModel,
     /// The scene's `[randomize]` draws, as applied when the model was built (empty: the scene
     /// as written).
-    pub randomized: Vec<crate::randomize::Draw>,
+    pub randomized: Vec<Draw>,
     /// The scene's randomization settings (`None` without `[randomize]`).
-    pub randomization: Option<crate::randomize::RandomizationRun>,
+    pub randomization: Option<RandomizationRun>,
     /// Quasi-static solver settings.
     pub solver: SolverSettings,
     /// Rayleigh damping (zero: none, and it costs nothing).
