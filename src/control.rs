@@ -7,7 +7,10 @@
 //! - target `L*` (with optional rate `r`, default the actuator's `max_rate`): the rest length moves
 //!   towards `L*` at `r` m/s and stays there;
 //! - rate only `r`: the rest length changes at `r` m/s (negative shortens) until a limit, where it
-//!   stops.
+//!   stops;
+//! - tension only `T*` (a winch's actuator only): the winch's motor is driven so that its line
+//!   force is `T*` (`crate::forces::winch`, tension mode); an ideal actuator has no force to set
+//!   and refuses it.
 //!
 //! An actuator with a `command_delay` of `k` steps gets each accepted command `k` steps late
 //! (`Control::tick`, once per `Simulator::step`). A winch's cable keeps its rest length here: its
@@ -17,7 +20,7 @@
 use crate::forces::winch::WinchCommand;
 use crate::model::{ActuatorId, Model};
 
-/// A command for one actuator. At least one field must be set.
+/// A command for one actuator: a rest length, a rate, both, or a tension alone.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ActuatorCommand {
     /// Target rest length, m, within `[min_rest_length, max_rest_length]`.
@@ -25,6 +28,26 @@ pub struct ActuatorCommand {
     /// Rate, m/s: with a target, the speed towards it (> 0, <= max_rate); alone, the signed rate
     /// (|rate| <= max_rate).
     pub rate: Option<f64>,
+    /// Tension, N, within `[0, stall_tension]`: the line force a winch's motor is to hold (tension
+    /// mode). Only for an actuator with a winch, and only alone.
+    pub tension: Option<f64>,
+}
+
+impl ActuatorCommand {
+    /// Move to the rest length `rest_length` (m) at the actuator's `max_rate`.
+    pub fn target(rest_length: f64) -> Self {
+        Self { rest_length: Some(rest_length), ..Self::default() }
+    }
+
+    /// Change the rest length at the signed rate `rate` (m/s).
+    pub fn rate(rate: f64) -> Self {
+        Self { rate: Some(rate), ..Self::default() }
+    }
+
+    /// Hold the line force `tension` (N) with the actuator's winch motor.
+    pub fn tension(tension: f64) -> Self {
+        Self { tension: Some(tension), ..Self::default() }
+    }
 }
 
 /// Why a command was rejected. The actuator keeps its previous command.
@@ -38,7 +61,7 @@ pub enum CommandError {
     NonFinite {
         /// Actuator name.
         actuator: String,
-        /// `rest_length` or `rate`.
+        /// `rest_length`, `rate` or `tension`.
         field: &'static str,
         /// The value received.
         value: f64,
@@ -48,7 +71,7 @@ pub enum CommandError {
     OutOfRange {
         /// Actuator name.
         actuator: String,
-        /// `rest_length` or `rate`.
+        /// `rest_length`, `rate` or `tension`.
         field: &'static str,
         /// The value received.
         value: f64,
@@ -57,9 +80,16 @@ pub enum CommandError {
         /// Upper limit.
         max: f64,
     },
-    /// Neither a target nor a rate.
-    #[error("actuator '{0}': a command needs a rest length, a rate, or both")]
+    /// Neither a target, a rate nor a tension.
+    #[error("actuator '{0}': a command needs a rest length, a rate, both, or a tension")]
     Empty(String),
+    /// A tension together with a rest length or a rate (which should the winch follow?).
+    #[error("actuator '{0}': a tension command cannot also carry a rest length or a rate")]
+    TensionWithLength(String),
+    /// A tension for an actuator without a winch motor (an ideal actuator sets a rest length,
+    /// never a force).
+    #[error("actuator '{0}' has no winch motor: tension commands need `[actuators.winch]` in the scene")]
+    NoWinch(String),
 }
 
 /// What an actuator is following.
@@ -76,6 +106,8 @@ pub enum ActuatorMode {
     },
     /// Change at a constant signed rate (m/s) until a limit.
     Rate(f64),
+    /// Hold the winch motor's line force at this tension (N); winch actuators only.
+    Tension(f64),
 }
 
 /// The mode of every actuator, and the commands still on their way to actuators with a
@@ -119,6 +151,14 @@ impl Control {
                 Ok(value)
             }
         };
+        if let Some(t) = cmd.tension {
+            if cmd.rest_length.is_some() || cmd.rate.is_some() {
+                return Err(CommandError::TensionWithLength(name()));
+            }
+            let Some(w) = act.winch else { return Err(CommandError::NoWinch(name())) };
+            let stall = model.winches[w].stall_tension;
+            return Ok(ActuatorMode::Tension(check("tension", t, 0.0, stall)?));
+        }
         match (cmd.rest_length, cmd.rate) {
             (Some(l), r) => {
                 let rest_length = check("rest_length", l, act.min_rest_length, act.max_rest_length)?;
@@ -207,13 +247,15 @@ impl Control {
                 now + (rest_length - now).clamp(-step, step)
             }
             ActuatorMode::Rate(r) => (now + r * h).clamp(act.min_rest_length, act.max_rest_length),
+            // refused by `validate` for an ideal actuator; a winch's reference holds
+            ActuatorMode::Tension(_) => now,
         }
     }
 
     /// What winch `id`'s controller is asked for over the sub-step from `t` to `t + h` (s): a
-    /// signed rate is a speed command; the schedule and a target are a rest-length reference,
-    /// moved from `reference` (m, the last one) as the ideal actuator would move its rest
-    /// length, with its rate as the feed-forward.
+    /// signed rate is a speed command, a tension a tension command; the schedule and a target
+    /// are a rest-length reference, moved from `reference` (m, the last one) as the ideal
+    /// actuator would move its rest length, with its rate as the feed-forward.
     pub fn winch_command(
         &self,
         model: &Model,
@@ -224,7 +266,8 @@ impl Control {
     ) -> WinchCommand {
         match self.modes[id.0] {
             ActuatorMode::Rate(r) => WinchCommand::Speed(r),
-            _ => {
+            ActuatorMode::Tension(t) => WinchCommand::Tension(t),
+            ActuatorMode::Schedule | ActuatorMode::Target { .. } => {
                 let next = self.ideal_rest_length(model, id, t, h, reference);
                 WinchCommand::Position { reference: next, rate: (next - reference) / h }
             }

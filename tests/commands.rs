@@ -14,7 +14,7 @@ use tensegrity::solve::statics::StaticSolver;
 use tensegrity::State;
 
 fn target(l: f64) -> ActuatorCommand {
-    ActuatorCommand { rest_length: Some(l), rate: None }
+    ActuatorCommand { rest_length: Some(l), rate: None, tension: None }
 }
 
 #[test]
@@ -24,11 +24,14 @@ fn bad_commands_are_rejected_counted_and_change_nothing() {
     let act = sim.model().actuators[id.0];
     let cases = [
         ("ring_winch", target(f64::NAN)),
-        ("ring_winch", ActuatorCommand { rest_length: None, rate: Some(f64::INFINITY) }),
+        ("ring_winch", ActuatorCommand { rest_length: None, rate: Some(f64::INFINITY), tension: None }),
         ("ring_winch", target(act.max_rest_length * 2.0)),
         ("ring_winch", target(0.0)),
-        ("ring_winch", ActuatorCommand { rest_length: None, rate: Some(-2.0 * act.max_rate) }),
-        ("ring_winch", ActuatorCommand { rest_length: Some(act.min_rest_length), rate: Some(0.0) }),
+        ("ring_winch", ActuatorCommand { rest_length: None, rate: Some(-2.0 * act.max_rate), tension: None }),
+        (
+            "ring_winch",
+            ActuatorCommand { rest_length: Some(act.min_rest_length), rate: Some(0.0), tension: None },
+        ),
         ("ring_winch", ActuatorCommand::default()),
         ("no_such_winch", target(act.min_rest_length)),
     ];
@@ -54,7 +57,11 @@ fn a_target_is_approached_at_the_commanded_rate_and_held() {
     let mut sim = Simulator::new(bundled("tbar.toml"), SimSettings::default()).unwrap();
     let cable = sim.model().cable_id("lower_left").unwrap().0;
     let l0 = sim.state().rest_lengths[cable];
-    sim.command("lower_winch", ActuatorCommand { rest_length: Some(l0 - 0.05), rate: Some(0.1) }).unwrap();
+    sim.command(
+        "lower_winch",
+        ActuatorCommand { rest_length: Some(l0 - 0.05), rate: Some(0.1), tension: None },
+    )
+    .unwrap();
     for k in 1..=1000 {
         sim.step().unwrap();
         let expected = (l0 - 0.1 * k as f64 * 1e-3).max(l0 - 0.05);
@@ -68,7 +75,11 @@ fn a_rate_stops_at_the_actuator_limit() {
         Simulator::new(bundled("tbar.toml"), SimSettings { dt: 2e-3, ..Default::default() }).unwrap();
     let id = sim.model().actuator_id("lower_winch").unwrap();
     let act = sim.model().actuators[id.0];
-    sim.command("lower_winch", ActuatorCommand { rest_length: None, rate: Some(act.max_rate) }).unwrap();
+    sim.command(
+        "lower_winch",
+        ActuatorCommand { rest_length: None, rate: Some(act.max_rate), tension: None },
+    )
+    .unwrap();
     // lengthening at max rate: the lower string goes slack, the structure stays finite
     for _ in 0..600 {
         sim.step().unwrap();

@@ -451,3 +451,20 @@ fn a_controller_rolls_the_six_bar_robot_face_to_face_to_a_goal() {
     assert!(sim.stop().fault.is_none());
 }
 // README example end.
+
+#[test]
+fn a_tension_command_through_the_kit_settles_the_tensioner() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples/tensioner.toml");
+    let sim = SimBuilder::scene_file(scene).param("start_from_equilibrium", "true").start().unwrap();
+    let state = sim.step_with(&[Command::new("tensioner").tension(30.0)], 3000).unwrap();
+    let spring = state.tension("spring").unwrap();
+    assert!((spring - 30.0).abs() < 1e-6, "the spring carries {spring} N");
+    // a tension for a winch that cannot give it, and a tension with a rest length, are refused
+    for careless in
+        [Command::new("tensioner").tension(1e3), Command::new("tensioner").tension(5.0).rest_length(1.0)]
+    {
+        let e = sim.command(careless).unwrap_err();
+        assert!(matches!(&e, KitError::Refused(why) if why.contains("tension")), "{e}");
+    }
+    assert_eq!(sim.stop().stats.commands_rejected, 2);
+}

@@ -62,10 +62,13 @@ fn rust_structs_match_the_msg_files_field_by_field() {
     tracer.trace_simple_type::<Structure>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::AppliedCommands>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::ContactStates>().unwrap();
+    tracer.trace_simple_type::<tensegrity::io::msg::TensionCommand>().unwrap();
     let registry = tracer.registry().unwrap();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg/msg");
     let mut checked = 0;
-    for name in ["CableStates", "ActuatorCommand", "Structure", "AppliedCommands", "ContactStates"] {
+    for name in
+        ["CableStates", "ActuatorCommand", "Structure", "AppliedCommands", "ContactStates", "TensionCommand"]
+    {
         let text = std::fs::read_to_string(dir.join(format!("{name}.msg"))).unwrap();
         let expected: Vec<(String, Format)> =
             parse_msg(&text).into_iter().map(|(ty, n)| (n, ros_to_format(&ty))).collect();
@@ -234,6 +237,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
     tracer.trace_simple_type::<msg::AppliedCommands>().unwrap();
     tracer.trace_simple_type::<ActuatorCommand>().unwrap();
     tracer.trace_simple_type::<msg::ContactStates>().unwrap();
+    tracer.trace_simple_type::<msg::TensionCommand>().unwrap();
     let registry = tracer.registry().unwrap();
     let rust_of = [
         ("rosgraph_msgs/msg/Clock", "Clock"),
@@ -247,6 +251,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
         ("tensegrity_msgs/msg/AppliedCommands", "AppliedCommands"),
         ("tensegrity_msgs/msg/ActuatorCommand", "ActuatorCommand"),
         ("tensegrity_msgs/msg/ContactStates", "ContactStates"),
+        ("tensegrity_msgs/msg/TensionCommand", "TensionCommand"),
     ];
     // every topic a bag records is covered
     for topic in Topic::ALL {

@@ -419,3 +419,36 @@ fn error_controlled_sub_steps_keep_the_publish_times_regular_and_finite() {
         assert!(s.rejected_attempts > 0, "{integrator}: the error estimate rejected sub-steps on the way");
     }
 }
+
+#[test]
+fn tension_commands_arrive_on_their_own_message_or_as_a_joint_effort_and_careless_ones_are_refused() {
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/examples/tensioner.toml");
+    let model = tensegrity::scene::load(&scene).unwrap();
+    let mut node = NodeCore::new(model, NodeParams { real_time_factor: 0.0, ..Default::default() }).unwrap();
+    let mut sink = MemorySink::default();
+    let name = vec!["tensioner".to_string()];
+    let tension = |t: Vec<f64>| msg::TensionCommand { name: name.clone(), tension: t, ..Default::default() };
+    let joint = |position: Vec<f64>, effort: Vec<f64>| msg::JointState {
+        name: name.clone(),
+        position,
+        effort,
+        ..Default::default()
+    };
+    // refused whole: no tension, two for one name, NaN, negative, over the stall tension
+    for bad in [vec![], vec![1.0, 2.0], vec![f64::NAN], vec![-1.0], vec![100.5]] {
+        node.offer_tension_command(&tension(bad));
+    }
+    assert_eq!(node.stats().commands_rejected, 5);
+    node.offer_tension_command(&tension(vec![30.0]));
+    node.tick(Duration::ZERO, &mut sink);
+    assert_eq!(sink.applied[0].1[0].1, tensegrity::control::ActuatorCommand::tension(30.0));
+    // a JointState's effort is a tension only when it carries neither position nor velocity
+    node.offer_joint_command(&joint(vec![], vec![40.0]));
+    node.tick(MS, &mut sink);
+    assert_eq!(sink.applied[1].1[0].1, tensegrity::control::ActuatorCommand::tension(40.0));
+    node.offer_joint_command(&joint(vec![1.1], vec![40.0]));
+    node.tick(2 * MS, &mut sink);
+    assert_eq!(sink.applied[2].1[0].1, tensegrity::control::ActuatorCommand::target(1.1));
+    assert_eq!(node.stats().commands_rejected, 5);
+    assert_eq!(node.stats().commands_accepted, 3);
+}

@@ -416,7 +416,7 @@ fn thousands_of_stick_slip_switches_stay_finite_and_keep_newton_short() {
             let rate = 0.02 * (omega * sim.state().time).sin();
             sim.command(
                 "winch",
-                tensegrity::control::ActuatorCommand { rest_length: None, rate: Some(rate) },
+                tensegrity::control::ActuatorCommand { rest_length: None, rate: Some(rate), tension: None },
             )
             .unwrap();
             let stats = sim.step().unwrap();

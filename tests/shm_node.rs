@@ -83,7 +83,11 @@ fn lockstep_takes_exactly_n_times_k_steps_and_matches_an_offline_run_bit_for_bit
     let settings = *NodeCore::new(model.clone(), params.clone()).unwrap().simulator().settings();
     let mut offline = Simulator::new(model.clone(), settings).unwrap();
     for (i, a) in model.actuators.iter().enumerate() {
-        let hold = ActuatorCommand { rest_length: Some(model.initial_rest_lengths[a.cable.0]), rate: None };
+        let hold = ActuatorCommand {
+            rest_length: Some(model.initial_rest_lengths[a.cable.0]),
+            rate: None,
+            tension: None,
+        };
         offline.command_actuator(ActuatorId(i), hold).unwrap();
     }
     let names = model.actuator_names.clone();
@@ -115,6 +119,7 @@ fn lockstep_takes_exactly_n_times_k_steps_and_matches_an_offline_run_bit_for_bit
             let cmd = ActuatorCommand {
                 rest_length: (e.fields & 1 != 0).then_some(e.rest_length),
                 rate: (e.fields & 2 != 0).then_some(e.rate),
+                tension: (e.fields & 4 != 0).then_some(e.tension),
             };
             offline.command_actuator(id, cmd).unwrap();
         }

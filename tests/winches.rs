@@ -35,7 +35,7 @@ fn hoist_sim(model: Model, dt: f64, integrator: Integrator) -> Simulator {
 
 /// Commands the hoist to change its rest length at `rate` m/s (negative reels in).
 fn at_rate(sim: &mut Simulator, rate: f64) {
-    sim.command("hoist", ActuatorCommand { rest_length: None, rate: Some(rate) }).unwrap();
+    sim.command("hoist", ActuatorCommand { rest_length: None, rate: Some(rate), tension: None }).unwrap();
 }
 
 /// Mean reel-in speed (m/s) of the hoist's rest length over `steps` more steps.
@@ -184,7 +184,8 @@ fn a_position_command_with_integral_action_settles_on_its_target() {
         1e-5,
         SimSettings::default().integrator,
     );
-    sim.command("hoist", ActuatorCommand { rest_length: Some(0.98), rate: Some(0.02) }).unwrap();
+    sim.command("hoist", ActuatorCommand { rest_length: Some(0.98), rate: Some(0.02), tension: None })
+        .unwrap();
     for _ in 0..300000 {
         sim.step().unwrap();
     }
@@ -251,7 +252,8 @@ fn a_command_delay_shifts_the_rest_length_history_by_whole_steps() {
     };
     let history = |delay: usize| {
         let mut sim = hoist_sim(ideal(delay), 1e-3, SimSettings::default().integrator);
-        sim.command("hoist", ActuatorCommand { rest_length: Some(0.99), rate: Some(0.001) }).unwrap();
+        sim.command("hoist", ActuatorCommand { rest_length: Some(0.99), rate: Some(0.001), tension: None })
+            .unwrap();
         (0..40)
             .map(|_| {
                 sim.step().unwrap();
@@ -313,9 +315,9 @@ fn careless_winches_are_refused_naming_the_field() {
     // commands a careless controller sends to a winch are refused and change nothing
     let mut sim = hoist_sim(hoist(10.0, ""), 1e-3, SimSettings::default().integrator);
     for cmd in [
-        ActuatorCommand { rest_length: None, rate: Some(f64::NAN) },
-        ActuatorCommand { rest_length: None, rate: Some(5.0) },
-        ActuatorCommand { rest_length: Some(-1.0), rate: None },
+        ActuatorCommand { rest_length: None, rate: Some(f64::NAN), tension: None },
+        ActuatorCommand { rest_length: None, rate: Some(5.0), tension: None },
+        ActuatorCommand { rest_length: Some(-1.0), rate: None, tension: None },
         ActuatorCommand::default(),
     ] {
         assert!(sim.command("hoist", cmd).is_err(), "{cmd:?}");
@@ -324,4 +326,152 @@ fn careless_winches_are_refused_naming_the_field() {
         sim.step().unwrap();
     }
     assert!(sim.state().is_finite() && sim.rejected_commands() == 4);
+}
+
+/// Commands the hoist's motor to hold the line force `tension` (N).
+fn at_tension(sim: &mut Simulator, tension: f64) {
+    sim.command("hoist", ActuatorCommand::tension(tension)).unwrap();
+}
+
+#[test]
+fn a_tension_command_accelerates_the_load_by_the_force_it_sets() {
+    // a torque loop holding 150 N on 10 kg: the load and the rotor (M = J / r^2 = 0.025 kg)
+    // accelerate together at a = (T* - m g) / (m + M) until the drive saturates at
+    // v = v0 (1 - T* / T_s) = 0.025 m/s (t = 4.8 ms)
+    let (m, tension) = (10.0, 150.0);
+    let a = (tension - m * G) / (m + 1e-5 / 0.02f64.powi(2));
+    let mut errors = Vec::new();
+    for dt in [2e-5, 1e-5, 5e-6] {
+        let mut sim = hoist_sim(hoist(m, ""), dt, SimSettings::default().integrator);
+        let z0 = sim.state().poses[1].position.z;
+        at_tension(&mut sim, tension);
+        let steps = (4e-3 / dt).round() as usize;
+        for _ in 0..steps {
+            sim.step().unwrap();
+        }
+        let t = sim.state().time;
+        let rise = sim.state().poses[1].position.z - z0;
+        errors.push(rise / (0.5 * a * t * t) - 1.0);
+        let drum = sim.state().winches[0].drive;
+        assert!(drum < 1.0, "dt {dt}: the drive saturated early ({drum})");
+    }
+    // the loop acts once per sub-step (its lag adds h T_s / v0, 0.02 kg at 1e-5 s, to the
+    // inertia): a first-order error, which Richardson extrapolation removes
+    assert!(errors[1].abs() < 5e-3, "{errors:?}");
+    for pair in errors.windows(2) {
+        let ratio = pair[0] / pair[1];
+        assert!((ratio - 2.0).abs() < 0.1, "not first order: {errors:?}");
+    }
+    let extrapolated = 2.0 * errors[2] - errors[1];
+    assert!(extrapolated.abs() < 1e-4, "at zero step {extrapolated} from the closed form: {errors:?}");
+}
+
+#[test]
+fn a_tension_command_sets_the_static_tension_against_a_spring() {
+    // config/examples/tensioner.toml: a 1 kg node between the winch's rope and a damped elastic
+    // cable (EA 1000 N, rest 0.9 m), no gravity. Held at T* = 30 N, the node settles where the
+    // spring carries 30 N: its length 0.9 (1 + 30 / 1000) = 0.927 m, the node at x = 1.073 m
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples/tensioner.toml"))
+            .unwrap();
+    let model = model_from_toml(&text);
+    let settings = SimSettings { dt: model.physics_dt.unwrap(), ..SimSettings::default() };
+    let mut sim = Simulator::at_equilibrium(model, settings).unwrap();
+    let start = sim.workspace().cables[1].tension;
+    assert!((start - 111.0).abs() < 1.0, "the spring starts at {start} N");
+    sim.command("tensioner", ActuatorCommand::tension(30.0)).unwrap();
+    for _ in 0..3000 {
+        sim.step().unwrap();
+    }
+    let x = sim.state().poses[1].position.x;
+    assert!((x - 1.073).abs() < 1e-6, "the node settled at x = {x} m");
+    let ws = sim.workspace();
+    for (c, name) in [(0, "rope"), (1, "spring")] {
+        let t = ws.cables[c].tension;
+        assert!((t / 30.0 - 1.0).abs() < 1e-6, "{name} carries {t} N");
+    }
+    assert!(sim.state().winches[0].speed.abs() < 1e-9, "the drum still turns");
+}
+
+#[test]
+fn a_tension_below_the_load_is_held_by_a_self_locking_gear_and_pays_out_when_not() {
+    let (m, tension) = (10.0, 50.0);
+    let mut held = hoist_sim(hoist(m, "back_drivable = false\n"), 1e-5, SimSettings::default().integrator);
+    let l0 = held.state().rest_lengths[0];
+    at_tension(&mut held, tension);
+    for _ in 0..5000 {
+        held.step().unwrap();
+        assert_eq!(held.state().rest_lengths[0], l0, "a self-locking winch holds exactly");
+    }
+    // back-drivable, the load sinks at a = (m g - T*) / (m + M) while the drive is within [-1, 1]
+    let mut free = hoist_sim(hoist(m, ""), 1e-5, SimSettings::default().integrator);
+    let z0 = free.state().poses[1].position.z;
+    at_tension(&mut free, tension);
+    for _ in 0..400 {
+        free.step().unwrap();
+    }
+    let t = free.state().time;
+    let a = (m * G - tension) / (m + 0.025);
+    let drop = z0 - free.state().poses[1].position.z;
+    assert!((drop / (0.5 * a * t * t) - 1.0).abs() < 0.01, "dropped {drop} m in {t} s, a = {a}");
+}
+
+#[test]
+fn a_position_command_after_a_tension_command_starts_where_the_drum_is() {
+    let mut sim = hoist_sim(
+        hoist(10.0, "position_gains = [40.0, 400.0, 0.0]\n"),
+        1e-5,
+        SimSettings::default().integrator,
+    );
+    // lift at 120 N for 60 ms, then hold where the rope is
+    at_tension(&mut sim, 120.0);
+    for _ in 0..6000 {
+        sim.step().unwrap();
+    }
+    let there = sim.state().rest_lengths[0];
+    assert!(there < 1.0 - 1e-3, "the tension phase reeled in only to {there} m");
+    // the position controller's reference followed the drum (bumpless transfer)
+    let reference = sim.state().winches[0].reference;
+    assert!((reference - there).abs() < 1e-3 * (1.0 - there), "reference {reference}, rope {there}");
+    sim.command("hoist", ActuatorCommand::target(there)).unwrap();
+    let mut furthest: f64 = 0.0;
+    for _ in 0..200000 {
+        sim.step().unwrap();
+        furthest = furthest.max((sim.state().rest_lengths[0] - there).abs());
+    }
+    // the drum overshoots a little while it stops, then returns
+    assert!(furthest < 1.5e-3, "the rope wandered {furthest} m from the hold");
+    let l0 = sim.state().rest_lengths[0];
+    assert!((l0 - there).abs() < 1e-6, "held at {l0} m, asked {there} m");
+}
+
+#[test]
+fn careless_tension_commands_are_refused_and_change_nothing() {
+    use tensegrity::control::CommandError;
+    let mut sim = hoist_sim(hoist(10.0, ""), 1e-3, SimSettings::default().integrator);
+    let refused = |sim: &mut Simulator, cmd: ActuatorCommand| sim.command("hoist", cmd).unwrap_err();
+    assert!(matches!(refused(&mut sim, ActuatorCommand::tension(f64::NAN)), CommandError::NonFinite { .. }));
+    assert!(matches!(
+        refused(&mut sim, ActuatorCommand::tension(-1.0)),
+        CommandError::OutOfRange { field: "tension", .. }
+    ));
+    // above what the motor gives at stall
+    assert!(matches!(
+        refused(&mut sim, ActuatorCommand::tension(200.5)),
+        CommandError::OutOfRange { field: "tension", max, .. } if max == 200.0
+    ));
+    let mixed = ActuatorCommand { rest_length: Some(0.9), ..ActuatorCommand::tension(100.0) };
+    assert!(matches!(refused(&mut sim, mixed), CommandError::TensionWithLength(_)));
+    for _ in 0..100 {
+        sim.step().unwrap();
+    }
+    assert!(sim.state().is_finite() && sim.rejected_commands() == 4);
+    let mode = sim.control().mode(tensegrity::model::ActuatorId(0));
+    assert_eq!(mode, tensegrity::control::ActuatorMode::Schedule, "a refused command changed the mode");
+    // an ideal actuator has no force to set
+    let text = hoist_text();
+    let ideal = model_from_toml(&text[..text.find("[actuators.winch]").unwrap()]);
+    let mut sim = hoist_sim(ideal, 1e-3, SimSettings::default().integrator);
+    let err = sim.command("hoist", ActuatorCommand::tension(50.0)).unwrap_err();
+    assert!(matches!(err, CommandError::NoWinch(_)) && err.to_string().contains("winch"), "{err}");
 }

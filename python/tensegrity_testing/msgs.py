@@ -47,6 +47,7 @@ class AppliedCommands(IdlStruct, typename="tensegrity_msgs::msg::dds_::AppliedCo
     name: types.sequence[str] = field(default_factory=list)
     rest_length: types.sequence[types.float64] = field(default_factory=list)
     rate: types.sequence[types.float64] = field(default_factory=list)
+    tension: types.sequence[types.float64] = field(default_factory=list)
 
 
 @dataclass
@@ -127,6 +128,15 @@ class Structure(IdlStruct, typename="tensegrity_msgs::msg::dds_::Structure_"):
     randomized_element: types.sequence[str] = field(default_factory=list)
     randomized_drawn: types.sequence[types.float64] = field(default_factory=list)
     randomized_value: types.sequence[types.float64] = field(default_factory=list)
+
+
+@dataclass
+class TensionCommand(IdlStruct, typename="tensegrity_msgs::msg::dds_::TensionCommand_"):
+    """`tensegrity_msgs/msg/TensionCommand`."""
+
+    header: Header = field(default_factory=Header)
+    name: types.sequence[str] = field(default_factory=list)
+    tension: types.sequence[types.float64] = field(default_factory=list)
 
 
 @dataclass
@@ -337,4 +347,5 @@ TOPICS = {
     "~/ground_truth/cable_states": (CableStates, 16, False),
     "~/actuator_commands": (ActuatorCommand, 1, False),
     "~/joint_commands": (JointState, 1, False),
+    "~/tension_commands": (TensionCommand, 1, False),
 }

@@ -330,10 +330,19 @@ class TensegrityNode:
                 return None
             waitset.wait(duration(microseconds=max(1, int(left * 1e6))))
 
-    def send(self, actuator, rest_length=None, rate=None):
-        """One command over DDS (`~/actuator_commands`): actuator by name or index."""
+    def send(self, actuator, rest_length=None, rate=None, tension=None):
+        """One command over DDS: a rest length and/or rate on `~/actuator_commands`, or a tension
+        (N, a winch actuator's motor) on `~/tension_commands`; actuator by name or index."""
         if isinstance(actuator, int):
             actuator = self.names["actuator_names"][actuator]
+        if tension is not None:
+            if rest_length is not None or rate is not None:
+                raise ValueError("a tension command carries no rest length or rate")
+            w = self._writers.get("tension")
+            if w is None:
+                w = self._writers["tension"] = self.writer("~/tension_commands")
+            w.write(msgs.TensionCommand(name=[actuator], tension=[tension]))
+            return
         w = self._writers.get("cmd")
         if w is None:
             w = self._writers["cmd"] = self.writer()
@@ -405,8 +414,9 @@ class TensegrityNode:
         return False
 
 
-def command(actuator, rest_length=None, rate=None):
-    """A lockstep command entry: actuator by name or index, rest length (m) and/or rate (m/s)."""
+def command(actuator, rest_length=None, rate=None, tension=None):
+    """A lockstep command entry: actuator by name or index, rest length (m) and/or rate (m/s),
+    or a tension (N) alone for a winch actuator's motor."""
     from .shm import entry
 
-    return entry(actuator, rest_length=rest_length, rate=rate)
+    return entry(actuator, rest_length=rest_length, rate=rate, tension=tension)

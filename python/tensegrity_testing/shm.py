@@ -55,6 +55,7 @@ EVENT_HELLO = 3
 BY_NAME = 0xFFFFFFFF
 FIELD_REST_LENGTH = 1
 FIELD_RATE = 2
+FIELD_TENSION = 4
 
 RESULT_OK = 1
 
@@ -183,13 +184,14 @@ MEASURED_ORIENTATION = 16
 
 
 class CommandEntry(ctypes.Structure):
-    """`TensegrityCommandEntry`: one actuator's target rest length and/or rate."""
+    """`TensegrityCommandEntry`: one actuator's target rest length and/or rate, or a tension."""
 
     _fields_ = [
         ("actuator", u32),
         ("fields", u32),
         ("rest_length", f64),
         ("rate", f64),
+        ("tension", f64),
         ("name", Name),
     ]
 
@@ -240,8 +242,9 @@ def text(field) -> str:
     return raw[: raw.index(0) if 0 in raw else len(raw)].decode("utf-8")
 
 
-def entry(actuator, rest_length=None, rate=None):
-    """A command entry for an actuator index or name, with a rest length (m) and/or rate (m/s)."""
+def entry(actuator, rest_length=None, rate=None, tension=None):
+    """A command entry for an actuator index or name, with a rest length (m) and/or rate (m/s),
+    or a tension (N) alone for a winch actuator's motor."""
     e = CommandEntry()
     if isinstance(actuator, str):
         e.actuator = BY_NAME
@@ -255,6 +258,9 @@ def entry(actuator, rest_length=None, rate=None):
     if rate is not None:
         e.fields |= FIELD_RATE
         e.rate = rate
+    if tension is not None:
+        e.fields |= FIELD_TENSION
+        e.tension = tension
     return e
 
 

@@ -21,6 +21,13 @@
 //! a compliance `h^2 / (M + h (T_s/v0 + c_v))` in series with the cable: the tangents are the
 //! cable's with `EA` and `c` scaled by `s = 1 / g'(T)` (`tangent_scale`).
 //!
+//! The drive comes from the command (`prepare`): position mode runs a PID on the rest length,
+//! speed mode asks for `u = -rate / v0`, both through a speed set-point held within `max_rate`
+//! and `max_acceleration`; tension mode is a torque (current) loop, `u = T* / T_s + v_n / v0`,
+//! so the motor's force at the drum's speed at the start of the sub-step is `T*`. In steady
+//! motion the cable then carries `T* - (b / r^2) v` (the drum's friction is not compensated); the
+//! speed is bounded by the torque-speed line (`|u| <= 1`), not by `max_rate`.
+//!
 //! A gear that is not back-drivable (a worm drive) never lets the load turn the drum back: the
 //! speed is floored at `min(0, v(0))`, what the motor alone does (hold, or pay out at its own
 //! speed when driven that way). The rest-length limits are hard stops. Both make `L0(T)`
@@ -47,6 +54,10 @@ pub enum WinchCommand {
     /// Run at the no-load speed `-rate` (m/s; `rate` is `dL0/dt`, negative reels in): the drive
     /// `u = -rate / v0`, so the speed droops under load along the torque-speed line.
     Speed(f64),
+    /// Hold the line force at this tension (N): a torque (current) loop that sets the drive so
+    /// that the motor's force at the drum's present speed is the tension,
+    /// `u = T* / T_s + v_n / v0` within `[-1, 1]`.
+    Tension(f64),
 }
 
 /// The rest length at the end of the sub-step for an end tension `t` (N), and its derivative
@@ -153,18 +164,31 @@ pub fn add_winch_cable_force(
 /// What the sub-step will carry to `commit` goes into `s.pending`.
 pub fn prepare(model: &Model, w: &WinchModel, s: &mut WinchState, command: WinchCommand, l0: f64, h: f64) {
     let act = &model.actuators[w.actuator.0];
-    let (mut setpoint, reference, error) = match command {
+    // a speed set-point within the rate and acceleration limits, and the drive that asks for it
+    let dv = w.max_acceleration * h;
+    let limited = |v: f64| {
+        let v = v.clamp(-act.max_rate, act.max_rate).clamp(s.setpoint - dv, s.setpoint + dv);
+        (v, (v / w.no_load_speed).clamp(-1.0, 1.0))
+    };
+    let (setpoint, drive, reference, error) = match command {
         WinchCommand::Position { reference, rate } => {
             let e = l0 - reference;
             let g = w.gains;
-            (-rate + g.kp * e + g.ki * (s.integral + e * h) - g.kd * s.speed, reference, e)
+            let (v, u) = limited(-rate + g.kp * e + g.ki * (s.integral + e * h) - g.kd * s.speed);
+            (v, u, reference, e)
         }
-        WinchCommand::Speed(rate) => (-rate, s.reference, 0.0),
+        // the reference follows the drum, so that a later position command starts from where
+        // the cable is
+        WinchCommand::Speed(rate) => {
+            let (v, u) = limited(-rate);
+            (v, u, l0, 0.0)
+        }
+        // no speed set-point: the present speed, so that a later command ramps from it
+        WinchCommand::Tension(tension) => {
+            let u = (tension / w.stall_tension + s.speed / w.no_load_speed).clamp(-1.0, 1.0);
+            (s.speed, u, l0, 0.0)
+        }
     };
-    setpoint = setpoint.clamp(-act.max_rate, act.max_rate);
-    let dv = w.max_acceleration * h;
-    setpoint = setpoint.clamp(s.setpoint - dv, s.setpoint + dv);
-    let drive = (setpoint / w.no_load_speed).clamp(-1.0, 1.0);
     s.drive = drive;
     s.step = h;
     s.floor = if w.back_drivable {

@@ -76,6 +76,17 @@ pub enum MessageError {
     Command(#[from] control::CommandError),
 }
 
+/// The value arrays of one command message, each empty (not commanded) or parallel to its names.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CommandArrays<'a> {
+    /// Target rest lengths, m.
+    pub rest_length: &'a [f64],
+    /// Rates, m/s.
+    pub rate: &'a [f64],
+    /// Tensions, N (winch actuators; alone).
+    pub tension: &'a [f64],
+}
+
 /// Checks one command message given as parallel arrays, sizes first (name count, name lengths,
 /// total bytes: no other work is done on an oversized message), then array lengths, names,
 /// duplicates and every value against its actuator's limits. Fills `out` (cleared first) with the
@@ -85,20 +96,24 @@ pub fn check_command(
     model: &Model,
     frame_id: &str,
     names: &[String],
-    rest_length: &[f64],
-    rate: &[f64],
+    values: CommandArrays<'_>,
     out: &mut Vec<(ActuatorId, control::ActuatorCommand)>,
 ) -> Result<(), MessageError> {
     out.clear();
-    for (what, size) in
-        [("name count", names.len()), ("rest_length count", rest_length.len()), ("rate count", rate.len())]
-    {
+    let CommandArrays { rest_length, rate, tension } = values;
+    for (what, size) in [
+        ("name count", names.len()),
+        ("rest_length count", rest_length.len()),
+        ("rate count", rate.len()),
+        ("tension count", tension.len()),
+    ] {
         if size > MAX_COMMAND_ENTRIES {
             return Err(MessageError::TooLarge { what, size, limit: MAX_COMMAND_ENTRIES });
         }
     }
-    let bytes =
-        frame_id.len() + names.iter().map(String::len).sum::<usize>() + 8 * (rest_length.len() + rate.len());
+    let bytes = frame_id.len()
+        + names.iter().map(String::len).sum::<usize>()
+        + 8 * (rest_length.len() + rate.len() + tension.len());
     if bytes > MAX_COMMAND_BYTES {
         return Err(MessageError::TooLarge {
             what: "message size in bytes",
@@ -120,7 +135,7 @@ pub fn check_command(
             limit: MAX_NAME_BYTES,
         });
     }
-    for (field, v) in [("rest_length", rest_length), ("rate", rate)] {
+    for (field, v) in [("rest_length", rest_length), ("rate", rate), ("tension", tension)] {
         if !v.is_empty() && v.len() != names.len() {
             return Err(MessageError::WrongLength { field, got: v.len(), names: names.len() });
         }
@@ -130,8 +145,11 @@ pub fn check_command(
     }
     for (i, name) in names.iter().enumerate() {
         let id = actuator_by_name(model, name)?;
-        let cmd =
-            control::ActuatorCommand { rest_length: rest_length.get(i).copied(), rate: rate.get(i).copied() };
+        let cmd = control::ActuatorCommand {
+            rest_length: rest_length.get(i).copied(),
+            rate: rate.get(i).copied(),
+            tension: tension.get(i).copied(),
+        };
         check_entry(model, id, cmd, out)?;
     }
     Ok(())
@@ -168,30 +186,42 @@ impl ActuatorCommand {
     /// `check_command` for the order of the checks.
     pub fn commands(&self, model: &Model) -> Result<Vec<(String, control::ActuatorCommand)>, MessageError> {
         let mut out = Vec::new();
-        check_command(model, &self.header.frame_id, &self.name, &self.rest_length, &self.rate, &mut out)?;
+        let values = CommandArrays { rest_length: &self.rest_length, rate: &self.rate, tension: &[] };
+        check_command(model, &self.header.frame_id, &self.name, values, &mut out)?;
         Ok(out.into_iter().map(|(id, c)| (model.actuator_names[id.0].clone(), c)).collect())
     }
 }
 
 impl AppliedCommands {
-    /// The commands again, resolved against `model` (NaN: not given); why not, when a name is
-    /// unknown or the arrays are not parallel.
+    /// The commands again, resolved against `model` (NaN: not given; an empty `tension`, as in
+    /// bags written before tension commands, gives none); why not, when a name is unknown or the
+    /// arrays are not parallel.
     pub fn commands(
         &self,
         model: &Model,
     ) -> Result<Vec<(ActuatorId, control::ActuatorCommand)>, MessageError> {
-        for (field, got) in [("rest_length", self.rest_length.len()), ("rate", self.rate.len())] {
-            if got != self.name.len() {
-                return Err(MessageError::WrongLength { field, got, names: self.name.len() });
+        let n = self.name.len();
+        // an empty tension array is an old bag's: no tensions
+        let tension = if self.tension.is_empty() { n } else { self.tension.len() };
+        for (field, got) in
+            [("rest_length", self.rest_length.len()), ("rate", self.rate.len()), ("tension", tension)]
+        {
+            if got != n {
+                return Err(MessageError::WrongLength { field, got, names: n });
             }
         }
         let given = |x: f64| (!x.is_nan()).then_some(x);
-        self.name
-            .iter()
-            .zip(self.rest_length.iter().zip(&self.rate))
-            .map(|(n, (l, r))| {
-                let id = actuator_by_name(model, n)?;
-                Ok((id, control::ActuatorCommand { rest_length: given(*l), rate: given(*r) }))
+        (0..n)
+            .map(|i| {
+                let id = actuator_by_name(model, &self.name[i])?;
+                Ok((
+                    id,
+                    control::ActuatorCommand {
+                        rest_length: given(self.rest_length[i]),
+                        rate: given(self.rate[i]),
+                        tension: self.tension.get(i).copied().and_then(given),
+                    },
+                ))
             })
             .collect()
     }

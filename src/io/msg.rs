@@ -198,6 +198,19 @@ pub struct ActuatorCommand {
     pub rate: Vec<f64>,
 }
 
+/// `tensegrity_msgs/msg/TensionCommand`: tension commands for winch actuators (on
+/// `~/tension_commands`; a type of its own, so that `ActuatorCommand` stays what existing
+/// controllers write).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct TensionCommand {
+    /// Stamp and frame (not used for timing: commands apply at the next step).
+    pub header: Header,
+    /// Actuator names.
+    pub name: Vec<String>,
+    /// Tensions, N: parallel to `name`.
+    pub tension: Vec<f64>,
+}
+
 /// `tensegrity_msgs/msg/Structure`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct Structure {
@@ -511,7 +524,8 @@ impl JointState {
     }
 
     /// As actuator commands (topic-based ros2_control convention): position = target rest
-    /// length, velocity = rate; each array empty or parallel to `name`.
+    /// length, velocity = rate; each array empty or parallel to `name`. (With both empty, the
+    /// node reads `effort` as tensions: `io::node::NodeCore::offer_joint_command`.)
     pub fn as_command(&self) -> ActuatorCommand {
         ActuatorCommand {
             header: self.header.clone(),
@@ -539,6 +553,9 @@ pub struct AppliedCommands {
     pub rest_length: Vec<f64>,
     /// Rates, m/s; NaN where the command gave none.
     pub rate: Vec<f64>,
+    /// Tensions, N; NaN where the command gave none. Empty in bags written before tension
+    /// commands existed (`AppliedCommands::decode_cdr` reads both).
+    pub tension: Vec<f64>,
 }
 
 impl AppliedCommands {
@@ -557,6 +574,7 @@ impl AppliedCommands {
             name: commands.iter().map(|(id, _)| names[id.0].clone()).collect(),
             rest_length: commands.iter().map(|(_, c)| c.rest_length.unwrap_or(f64::NAN)).collect(),
             rate: commands.iter().map(|(_, c)| c.rate.unwrap_or(f64::NAN)).collect(),
+            tension: commands.iter().map(|(_, c)| c.tension.unwrap_or(f64::NAN)).collect(),
         }
     }
 }

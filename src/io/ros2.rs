@@ -103,6 +103,7 @@ pub struct DdsTransport {
     services: Services,
     commands: Subscription<msg::ActuatorCommand>,
     joint_commands: Subscription<msg::JointState>,
+    tension_commands: Subscription<msg::TensionCommand>,
     /// StepSimulation requests under way: the core's ticket and the DDS request id.
     tickets: Vec<(u64, RmwRequestId)>,
     /// The last `serve` left requests unread (a server gave `MAX_REQUESTS_PER_TURN`).
@@ -280,9 +281,11 @@ impl DdsTransport {
                 outputs.push((t, declare(t.name(), type_name, offered)?, offered));
             }
         }
-        let [(cmd_name, cmd_type, cmd_qos), (joint_name, joint_type, joint_qos)] = topics::INPUT_TOPICS;
+        let [(cmd_name, cmd_type, cmd_qos), (joint_name, joint_type, joint_qos), (tension_name, tension_type, tension_qos)] =
+            topics::INPUT_TOPICS;
         let t_cmd = declare(cmd_name, cmd_type, cmd_qos)?;
         let t_joint_cmd = declare(joint_name, joint_type, joint_qos)?;
+        let t_tension_cmd = declare(tension_name, tension_type, tension_qos)?;
         macro_rules! publisher {
             ($topic:expr) => {{
                 let (_, t, offered) =
@@ -348,6 +351,7 @@ impl DdsTransport {
         let twin_watch = node.create_subscription::<msg::Structure>(structure_topic, Some(qos(1, true))).ok();
         let commands = node.create_subscription(&t_cmd, None).map_err(ros)?;
         let joint_commands = node.create_subscription(&t_joint_cmd, None).map_err(ros)?;
+        let tension_commands = node.create_subscription(&t_tension_cmd, None).map_err(ros)?;
         let own_structure = publishers.structure.gid();
         Ok(Self {
             twin_watch: twin_watch.map(|s| (s, std::time::Instant::now())),
@@ -358,6 +362,7 @@ impl DdsTransport {
             services,
             commands,
             joint_commands,
+            tension_commands,
             tickets: Vec::new(),
             more_requests: false,
             _node: node,
@@ -482,16 +487,24 @@ impl Transport for DdsTransport {
                 Err(_) => core.incoming_malformed(),
             }
         }
+        while core.wants_commands() {
+            match self.tension_commands.take() {
+                Ok(Some((m, _))) => core.offer_tension_command(&m),
+                Ok(None) => break,
+                Err(_) => core.incoming_malformed(),
+            }
+        }
         self.serve(core, others);
         self.watch_for_twin();
     }
 
-    /// Registers both subscriptions and every service server: each signals an arriving sample or
+    /// Registers the three command subscriptions and every service server: each signals an arriving sample or
     /// request through a socket that reading it empties (`take`, `receive_request`).
     fn register_wake(&mut self, registry: &mio::Registry, token: mio::Token) -> std::io::Result<bool> {
         let readable = mio::Interest::READABLE;
         registry.register(&mut self.commands, token, readable)?;
         registry.register(&mut self.joint_commands, token, readable)?;
+        registry.register(&mut self.tension_commands, token, readable)?;
         let sv = &mut self.services;
         registry.register(&mut sv.step, token, readable)?;
         registry.register(&mut sv.reset, token, readable)?;

@@ -158,13 +158,18 @@ pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
 
 /// The node's input topics: name (`~/` is the node's private namespace), type and QoS, as the DDS
 /// transport subscribes them.
-pub const INPUT_TOPICS: [(&str, &str, TopicQos); 2] = [
+pub const INPUT_TOPICS: [(&str, &str, TopicQos); 3] = [
     (
         "~/actuator_commands",
         "tensegrity_msgs/msg/ActuatorCommand",
         TopicQos { depth: 1, transient_local: false },
     ),
     ("~/joint_commands", "sensor_msgs/msg/JointState", TopicQos { depth: 1, transient_local: false }),
+    (
+        "~/tension_commands",
+        "tensegrity_msgs/msg/TensionCommand",
+        TopicQos { depth: 1, transient_local: false },
+    ),
 ];
 
 /// The full name of `topic` for a node with `params` (`~/x` is `<ns>/<node>/x`).

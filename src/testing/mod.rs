@@ -334,8 +334,7 @@ impl SimUnderTest {
     /// Sends one command; it applies at the next step boundary. A command the node refuses is an
     /// error with its reason (and counted as rejected, as on any transport).
     pub fn command(&self, command: Command) -> Result<(), KitError> {
-        let m = command.message();
-        self.ask(|tx| Request::Command(m, tx), "a command's answer")
+        self.ask(|tx| Request::Command(command, tx), "a command's answer")
     }
 
     /// Lockstep (the node paused): takes exactly `steps` steps (after the commands sent before)

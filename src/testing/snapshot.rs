@@ -202,8 +202,9 @@ impl Snapshot {
     }
 }
 
-/// One actuator command: a target rest length (m) and/or a rate (m/s), checked by the node exactly
-/// like a DDS `~/actuator_commands` message (finite, within the actuator's limits, known name).
+/// One actuator command: a target rest length (m) and/or a rate (m/s), or a tension (N) alone for
+/// a winch actuator, checked by the node exactly like a DDS `~/actuator_commands` (or
+/// `~/tension_commands`) message (finite, within the actuator's limits, known name).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Command {
     /// Actuator name.
@@ -212,12 +213,14 @@ pub struct Command {
     pub rest_length: Option<f64>,
     /// Rate, m/s (towards the target, or a steady rate without one).
     pub rate: Option<f64>,
+    /// Tension, N (the winch motor's tension mode).
+    pub tension: Option<f64>,
 }
 
 impl Command {
     /// A command for actuator `name` that changes nothing yet.
     pub fn new(actuator: &str) -> Self {
-        Self { actuator: actuator.to_string(), rest_length: None, rate: None }
+        Self { actuator: actuator.to_string(), rest_length: None, rate: None, tension: None }
     }
     /// With a target rest length, m.
     pub fn rest_length(mut self, metres: f64) -> Self {
@@ -229,12 +232,26 @@ impl Command {
         self.rate = Some(metres_per_second);
         self
     }
-    /// The command as the DDS message carries it.
+    /// With a tension, N (alone: a tension command for the actuator's winch motor).
+    pub fn tension(mut self, newtons: f64) -> Self {
+        self.tension = Some(newtons);
+        self
+    }
+    /// The rest length and rate as the DDS `~/actuator_commands` message carries them (a
+    /// tension goes on `~/tension_commands`: `tension_message`).
     pub fn message(&self) -> msg::ActuatorCommand {
         msg::ActuatorCommand {
             name: vec![self.actuator.clone()],
             rest_length: self.rest_length.into_iter().collect(),
             rate: self.rate.into_iter().collect(),
+            ..Default::default()
+        }
+    }
+    /// The tension as the DDS `~/tension_commands` message carries it.
+    pub fn tension_message(&self) -> msg::TensionCommand {
+        msg::TensionCommand {
+            name: vec![self.actuator.clone()],
+            tension: self.tension.into_iter().collect(),
             ..Default::default()
         }
     }

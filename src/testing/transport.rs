@@ -5,10 +5,10 @@ use std::sync::mpsc::{Receiver, Sender};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 
 use super::error::KitError;
-use super::snapshot::{Names, Snapshot};
+use super::snapshot::{Command, Names, Snapshot};
 use crate::io::commands;
 use crate::io::msg::result_code;
-use crate::io::msg::{self, SimResult};
+use crate::io::msg::SimResult;
 use crate::io::node::runner::{Transport, With};
 use crate::io::node::NodeCore;
 use crate::io::sink::{NodeSink, NodeStats, NodeView, PublishError};
@@ -16,7 +16,7 @@ use crate::io::topics::Topic;
 
 /// What a test asks of the node, with where to answer.
 pub(super) enum Request {
-    Command(msg::ActuatorCommand, Sender<Result<(), KitError>>),
+    Command(Command, Sender<Result<(), KitError>>),
     Step(u64, Sender<Result<Snapshot, KitError>>),
     Pause(bool, Sender<Result<(), KitError>>),
     Reset(Sender<Result<(), KitError>>),
@@ -84,9 +84,12 @@ impl KitTransport {
     fn serve(&mut self, request: Request, core: &mut NodeCore, others: &mut dyn NodeSink) {
         match request {
             Request::Command(m, reply) => {
-                let r = core.offer_parsed(|model, out| {
-                    commands::check_command(model, &m.header.frame_id, &m.name, &m.rest_length, &m.rate, out)
-                });
+                let names = [m.actuator];
+                let (rest_length, rate, tension) =
+                    (m.rest_length.as_slice(), m.rate.as_slice(), m.tension.as_slice());
+                let values = commands::CommandArrays { rest_length, rate, tension };
+                let r =
+                    core.offer_parsed(|model, out| commands::check_command(model, "", &names, values, out));
                 let _ = reply.send(r.map_err(|e| KitError::Refused(e.to_string())));
             }
             Request::Step(steps, reply) => {

@@ -53,6 +53,6 @@ pub fn applied_commands(reader: &BagReader) -> Vec<AppliedCommands> {
         .messages()
         .map(Result::unwrap)
         .filter(|m| m.topic == "/tensegrity_sim/applied_commands")
-        .map(|m| m.decode().unwrap())
+        .map(|m| tensegrity::io::record::applied_commands(&m).unwrap())
         .collect()
 }

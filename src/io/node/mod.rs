@@ -33,7 +33,7 @@ use std::time::Duration;
 
 use crate::control::ActuatorCommand;
 use crate::evaluate::Workspace;
-use crate::io::commands::{self, MessageError, MAX_COMMANDS_PER_STEP};
+use crate::io::commands::{self, CommandArrays, MessageError, MAX_COMMANDS_PER_STEP};
 use crate::io::msg::{self, result_code, sim_state, DiagnosticStatus, KeyValue, SimResult};
 use crate::io::node::params::NodeParams;
 use crate::io::sink::{ConstantsId, NodeSink, NodeStats, NodeView};
@@ -286,18 +286,39 @@ impl NodeCore {
     /// Takes one `ActuatorCommand` message (see `commands::check_command`): counts it, and either keeps
     /// its entries for the next step boundary or rejects it whole.
     pub fn offer_command(&mut self, m: &msg::ActuatorCommand) {
-        self.offer_arrays(&m.header.frame_id, &m.name, &m.rest_length, &m.rate);
+        let values = CommandArrays { rest_length: &m.rest_length, rate: &m.rate, tension: &[] };
+        self.offer_arrays(&m.header.frame_id, &m.name, values);
     }
 
-    /// Takes one `sensor_msgs/JointState` command (position = target rest length, velocity =
-    /// rate; effort ignored), checked like an `ActuatorCommand`.
+    /// Takes one `TensionCommand` message (winch actuators' tension mode), checked like an
+    /// `ActuatorCommand`; `tension` must be parallel to `name`.
+    pub fn offer_tension_command(&mut self, m: &msg::TensionCommand) {
+        if m.tension.len() != m.name.len() {
+            // an empty array would otherwise read as "nothing commanded"
+            let e = MessageError::WrongLength { field: "tension", got: m.tension.len(), names: m.name.len() };
+            let _ = self.offer_parsed(|_, _| Err(e));
+            return;
+        }
+        let values = CommandArrays { tension: &m.tension, ..CommandArrays::default() };
+        self.offer_arrays(&m.header.frame_id, &m.name, values);
+    }
+
+    /// Takes one `sensor_msgs/JointState` command, checked like an `ActuatorCommand`: position =
+    /// target rest length, velocity = rate, effort ignored; with position and velocity both
+    /// empty, effort = tension (winch actuators' tension mode, the ros2_control effort
+    /// convention).
     pub fn offer_joint_command(&mut self, m: &msg::JointState) {
-        self.offer_arrays(&m.header.frame_id, &m.name, &m.position, &m.velocity);
+        let values = if m.position.is_empty() && m.velocity.is_empty() && !m.effort.is_empty() {
+            CommandArrays { tension: &m.effort, ..CommandArrays::default() }
+        } else {
+            CommandArrays { rest_length: &m.position, rate: &m.velocity, tension: &[] }
+        };
+        self.offer_arrays(&m.header.frame_id, &m.name, values);
     }
 
-    fn offer_arrays(&mut self, frame: &str, names: &[String], rest: &[f64], rate: &[f64]) {
+    fn offer_arrays(&mut self, frame: &str, names: &[String], values: CommandArrays<'_>) {
         // counted and reported inside; the DDS paths have no one to tell
-        let _ = self.offer_parsed(|model, out| commands::check_command(model, frame, names, rest, rate, out));
+        let _ = self.offer_parsed(|model, out| commands::check_command(model, frame, names, values, out));
     }
 
     /// Takes one command message from a transport that reads its own wire format: `parse` fills
@@ -648,9 +669,7 @@ impl NodeCore {
             let c = m.actuators[i].cable.0;
             let l = if to_initial { m.initial_rest_lengths[c] } else { self.sim.state().rest_lengths[c] };
             // a rest length inside the limits, at the default rate: always valid
-            let _ = self
-                .sim
-                .command_actuator(ActuatorId(i), ActuatorCommand { rest_length: Some(l), rate: None });
+            let _ = self.sim.command_actuator(ActuatorId(i), ActuatorCommand::target(l));
         }
     }
 

@@ -34,7 +34,7 @@ pub mod recorder;
 pub mod replay;
 
 pub use recorder::{BagRecorder, PathPublisher};
-pub use replay::{decode_json, replay, Difference, ReplayError, ReplayReport};
+pub use replay::{applied_commands, decode_json, replay, Difference, ReplayError, ReplayReport};
 
 use crate::io::node::params::NodeParams;
 use crate::io::record::bag::{BagOptions, RunInfo, TopicSpec};

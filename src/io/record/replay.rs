@@ -271,7 +271,7 @@ pub fn replay(
             continue;
         }
         if recorded.topic == applied_topic {
-            let a: AppliedCommands = recorded.decode().map_err(run_err)?;
+            let a = applied_commands(&recorded).map_err(run_err)?;
             if matches!(rerun, Rerun::Path) {
                 continue;
             }
@@ -422,6 +422,34 @@ fn first_field_difference(recorded: &crate::io::record::bag::RecordedMessage, re
     d
 }
 
+/// `AppliedCommands` as bags written before tension commands stored it (no `tension` array).
+#[derive(serde::Deserialize)]
+struct AppliedCommandsWithoutTension {
+    header: msg::Header,
+    step: u64,
+    reset: bool,
+    name: Vec<String>,
+    rest_length: Vec<f64>,
+    rate: Vec<f64>,
+}
+
+/// A recorded `AppliedCommands`, from a bag of today's layout or of the one before tension
+/// commands (whose `tension` comes back empty: none given).
+pub fn applied_commands(m: &crate::io::record::bag::RecordedMessage) -> Result<AppliedCommands, String> {
+    m.decode::<AppliedCommands>().or_else(|why| {
+        let old: AppliedCommandsWithoutTension = m.decode().map_err(|_| why)?;
+        Ok(AppliedCommands {
+            header: old.header,
+            step: old.step,
+            reset: old.reset,
+            name: old.name,
+            rest_length: old.rest_length,
+            rate: old.rate,
+            tension: Vec::new(),
+        })
+    })
+}
+
 /// A recorded message decoded by its type into JSON (for field-by-field comparison and display).
 pub fn decode_json(m: &crate::io::record::bag::RecordedMessage) -> Result<serde_json::Value, String> {
     fn json<M: serde::de::DeserializeOwned + serde::Serialize>(
@@ -439,7 +467,9 @@ pub fn decode_json(m: &crate::io::record::bag::RecordedMessage) -> Result<serde_
         "tensegrity_msgs/msg/Structure" => json::<msg::Structure>(m),
         "diagnostic_msgs/msg/DiagnosticArray" => json::<msg::DiagnosticArray>(m),
         "visualization_msgs/msg/MarkerArray" => json::<msg::MarkerArray>(m),
-        "tensegrity_msgs/msg/AppliedCommands" => json::<msg::AppliedCommands>(m),
+        "tensegrity_msgs/msg/AppliedCommands" => {
+            serde_json::to_value(applied_commands(m)?).map_err(|e| e.to_string())
+        }
         other => Err(format!("no decoder for {other}")),
     }
 }

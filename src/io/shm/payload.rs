@@ -40,6 +40,8 @@ pub const BY_NAME: u32 = u32::MAX;
 pub const FIELD_REST_LENGTH: u32 = 1;
 /// `CommandEntry::fields` bit: `rate` is given.
 pub const FIELD_RATE: u32 = 2;
+/// `CommandEntry::fields` bit: `tension` is given (alone; a winch actuator's tension mode).
+pub const FIELD_TENSION: u32 = 4;
 
 /// The whole state after a step, in scene order (see `StructureSample` for the names). Only the
 /// first `body_count`, `cable_count` and `actuator_count` entries of the arrays are meaningful;
@@ -227,20 +229,23 @@ pub const MEASURED_POSITION: u32 = 8;
 pub const MEASURED_ORIENTATION: u32 = 16;
 
 /// One actuator command: a target rest length (reached at the given or the actuator's largest
-/// rate), or a rate alone (the winch runs at it until told otherwise).
+/// rate), a rate alone (the winch runs at it until told otherwise), or a tension alone (a winch
+/// motor holds its line force at it).
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
 #[type_name("TensegrityCommandEntry")]
 pub struct CommandEntry {
     /// Actuator index (structure order), or `BY_NAME` to use `name`.
     pub actuator: u32,
-    /// Which values are given: `FIELD_REST_LENGTH` | `FIELD_RATE`.
+    /// Which values are given: `FIELD_REST_LENGTH` | `FIELD_RATE`, or `FIELD_TENSION` alone.
     pub fields: u32,
     /// Target rest length, m (when `FIELD_REST_LENGTH`).
     pub rest_length: f64,
     /// Rate, m/s (when `FIELD_RATE`): with a target, the speed towards it (positive); alone, the
     /// signed rate of change.
     pub rate: f64,
+    /// Tension, N (when `FIELD_TENSION`): within `[0, stall tension]` of the actuator's winch.
+    pub tension: f64,
     /// Actuator name, UTF-8, NUL-terminated (when `actuator == BY_NAME`).
     pub name: [u8; NAME_BYTES],
 }
@@ -248,7 +253,14 @@ pub struct CommandEntry {
 impl CommandEntry {
     /// An entry for actuator `index` with nothing given yet.
     pub fn index(index: usize) -> Self {
-        Self { actuator: index as u32, fields: 0, rest_length: 0.0, rate: 0.0, name: [0; NAME_BYTES] }
+        Self {
+            actuator: index as u32,
+            fields: 0,
+            rest_length: 0.0,
+            rate: 0.0,
+            tension: 0.0,
+            name: [0; NAME_BYTES],
+        }
     }
     /// An entry for the actuator called `name` (cut to `NAME_BYTES - 1` bytes) with nothing given
     /// yet.
@@ -268,6 +280,12 @@ impl CommandEntry {
     pub fn rate(mut self, rate: f64) -> Self {
         self.fields |= FIELD_RATE;
         self.rate = rate;
+        self
+    }
+    /// With a tension, N (alone: the actuator's winch motor holds it).
+    pub fn tension(mut self, tension: f64) -> Self {
+        self.fields |= FIELD_TENSION;
+        self.tension = tension;
         self
     }
 }
@@ -360,13 +378,14 @@ pub fn check_command(
                 count: model.actuators.len(),
             });
         };
-        if e.fields & !(FIELD_REST_LENGTH | FIELD_RATE) != 0 {
+        if e.fields & !(FIELD_REST_LENGTH | FIELD_RATE | FIELD_TENSION) != 0 {
             return Err(MessageError::Malformed(format!("unknown bits in fields: {:#x}", e.fields)));
         }
         let given = |bit: u32, v: f64| (e.fields & bit != 0).then_some(v);
         let c = ActuatorCommand {
             rest_length: given(FIELD_REST_LENGTH, e.rest_length),
             rate: given(FIELD_RATE, e.rate),
+            tension: given(FIELD_TENSION, e.tension),
         };
         commands::check_entry(model, id, c, out)?;
     }
