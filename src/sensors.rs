@@ -1,7 +1,9 @@
 //! Sensor models: takes the scene's `[sensors]` (`SensorModel`, constant) and, after every step,
 //! the true state and its evaluation; gives what a robot's sensors would report
 //! (`Sensors::readings`): cable tensions, cable lengths, actuated cables' rest lengths (the
-//! winches' encoders), body positions and orientations, each with Gaussian noise, a bias,
+//! winches' encoders), body positions and orientations, and an IMU on every body (a gyro: the
+//! angular velocity in body axes; an accelerometer: the specific force `R^T (a - g)` in body axes,
+//! `a` the mean acceleration over the last step), each with Gaussian noise, a bias,
 //! quantization, a delay in steps, an update rate (held between updates) and dropouts (a lost
 //! update holds the last value), drawn from a seeded generator so that the same seed gives the
 //! same streams to the bit. The physics never reads them: the truth stays the state.
@@ -53,6 +55,18 @@ pub struct Sensors {
     channels: Vec<Channel>,
     /// What every channel reports now, concatenated in `SensorKind::ALL` order (`layout`).
     measured: Vec<f64>,
+    /// The true IMU values now, `[gyro x y z, specific force x y z]` per body, where the scene
+    /// declares a gyro or an accelerometer (empty otherwise).
+    imu: Vec<f64>,
+    /// Each body's world velocity at the last update, m/s (3 per body; with `imu`), and that
+    /// update's time (`None` before the first).
+    previous_velocity: Vec<f64>,
+    previous_time: Option<f64>,
+}
+
+/// Whether `model`'s sensors include an IMU channel (gyro or accelerometer).
+pub fn has_imu(model: &Model) -> bool {
+    model.sensors.channels.iter().any(|(k, _)| matches!(k, SensorKind::Gyro | SensorKind::Accelerometer))
 }
 
 /// Where each declared channel's values sit in a concatenation of all of them
@@ -102,7 +116,39 @@ impl Sensors {
             })
             .collect();
         let total = layout(model).map(|(_, _, n)| n).sum();
-        Self { channels, measured: vec![0.0; total] }
+        let bodies = if has_imu(model) { model.bodies.len() } else { 0 };
+        Self {
+            channels,
+            measured: vec![0.0; total],
+            imu: vec![0.0; 6 * bodies],
+            previous_velocity: vec![0.0; 3 * bodies],
+            previous_time: None,
+        }
+    }
+
+    /// The true IMU values at the last update, `[gyro x y z (rad/s), specific force x y z
+    /// (m/s^2)]` per body in body axes; empty unless the scene declares a gyro or an
+    /// accelerometer.
+    pub fn imu_truth(&self) -> &[f64] {
+        &self.imu
+    }
+
+    /// The true IMU values of `state` into `imu`: each body's angular velocity in its axes and
+    /// `R^T (a - g)`, `a` the change of its centre's velocity since the last update over the time
+    /// between (0 at the first update, or when time did not advance).
+    fn update_imu(&mut self, model: &Model, state: &State) {
+        let elapsed = self.previous_time.map(|t0| state.time - t0).filter(|dt| *dt > 0.0);
+        for (b, body) in model.bodies.iter().enumerate() {
+            let twist = body.local_increment(state.velocities.as_slice(), 1.0);
+            let v = Vector3::new(twist[0], twist[1], twist[2]);
+            let previous = Vector3::from_column_slice(&self.previous_velocity[3 * b..3 * b + 3]);
+            let a = elapsed.map_or(Vector3::zeros(), |dt| (v - previous) / dt);
+            let f = state.poses[b].rotation.inverse_transform_vector(&(a - model.gravity));
+            self.imu[6 * b..6 * b + 3].copy_from_slice(&[twist[3], twist[4], twist[5]]);
+            self.imu[6 * b + 3..6 * b + 6].copy_from_slice(f.as_slice());
+            self.previous_velocity[3 * b..3 * b + 3].copy_from_slice(v.as_slice());
+        }
+        self.previous_time = Some(state.time);
     }
 
     /// What every declared channel reports now, concatenated (`layout`); empty without sensors.
@@ -120,9 +166,12 @@ impl Sensors {
     /// updates ago (until then, the first). Call once at the start and once after every step;
     /// allocates nothing.
     pub fn update(&mut self, model: &Model, state: &State, ws: &Workspace) {
+        if !self.imu.is_empty() {
+            self.update_imu(model, state);
+        }
         for ch in &mut self.channels {
             let first = ch.updates == 0;
-            truth(model, state, ws, ch.kind, &mut ch.truth);
+            truth(model, state, ws, &self.imu, ch.kind, &mut ch.truth);
             let due = ch.updates == 0 || state.time + 1e-9 * ch.model.period.max(1e-12) >= ch.next_update;
             ch.fresh = due;
             if due {
@@ -211,8 +260,9 @@ impl Channel {
     }
 }
 
-/// The true values of channel `kind` at `state` (evaluated into `ws`) into `out`.
-fn truth(model: &Model, state: &State, ws: &Workspace, kind: SensorKind, out: &mut [f64]) {
+/// The true values of channel `kind` at `state` (evaluated into `ws`; `imu` the true IMU values,
+/// `Sensors::imu_truth`) into `out`.
+fn truth(model: &Model, state: &State, ws: &Workspace, imu: &[f64], kind: SensorKind, out: &mut [f64]) {
     match kind {
         SensorKind::Tension => {
             for (o, c) in out.iter_mut().zip(&ws.cables) {
@@ -240,12 +290,33 @@ fn truth(model: &Model, state: &State, ws: &Workspace, kind: SensorKind, out: &m
                 o.copy_from_slice(&[q.w, q.i, q.j, q.k]);
             }
         }
+        SensorKind::Gyro | SensorKind::Accelerometer => {
+            let skip = if kind == SensorKind::Gyro { 0 } else { 3 };
+            for (o, body) in out.chunks_exact_mut(3).zip(imu.chunks_exact(6)) {
+                o.copy_from_slice(&body[skip..skip + 3]);
+            }
+        }
     }
+}
+
+/// CSV column names of the true IMU values (`Sensors::imu_truth`), where the scene declares a
+/// gyro or an accelerometer: `{body}_{wx|wy|wz}_rad_s` and `{body}_{fx|fy|fz}_m_s2` per body.
+pub fn imu_truth_csv_columns(model: &Model) -> Vec<String> {
+    if !has_imu(model) {
+        return Vec::new();
+    }
+    let mut cols = Vec::new();
+    for b in &model.bodies {
+        cols.extend(["wx", "wy", "wz"].map(|w| format!("{}_{w}_rad_s", b.name)));
+        cols.extend(["fx", "fy", "fz"].map(|f| format!("{}_{f}_m_s2", b.name)));
+    }
+    cols
 }
 
 /// CSV column names of every declared channel's values, in `Sensors::measured` order:
 /// `{cable}_tension_measured_N`, `{cable}_length_measured_m`, `{actuator}_rest_length_measured_m`,
-/// `{body}_{x|y|z}_measured_m`, `{body}_{qw|qx|qy|qz}_measured`.
+/// `{body}_{x|y|z}_measured_m`, `{body}_{qw|qx|qy|qz}_measured`, `{body}_{wx|wy|wz}_measured_rad_s`,
+/// `{body}_{fx|fy|fz}_measured_m_s2`.
 pub fn csv_columns(model: &Model) -> Vec<String> {
     let mut cols = Vec::new();
     for (kind, _, _) in layout(model) {
@@ -267,6 +338,16 @@ pub fn csv_columns(model: &Model) -> Vec<String> {
             SensorKind::Orientation => {
                 for b in &model.bodies {
                     cols.extend(["qw", "qx", "qy", "qz"].map(|q| format!("{}_{q}_measured", b.name)));
+                }
+            }
+            SensorKind::Gyro => {
+                for b in &model.bodies {
+                    cols.extend(["wx", "wy", "wz"].map(|w| format!("{}_{w}_measured_rad_s", b.name)));
+                }
+            }
+            SensorKind::Accelerometer => {
+                for b in &model.bodies {
+                    cols.extend(["fx", "fy", "fz"].map(|f| format!("{}_{f}_measured_m_s2", b.name)));
                 }
             }
         }

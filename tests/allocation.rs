@@ -170,7 +170,7 @@ fn allocations_per_ticks(core: &mut NodeCore, next: &mut u64, sink: &mut dyn Nod
 #[test]
 fn recording_a_step_allocates_nothing_on_the_node_thread() {
     // and the sensors' measuring and packing, with a scene that declares them
-    for scene in ["config/scenes/prism3.toml", "config/examples/sensors.toml"] {
+    for scene in ["config/scenes/prism3.toml", "config/examples/sensors.toml", "config/examples/imu.toml"] {
         let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(scene);
         let model = tensegrity::scene::load(&path).unwrap();
         let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };

@@ -63,12 +63,19 @@ fn rust_structs_match_the_msg_files_field_by_field() {
     tracer.trace_simple_type::<tensegrity::io::msg::AppliedCommands>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::ContactStates>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::TensionCommand>().unwrap();
+    tracer.trace_simple_type::<tensegrity::io::msg::ImuStates>().unwrap();
     let registry = tracer.registry().unwrap();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg/msg");
     let mut checked = 0;
-    for name in
-        ["CableStates", "ActuatorCommand", "Structure", "AppliedCommands", "ContactStates", "TensionCommand"]
-    {
+    for name in [
+        "CableStates",
+        "ActuatorCommand",
+        "Structure",
+        "AppliedCommands",
+        "ContactStates",
+        "TensionCommand",
+        "ImuStates",
+    ] {
         let text = std::fs::read_to_string(dir.join(format!("{name}.msg"))).unwrap();
         let expected: Vec<(String, Format)> =
             parse_msg(&text).into_iter().map(|(ty, n)| (n, ros_to_format(&ty))).collect();
@@ -238,6 +245,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
     tracer.trace_simple_type::<ActuatorCommand>().unwrap();
     tracer.trace_simple_type::<msg::ContactStates>().unwrap();
     tracer.trace_simple_type::<msg::TensionCommand>().unwrap();
+    tracer.trace_simple_type::<msg::ImuStates>().unwrap();
     let registry = tracer.registry().unwrap();
     let rust_of = [
         ("rosgraph_msgs/msg/Clock", "Clock"),
@@ -252,6 +260,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
         ("tensegrity_msgs/msg/ActuatorCommand", "ActuatorCommand"),
         ("tensegrity_msgs/msg/ContactStates", "ContactStates"),
         ("tensegrity_msgs/msg/TensionCommand", "TensionCommand"),
+        ("tensegrity_msgs/msg/ImuStates", "ImuStates"),
     ];
     // every topic a bag records is covered
     for topic in Topic::ALL {

@@ -794,3 +794,40 @@ fn applied_commands_from_bags_written_before_tension_commands_still_decode() {
     let commands = a.commands(&model).unwrap();
     assert_eq!(commands[0].1, tensegrity::control::ActuatorCommand::target(4.0));
 }
+
+#[test]
+fn an_imu_is_recorded_measured_and_true_and_replays_bit_for_bit() {
+    // config/examples/imu.toml: a bar swinging on a pin, its gyro and accelerometer at 200 Hz
+    let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/examples/imu.toml");
+    let dir = bag_dir("imu");
+    let (scene, bag) = (scene.to_str().unwrap(), dir.to_str().unwrap());
+    let out = cli(&["deploy", scene, "--dynamic", "--duration", "0.5", "--record", bag]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let reader = BagReader::open(&dir).unwrap();
+    let imu = |topic: &str| -> Vec<msg::ImuStates> {
+        reader
+            .messages()
+            .map(Result::unwrap)
+            .filter(|m| m.topic == topic)
+            .map(|m| m.decode().unwrap())
+            .collect()
+    };
+    let (measured, truth) = (imu("/tensegrity_sim/imu"), imu("/tensegrity_sim/ground_truth/imu"));
+    assert_eq!((measured.len(), truth.len()), (501, 501), "a message per step and at the start");
+    assert_eq!(measured[0].name, ["bar"]);
+    // near the bottom at 0.48 s: 5.42 rad/s and 2.5 g towards the pin, measured within the noise
+    let (m, t) = (&measured[480], &truth[480]);
+    let rate = t.angular_velocity[0].x.hypot(t.angular_velocity[0].y);
+    assert!((rate - (3.0f64 * 9.81).sqrt()).abs() < 0.01, "{rate} rad/s");
+    assert!((t.specific_force[0].z + 2.5 * 9.81).abs() < 0.1, "{:?}", t.specific_force[0]);
+    assert!((m.specific_force[0].z - t.specific_force[0].z).abs() < 1.0, "{:?}", m.specific_force[0]);
+    assert!(
+        measured.iter().zip(&truth).filter(|(m, t)| m.angular_velocity != t.angular_velocity).count() > 490
+    );
+    assert_replays_identically(&dir);
+    if let Some(v) = rosbags_read(&dir) {
+        let read = v["messages"]["/tensegrity_sim/ground_truth/imu"].as_array().unwrap();
+        assert_eq!(read.len(), 501);
+        assert_eq!(read[480]["specific_force"][0]["z"].as_f64(), Some(t.specific_force[0].z));
+    }
+}

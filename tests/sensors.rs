@@ -266,3 +266,98 @@ fn the_nodes_sensor_seed_parameter_overrides_the_scenes_and_a_reset_starts_the_s
     assert_eq!(with_resets[1], with_resets[2], "after a reset the same 50 steps measure the same");
     assert_eq!(with_resets[1], scene[1]);
 }
+
+#[test]
+fn an_imu_on_a_swinging_bar_reads_its_closed_form_rate_and_specific_force() {
+    // a uniform rod about its end (I = m L^2 / 3), at theta below level: theta' = sqrt(3 g sin
+    // theta / L), theta'' = 3 g cos theta / (2 L); its centre accelerates by L/2 (theta'' along the
+    // swing + theta'^2 towards the pin), and the accelerometer reads R^T (a - g)
+    // config/examples/imu.toml: a 1 kg, 1 m bar pinned at one end, released level in the x-y plane
+    let (g, len, dt) = (9.81, 1.0, 1e-4);
+    let text =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples/imu.toml")).unwrap();
+    let model = model_from_toml(&text);
+    let mut sensors = Sensors::new(&model, None);
+    let settings = SimSettings { dt, ..SimSettings::default() };
+    let mut sim = Simulator::new(model, settings).unwrap();
+    sensors.update(sim.model(), sim.state(), sim.workspace());
+    // the truth (the example's sensors are noisy: their statistics are the other tests')
+    let truth = |s: &Sensors, k: usize| nalgebra::Vector3::from_column_slice(&s.imu_truth()[k..k + 3]);
+    // at rest before the first step: gravity alone, along the bar's axes
+    let f0 = truth(&sensors, 3);
+    let up = sim.state().poses[0].rotation.inverse_transform_vector(&nalgebra::Vector3::new(0.0, g, 0.0));
+    assert!((f0 - up).norm() < 1e-12, "{f0:?}");
+    let (mut worst_rate, mut worst_force, mut at_bottom) = (0.0f64, 0.0f64, None);
+    while sim.state().time < 0.6 {
+        sim.step().unwrap();
+        sensors.update(sim.model(), sim.state(), sim.workspace());
+        let pose = sim.state().poses[0];
+        let axis = pose.rotation * nalgebra::Vector3::z(); // from the pin to the tip
+        let theta = (-axis.y).atan2(axis.x);
+        if !(0.05..=1.5).contains(&theta) {
+            continue;
+        }
+        let rate = (3.0 * g * theta.sin() / len).sqrt();
+        let accel = 3.0 * g * theta.cos() / (2.0 * len);
+        // swinging down: clockwise about z
+        let swing = nalgebra::Vector3::new(axis.y, -axis.x, 0.0);
+        let a = 0.5 * len * (accel * swing - rate * rate * axis);
+        let f = a - nalgebra::Vector3::new(0.0, -g, 0.0);
+        let gyro = pose.rotation * truth(&sensors, 0);
+        let measured = pose.rotation * truth(&sensors, 3);
+        // a fresh reading (200 Hz) is the truth with the declared noise and bias
+        if sensors.is_fresh(SensorKind::Gyro) {
+            let read = sensors.readings(SensorKind::Gyro).unwrap();
+            let off = (nalgebra::Vector3::from_column_slice(read) - truth(&sensors, 0)).amax();
+            assert!(off < 0.002 + 6.0 * 0.01, "gyro reads {read:?}");
+            let read = sensors.readings(SensorKind::Accelerometer).unwrap();
+            let off = (nalgebra::Vector3::from_column_slice(read) - truth(&sensors, 3)).amax();
+            assert!(off < 6.0 * 0.05, "accelerometer reads {read:?}");
+        }
+        worst_rate = worst_rate.max((gyro - nalgebra::Vector3::new(0.0, 0.0, -rate)).norm() / rate);
+        worst_force = worst_force.max((measured - f).norm() / g);
+        if theta > 1.5 - 1e-2 {
+            at_bottom.get_or_insert(measured.norm());
+        }
+    }
+    assert!(worst_rate < 1e-3, "gyro off its closed form by {worst_rate} (relative)");
+    assert!(worst_force < 1e-3, "accelerometer off its closed form by {worst_force} g");
+    // near the bottom: 1.5 g of centripetal acceleration plus gravity's 1 g, along the bar
+    let bottom = at_bottom.expect("the bar reached the bottom");
+    assert!((bottom / (2.5 * g) - 1.0).abs() < 1e-2, "{bottom} m/s^2 near the bottom");
+}
+
+#[test]
+fn an_imu_reads_zero_in_free_fall_and_one_g_up_at_rest() {
+    let text = hanging_text("[sensors.gyro]\n[sensors.accelerometer]\n");
+    // the hanging load at rest: +9.81 m/s^2 up, no rotation; the ceiling too
+    let readings = run(model_from_toml(&text), None, 50, |_, s| {
+        (
+            s.readings(SensorKind::Gyro).unwrap().to_vec(),
+            s.readings(SensorKind::Accelerometer).unwrap().to_vec(),
+        )
+    });
+    for (gyro, accel) in &readings {
+        assert!(gyro.iter().all(|w| *w == 0.0), "{gyro:?}");
+        for body in accel.chunks_exact(3) {
+            assert!(
+                body[0].abs() < 1e-9 && body[1].abs() < 1e-9 && (body[2] - 9.81).abs() < 1e-6,
+                "{body:?}"
+            );
+        }
+    }
+    // cut loose (no rope): the load falls, and its accelerometer reads nothing
+    let start = text.find("[[cables]]").unwrap();
+    let end = text.find("[sensors.gyro]").unwrap();
+    let free = model_from_toml(&format!("{}{}", &text[..start], &text[end..]));
+    let mut sensors = Sensors::new(&free, None);
+    let mut sim = Simulator::new(free, SimSettings::default()).unwrap();
+    sensors.update(sim.model(), sim.state(), sim.workspace());
+    for _ in 0..100 {
+        sim.step().unwrap();
+        sensors.update(sim.model(), sim.state(), sim.workspace());
+        let f = &sensors.readings(SensorKind::Accelerometer).unwrap()[3..6];
+        assert!(f.iter().all(|x| x.abs() < 1e-9), "free fall reads {f:?}");
+    }
+    assert!(sim.state().velocities[2] < -0.9, "it fell");
+}

@@ -104,6 +104,16 @@ class ContactStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::ContactStat
 
 
 @dataclass
+class ImuStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::ImuStates_"):
+    """`tensegrity_msgs/msg/ImuStates`."""
+
+    header: Header = field(default_factory=Header)
+    name: types.sequence[str] = field(default_factory=list)
+    angular_velocity: types.sequence[Vector3] = field(default_factory=list)
+    specific_force: types.sequence[Vector3] = field(default_factory=list)
+
+
+@dataclass
 class Structure(IdlStruct, typename="tensegrity_msgs::msg::dds_::Structure_"):
     """`tensegrity_msgs/msg/Structure`."""
 
@@ -345,6 +355,8 @@ TOPICS = {
     "~/contacts": (ContactStates, 16, False),
     "~/ground_truth/body_poses": (PoseArray, 16, False),
     "~/ground_truth/cable_states": (CableStates, 16, False),
+    "~/imu": (ImuStates, 16, False),
+    "~/ground_truth/imu": (ImuStates, 16, False),
     "~/actuator_commands": (ActuatorCommand, 1, False),
     "~/joint_commands": (JointState, 1, False),
     "~/tension_commands": (TensionCommand, 1, False),

@@ -165,6 +165,14 @@ def measured_of(m):
         out["position"] = [tuple(m.body_position[i]) for i in range(b)]
     if m.channels & shm.MEASURED_ORIENTATION:
         out["orientation"] = [tuple(m.body_orientation[i]) for i in range(b)]
+    if m.channels & (shm.MEASURED_GYRO | shm.MEASURED_ACCELEROMETER):
+        # the IMU's truth travels with what it reports (the state has no accelerations)
+        out["true_gyro"] = [tuple(m.true_angular_velocity[i]) for i in range(b)]
+        out["true_accelerometer"] = [tuple(m.true_specific_force[i]) for i in range(b)]
+    if m.channels & shm.MEASURED_GYRO:
+        out["gyro"] = [tuple(m.body_angular_velocity[i]) for i in range(b)]
+    if m.channels & shm.MEASURED_ACCELEROMETER:
+        out["accelerometer"] = [tuple(m.body_specific_force[i]) for i in range(b)]
     return out
 
 

@@ -155,7 +155,8 @@ class ContactsSample(ctypes.Structure):
 
 class MeasuredSample(ctypes.Structure):
     """`TensegrityMeasured`: what the scene's sensors report after a step (scenes with [sensors]
-    only); `channels` has a bit per declared channel (MEASURED_*), the state keeps the truth."""
+    only); `channels` has a bit per declared channel (MEASURED_*), the state keeps the truth (the
+    IMU's truth, which needs accelerations the state lacks, is here: true_*)."""
 
     _fields_ = [
         ("time", f64),
@@ -169,6 +170,10 @@ class MeasuredSample(ctypes.Structure):
         ("cable_tension", f64 * MAX_CABLES),
         ("cable_length", f64 * MAX_CABLES),
         ("actuator_rest_length", f64 * MAX_ACTUATORS),
+        ("body_angular_velocity", (f64 * 3) * MAX_BODIES),
+        ("body_specific_force", (f64 * 3) * MAX_BODIES),
+        ("true_angular_velocity", (f64 * 3) * MAX_BODIES),
+        ("true_specific_force", (f64 * 3) * MAX_BODIES),
     ]
 
     @staticmethod
@@ -181,6 +186,8 @@ MEASURED_LENGTH = 2
 MEASURED_REST_LENGTH = 4
 MEASURED_POSITION = 8
 MEASURED_ORIENTATION = 16
+MEASURED_GYRO = 32
+MEASURED_ACCELEROMETER = 64
 
 
 class CommandEntry(ctypes.Structure):

@@ -5,6 +5,7 @@ exact state.
 Run: `pip install ./python` then `pytest python/tests`.
 """
 
+import math
 from pathlib import Path
 
 import pytest
@@ -27,3 +28,29 @@ def test_the_tension_sensor_is_noisy_and_held_between_its_updates(tensegrity_nod
     changes = sum(1 for a, b in zip(readings, readings[1:]) if a != b)
     assert 8 <= changes <= 10, changes
     assert any(abs(e) > 0.05 for e in errors) and all(abs(e) < 3.0 for e in errors)
+
+
+IMU = Path(__file__).resolve().parents[2] / "config" / "examples" / "imu.toml"
+
+
+@pytest.mark.tensegrity(scene=IMU, transports=("shm",))
+def test_the_imu_on_a_swinging_bar_reports_its_rate_and_specific_force(tensegrity_node):
+    sim = tensegrity_node
+    state = sim.lockstep(480)  # 0.48 s: near the bottom of the swing
+    m = state.measured
+    wx, wy, wz = m["true_gyro"][0]
+    assert abs(math.hypot(wx, wy) - math.sqrt(3 * 9.81)) < 0.01 and abs(wz) < 1e-12  # sqrt(3 g / L)
+    assert abs(m["true_accelerometer"][0][2] + 2.5 * 9.81) < 0.1  # 2.5 g towards the pin
+    # what the sensors report: the truth with 0.01 rad/s and 0.05 m/s^2 of noise, held at 200 Hz
+    assert abs(m["accelerometer"][0][2] - m["true_accelerometer"][0][2]) < 0.5
+    assert 0 < abs(m["gyro"][0][0] - wx) < 0.2
+
+
+@pytest.mark.tensegrity(scene=IMU, paused=False, transports=("dds",))
+def test_the_imu_is_published_measured_and_true_over_dds(tensegrity_node):
+    sim = tensegrity_node
+    measured, truth = sim.reader("~/imu"), sim.reader("~/ground_truth/imu")
+    m, t = sim.next(measured), sim.next(truth)
+    assert m is not None and t is not None, "IMU states arrive"
+    assert list(m.name) == ["bar"] and len(m.angular_velocity) == 1 and len(t.specific_force) == 1
+    assert math.isfinite(m.specific_force[0].z) and math.isfinite(t.angular_velocity[0].x)

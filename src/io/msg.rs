@@ -198,6 +198,56 @@ pub struct ActuatorCommand {
     pub rate: Vec<f64>,
 }
 
+/// `tensegrity_msgs/msg/ImuStates`: every body's IMU (gyro and accelerometer) in its own axes.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct ImuStates {
+    /// Stamp (the step's simulation time) and frame.
+    pub header: Header,
+    /// Body names.
+    pub name: Vec<String>,
+    /// Angular velocities, rad/s, body axes; empty where the gyro is not declared.
+    pub angular_velocity: Vec<Vector3>,
+    /// Specific forces `R^T (a - g)`, m/s^2, body axes; empty where the accelerometer is not
+    /// declared.
+    pub specific_force: Vec<Vector3>,
+}
+
+impl ImuStates {
+    /// The message at sim time `time` from the true IMU values `truth` (`[gyro, specific force]`
+    /// per body, `crate::sensors::Sensors::imu_truth`), with what the sensors report in
+    /// `measured` (`crate::sensors::Sensors::measured`) in their place when `measured` is not
+    /// empty: then only the declared channels' arrays are filled.
+    pub fn from_imu(model: &Model, time: f64, truth: &[f64], measured: &[f64], frame: &str) -> Self {
+        use crate::sensors::{reading, SensorKind};
+        let vectors = |v: &[f64]| v.chunks_exact(3).map(|c| Vector3 { x: c[0], y: c[1], z: c[2] }).collect();
+        let (angular_velocity, specific_force) = if measured.is_empty() {
+            let mut split = (Vec::new(), Vec::new());
+            for body in truth.chunks_exact(6) {
+                split.0.push(Vector3 { x: body[0], y: body[1], z: body[2] });
+                split.1.push(Vector3 { x: body[3], y: body[4], z: body[5] });
+            }
+            split
+        } else {
+            let of = |kind| reading(model, measured, kind).map(vectors).unwrap_or_default();
+            (of(SensorKind::Gyro), of(SensorKind::Accelerometer))
+        };
+        Self {
+            header: Header { stamp: Time::from_seconds(time), frame_id: frame.to_string() },
+            name: model.bodies.iter().map(|b| b.name.clone()).collect(),
+            angular_velocity,
+            specific_force,
+        }
+    }
+
+    /// True when every number is finite.
+    pub fn is_finite(&self) -> bool {
+        self.angular_velocity
+            .iter()
+            .chain(&self.specific_force)
+            .all(|v| v.x.is_finite() && v.y.is_finite() && v.z.is_finite())
+    }
+}
+
 /// `tensegrity_msgs/msg/TensionCommand`: tension commands for winch actuators (on
 /// `~/tension_commands`; a type of its own, so that `ActuatorCommand` stays what existing
 /// controllers write).

@@ -67,6 +67,10 @@ struct Publishers {
     truth_topics: [ros2_client::dds::rustdds::Topic; 2],
     truth: Option<(Publisher<msg::PoseArray>, Publisher<msg::CableStates>)>,
     truth_qos: TopicQos,
+    /// `~/imu` and `~/ground_truth/imu`: their topics, and their writers once a scene with a gyro
+    /// or an accelerometer publishes on them.
+    imu_topics: [ros2_client::dds::rustdds::Topic; 2],
+    imu: Option<(Publisher<msg::ImuStates>, Publisher<msg::ImuStates>)>,
 }
 
 impl Message for msg::Empty {}
@@ -155,6 +159,17 @@ impl NodeSink for DdsTransport {
             let cables = self._node.create_publisher(cables, qos).map_err(failed)?;
             self.publishers.truth = Some((poses, cables));
         }
+        if matches!(topic, Topic::Imu | Topic::GroundTruthImu) && self.publishers.imu.is_none() {
+            let qos = Some(writer_qos(
+                self.publishers.truth_qos.depth as usize,
+                self.publishers.truth_qos.transient_local,
+            ));
+            let [measured, truth] = &self.publishers.imu_topics;
+            let failed = |e| PublishError::Failed(format!("~/imu writer: {e:?}"));
+            let measured = self._node.create_publisher(measured, qos.clone()).map_err(failed)?;
+            let truth = self._node.create_publisher(truth, qos).map_err(failed)?;
+            self.publishers.imu = Some((measured, truth));
+        }
         let p = &self.publishers;
         match (topic, M::build(topic, v)?) {
             (Topic::GroundTruthPoses, Some(M::Poses(m))) => match &p.truth {
@@ -174,6 +189,14 @@ impl NodeSink for DdsTransport {
             (_, Some(M::Structure(m))) => sent(p.structure.publish(m)),
             (_, Some(M::Diagnostics(m))) => sent(p.diagnostics.publish(m)),
             (_, Some(M::Markers(m))) => sent(p.markers.publish(m)),
+            (Topic::Imu, Some(M::Imu(m))) => match &p.imu {
+                Some((w, _)) => sent(w.publish(m)),
+                None => Ok(()),
+            },
+            (_, Some(M::Imu(m))) => match &p.imu {
+                Some((_, w)) => sent(w.publish(m)),
+                None => Ok(()),
+            },
             (_, Some(M::Contacts(m))) => match &p.contacts {
                 Some(w) => sent(w.publish(m)),
                 None => Ok(()),
@@ -317,6 +340,10 @@ impl DdsTransport {
             }),
             truth: None,
             truth_qos: topics::topic_type(Topic::GroundTruthPoses).expect("a ROS topic").1,
+            imu_topics: [Topic::Imu, Topic::GroundTruthImu].map(|topic| {
+                outputs.iter().find(|(t, _, _)| *t == topic).expect("every ROS topic is declared").1.clone()
+            }),
+            imu: None,
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,

@@ -8,8 +8,8 @@ use serde::Serialize;
 use crate::control::ActuatorCommand;
 use crate::evaluate::Workspace;
 use crate::io::msg::{
-    CableStates, Clock, ContactStates, DiagnosticArray, DiagnosticStatus, Header, JointState, MarkerArray,
-    PoseArray, SimResult, Structure, TfMessage, Time,
+    CableStates, Clock, ContactStates, DiagnosticArray, DiagnosticStatus, Header, ImuStates, JointState,
+    MarkerArray, PoseArray, SimResult, Structure, TfMessage, Time,
 };
 use crate::io::topics::Topic;
 use crate::model::{ActuatorId, Model};
@@ -61,6 +61,9 @@ pub struct NodeView<'a> {
     /// What the scene's sensors report now (`crate::sensors::Sensors::measured`; empty without
     /// sensors): the state topics carry these values, `~/ground_truth/...` the exact ones.
     pub measured: &'a [f64],
+    /// The true IMU values (`crate::sensors::Sensors::imu_truth`; empty without a gyro or an
+    /// accelerometer, and in views that have no step before them, such as a quasi-static path).
+    pub imu_truth: &'a [f64],
 }
 
 /// Names one set of a view's constants (`NodeView::reference`, `frame_id`, `node_name`).
@@ -158,6 +161,8 @@ pub enum TopicMessage {
     Markers(MarkerArray),
     /// `~/contacts`.
     Contacts(ContactStates),
+    /// `~/imu` or `~/ground_truth/imu`.
+    Imu(ImuStates),
 }
 
 impl TopicMessage {
@@ -214,6 +219,20 @@ impl TopicMessage {
                     ));
                 }
                 Self::Contacts(contacts)
+            }
+            Topic::Imu | Topic::GroundTruthImu => {
+                // a view with no IMU values (a quasi-static path) has nothing to say
+                if view.imu_truth.is_empty() {
+                    return Ok(None);
+                }
+                let measured = if topic == Topic::Imu { view.measured } else { &[] };
+                let imu = ImuStates::from_imu(model, state.time, view.imu_truth, measured, frame);
+                if !imu.is_finite() {
+                    return Err(crate::io::sink::PublishError::Failed(
+                        "refusing to publish non-finite IMU states".into(),
+                    ));
+                }
+                Self::Imu(imu)
             }
             Topic::State => return Ok(None),
         }))

@@ -38,11 +38,16 @@ pub enum Topic {
     /// `~/ground_truth/cable_states`: the exact cable states, where sensors make
     /// `~/cable_states` report measured tensions, lengths or rest lengths.
     GroundTruthCables,
+    /// `~/imu`: every body's IMU as its sensors report it (only scenes that declare a gyro or
+    /// an accelerometer publish it).
+    Imu,
+    /// `~/ground_truth/imu`: the exact IMU values (with `~/imu`).
+    GroundTruthImu,
 }
 
 impl Topic {
     /// Every topic, in the order of `NodeStats::publish_failures`.
-    pub const ALL: [Topic; 13] = [
+    pub const ALL: [Topic; 15] = [
         Topic::Clock,
         Topic::Tf,
         Topic::TfStatic,
@@ -56,6 +61,8 @@ impl Topic {
         Topic::State,
         Topic::GroundTruthPoses,
         Topic::GroundTruthCables,
+        Topic::Imu,
+        Topic::GroundTruthImu,
     ];
     /// The topic's name (`~/` is the node's private namespace).
     pub fn name(self) -> &'static str {
@@ -73,6 +80,8 @@ impl Topic {
             Topic::State => "~/state",
             Topic::GroundTruthPoses => "~/ground_truth/body_poses",
             Topic::GroundTruthCables => "~/ground_truth/cable_states",
+            Topic::Imu => "~/imu",
+            Topic::GroundTruthImu => "~/ground_truth/imu",
         }
     }
     /// The topic's position in `Topic::ALL` (and in `NodeStats::publish_failures`).
@@ -81,7 +90,7 @@ impl Topic {
     }
     /// The topics of one state, in publish order: the whole-state sample first (a shared-memory
     /// sample takes microseconds, so it does not wait for the DDS messages' serialization).
-    pub const STATE: [Topic; 8] = [
+    pub const STATE: [Topic; 10] = [
         Topic::State,
         Topic::BodyPoses,
         Topic::Tf,
@@ -90,6 +99,8 @@ impl Topic {
         Topic::Contacts,
         Topic::GroundTruthPoses,
         Topic::GroundTruthCables,
+        Topic::Imu,
+        Topic::GroundTruthImu,
     ];
 
     /// Whether a node of `model` publishes this topic: `~/contacts` only where the scene declares
@@ -99,6 +110,7 @@ impl Topic {
         match self {
             Topic::Contacts => model.contact_pairs() > 0,
             Topic::GroundTruthPoses | Topic::GroundTruthCables => !model.sensors.channels.is_empty(),
+            Topic::Imu | Topic::GroundTruthImu => crate::sensors::has_imu(model),
             _ => true,
         }
     }
@@ -153,6 +165,7 @@ pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
         Topic::State => return None,
         Topic::GroundTruthPoses => ("geometry_msgs/msg/PoseArray", q(16, false)),
         Topic::GroundTruthCables => ("tensegrity_msgs/msg/CableStates", q(16, false)),
+        Topic::Imu | Topic::GroundTruthImu => ("tensegrity_msgs/msg/ImuStates", q(16, false)),
     })
 }
 

@@ -448,16 +448,25 @@ pub enum SensorKind {
     /// Every body's orientation (a unit quaternion w, x, y, z per body); its noise is a rotation
     /// vector of `sigma` rad per axis, no bias or quantization.
     Orientation,
+    /// Every body's angular velocity in its own axes, rad/s (an IMU's gyro; x, y, z per body; 0
+    /// for nodes and fixed bodies).
+    Gyro,
+    /// Every body's specific force at its centre of mass in its own axes, m/s^2 (an IMU's
+    /// accelerometer; x, y, z per body): `R^T (a - g)` with `a` the mean acceleration over the
+    /// last step, `(v(t) - v(t - h)) / h` (0 at the first sample, before any step).
+    Accelerometer,
 }
 
 impl SensorKind {
     /// Every kind, in the order channels are kept and seeded.
-    pub const ALL: [SensorKind; 5] = [
+    pub const ALL: [SensorKind; 7] = [
         SensorKind::Tension,
         SensorKind::Length,
         SensorKind::RestLength,
         SensorKind::Position,
         SensorKind::Orientation,
+        SensorKind::Gyro,
+        SensorKind::Accelerometer,
     ];
 
     /// The scene's name of the channel (`[sensors.NAME]`).
@@ -468,6 +477,8 @@ impl SensorKind {
             SensorKind::RestLength => "rest_length",
             SensorKind::Position => "position",
             SensorKind::Orientation => "orientation",
+            SensorKind::Gyro => "gyro",
+            SensorKind::Accelerometer => "accelerometer",
         }
     }
 
@@ -476,7 +487,7 @@ impl SensorKind {
         match self {
             SensorKind::Tension | SensorKind::Length => model.cables.len(),
             SensorKind::RestLength => model.actuators.len(),
-            SensorKind::Position => 3 * model.bodies.len(),
+            SensorKind::Position | SensorKind::Gyro | SensorKind::Accelerometer => 3 * model.bodies.len(),
             SensorKind::Orientation => 4 * model.bodies.len(),
         }
     }

@@ -1561,7 +1561,8 @@ fn build_sensors(spec: &SceneSpec, cx: &Ctx) -> Result<crate::sensors::SensorMod
     let Some(s) = &spec.sensors else {
         return Ok(SensorModel::default());
     };
-    let declared = [&s.tension, &s.length, &s.rest_length, &s.position, &s.orientation];
+    let declared =
+        [&s.tension, &s.length, &s.rest_length, &s.position, &s.orientation, &s.gyro, &s.accelerometer];
     let mut channels = Vec::new();
     for (kind, c) in SensorKind::ALL.into_iter().zip(declared) {
         let Some(c) = c else { continue };

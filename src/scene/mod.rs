@@ -242,6 +242,12 @@ pub struct SensorsSpec {
     /// Every body's orientation (noise in rad; no bias or resolution).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub orientation: Option<ChannelSpec>,
+    /// Every body's angular velocity in its own axes (an IMU's gyro), rad/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gyro: Option<ChannelSpec>,
+    /// Every body's specific force in its own axes (an IMU's accelerometer), m/s^2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accelerometer: Option<ChannelSpec>,
 }
 
 /// One sensor channel's imperfections; every field defaults to a perfect sensor.

@@ -483,6 +483,8 @@ pub fn scene_fields() -> Vec<FieldDoc> {
         f(sensors, "rest_length", "table", "-", "none", "every actuator's rest length (the winch's encoder), m".into()),
         f(sensors, "position", "table", "-", "none", "every body's position, m".into()),
         f(sensors, "orientation", "table", "-", "none", "every body's orientation (noise in rad; no bias or resolution)".into()),
+        f(sensors, "gyro", "table", "-", "none", "every body's angular velocity in its own axes (an IMU's gyro), rad/s".into()),
+        f(sensors, "accelerometer", "table", "-", "none", "every body's specific force R^T (a - g) in its own axes (an IMU's accelerometer), m/s^2".into()),
         f(channel, "sigma", "number", "the channel's", "0", format!("Gaussian noise's standard deviation, 0 to {}", readable_number(limits::SENSOR_VALUE.1))),
         f(channel, "bias", "number", "the channel's", "0", format!("constant offset, within +-{}", readable_number(limits::SENSOR_VALUE.1))),
         f(channel, "resolution", "number", "the channel's", "0", format!("quantization step (0: none), 0 to {}", readable_number(limits::SENSOR_VALUE.1))),

@@ -39,6 +39,7 @@ def fields(msgtype, m):
     if msgtype == 'tensegrity_msgs/msg/AppliedCommands':
         return {'step': m.step, 'reset': bool(m.reset), 'name': list(m.name),
                 'rest_length': [num(x) for x in m.rest_length], 'rate': [num(x) for x in m.rate],
+                'tension': [num(x) for x in m.tension],
                 'stamp': [m.header.stamp.sec, m.header.stamp.nanosec]}
     if msgtype == 'sensor_msgs/msg/JointState':
         return {'name': list(m.name), 'position': [float(x) for x in m.position]}
@@ -58,6 +59,10 @@ def fields(msgtype, m):
                 'normal_force': [float(f) for f in m.normal_force],
                 'position': [[p.x, p.y, p.z] for p in m.position],
                 'friction': [[f.x, f.y, f.z] for f in m.friction]}
+    if msgtype == 'tensegrity_msgs/msg/ImuStates':
+        return {'name': list(m.name),
+                'angular_velocity': [{'x': v.x, 'y': v.y, 'z': v.z} for v in m.angular_velocity],
+                'specific_force': [{'x': v.x, 'y': v.y, 'z': v.z} for v in m.specific_force]}
     raise SystemExit(f'unexpected type {msgtype}')
 
 

@@ -207,15 +207,18 @@ fn deploy_dynamic(
     let mut run = record::offline::OfflineRun::start(model, &label, settings, from_equilibrium, record)?;
     let mut file = csv_output(out)?;
     // the scene's sensors, where it declares them, add what they report after the columns of
-    // the exact state
+    // the exact state (and of the exact IMU values, which the state does not hold)
     let mut header = study::dynamic_csv_header(model);
-    for c in tensegrity::sensors::csv_columns(model) {
+    for c in tensegrity::sensors::imu_truth_csv_columns(model)
+        .into_iter()
+        .chain(tensegrity::sensors::csv_columns(model))
+    {
         header.push(',');
         header.push_str(&c);
     }
     let row = |run: &record::offline::OfflineRun, stats: &tensegrity::sim::StepStats| {
         let mut row = study::dynamic_csv_row(run.simulator(), stats);
-        for v in run.sensors().measured() {
+        for v in run.sensors().imu_truth().iter().chain(run.sensors().measured()) {
             let _ = std::fmt::Write::write_fmt(&mut row, format_args!(",{v:.12}"));
         }
         row

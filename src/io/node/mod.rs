@@ -693,6 +693,7 @@ impl NodeCore {
             stats: self.stats,
             dt: self.sim.settings().dt,
             measured: self.sensors.measured(),
+            imu_truth: self.sensors.imu_truth(),
         }
     }
 

@@ -17,7 +17,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 /// The topics whose messages the writer thread builds from a `StepBatch`'s states. `/clock`
 /// goes in the batch too (its time alone); the others are built on the node's thread: those
 /// sent once or rarely.
-pub(super) const DEFERRED: [Topic; 8] = [
+pub(super) const DEFERRED: [Topic; 10] = [
     Topic::Tf,
     Topic::BodyPoses,
     Topic::CableStates,
@@ -26,6 +26,8 @@ pub(super) const DEFERRED: [Topic; 8] = [
     Topic::Contacts,
     Topic::GroundTruthPoses,
     Topic::GroundTruthCables,
+    Topic::Imu,
+    Topic::GroundTruthImu,
 ];
 
 /// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
@@ -101,6 +103,7 @@ pub(super) fn rebuilt_view<'a>(
         stats: NodeStats { steps, ..NodeStats::default() },
         dt: 0.0,
         measured: &unpacked.measured,
+        imu_truth: &unpacked.imu_truth,
     }
 }
 
@@ -142,6 +145,8 @@ pub(super) struct UnpackedState {
     rates: Vec<f64>,
     /// What the sensors reported (`NodeView::measured`; empty without sensors).
     measured: Vec<f64>,
+    /// The true IMU values (`NodeView::imu_truth`; empty without a gyro or accelerometer).
+    imu_truth: Vec<f64>,
 }
 
 impl StepBatch {
@@ -163,6 +168,7 @@ impl StepBatch {
                 workspace: Workspace::for_forces(&model),
                 rates: vec![0.0; model.cables.len()],
                 measured: vec![0.0; crate::sensors::layout(&model).map(|(_, _, n)| n).sum()],
+                imu_truth: vec![0.0; imu_len(&model)],
                 model,
             },
             buffer: Vec::new(),
@@ -278,8 +284,9 @@ pub(super) fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
     for ((s, theta), speed) in f.states.iter().zip(&f.wrap_angles).zip(&f.slip_speeds) {
         out.extend_from_slice(&[s.code(), *theta, *speed]);
     }
-    // what the sensors reported
+    // what the sensors reported, and the IMU's truth
     out.extend_from_slice(view.measured);
+    out.extend_from_slice(view.imu_truth);
     debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
 
@@ -294,6 +301,16 @@ pub(super) fn packed_len(model: &Model) -> usize {
         + 2 * model.initial_segment_rest_lengths.len()
         + 3 * model.pulley_friction.iter().map(|f| f.mu.len()).sum::<usize>()
         + crate::sensors::layout(model).map(|(_, _, n)| n).sum::<usize>()
+        + imu_len(model)
+}
+
+/// How many true IMU values a view of `model` carries (`NodeView::imu_truth`).
+fn imu_len(model: &Model) -> usize {
+    if crate::sensors::has_imu(model) {
+        6 * model.bodies.len()
+    } else {
+        0
+    }
 }
 
 /// Appends every point's position (3 each) of `view` to `out`.
@@ -364,6 +381,8 @@ pub(super) fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut Unp
     }
     let n = to.measured.len();
     to.measured.copy_from_slice(take(n));
+    let n = to.imu_truth.len();
+    to.imu_truth.copy_from_slice(take(n));
     if let Some(points) = points {
         for (p, xyz) in ws.points.iter_mut().zip(points.chunks_exact(3)) {
             p.position = Vector3::from_column_slice(xyz);

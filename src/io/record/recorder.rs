@@ -314,6 +314,7 @@ impl PathPublisher {
             stats: NodeStats { steps: self.rows, ..Default::default() },
             dt: 0.0,
             measured: &[],
+            imu_truth: &[],
         }
     }
 

@@ -197,7 +197,7 @@ pub struct MeasuredSample {
     /// Steps taken since the start or the last reset (as `StateSample::step`).
     pub step: u64,
     /// The declared channels: `MEASURED_TENSION` | `MEASURED_LENGTH` | `MEASURED_REST_LENGTH` |
-    /// `MEASURED_POSITION` | `MEASURED_ORIENTATION`.
+    /// `MEASURED_POSITION` | `MEASURED_ORIENTATION` | `MEASURED_GYRO` | `MEASURED_ACCELEROMETER`.
     pub channels: u32,
     /// Bodies in use.
     pub body_count: u32,
@@ -215,6 +215,15 @@ pub struct MeasuredSample {
     pub cable_length: [f64; MAX_CABLES],
     /// Measured actuator rest lengths (the winches' encoders), m.
     pub actuator_rest_length: [f64; MAX_ACTUATORS],
+    /// Measured angular velocities (gyro), rad/s, body axes.
+    pub body_angular_velocity: [[f64; 3]; MAX_BODIES],
+    /// Measured specific forces (accelerometer), `R^T (a - g)`, m/s^2, body axes.
+    pub body_specific_force: [[f64; 3]; MAX_BODIES],
+    /// The true angular velocities, rad/s, body axes (with a gyro or an accelerometer; the
+    /// state sample has no accelerations, so the truth of both IMU channels travels here).
+    pub true_angular_velocity: [[f64; 3]; MAX_BODIES],
+    /// The true specific forces, m/s^2, body axes (with a gyro or an accelerometer).
+    pub true_specific_force: [[f64; 3]; MAX_BODIES],
 }
 
 /// `MeasuredSample::channels` bit: tensions.
@@ -227,6 +236,10 @@ pub const MEASURED_REST_LENGTH: u32 = 4;
 pub const MEASURED_POSITION: u32 = 8;
 /// `MeasuredSample::channels` bit: body orientations.
 pub const MEASURED_ORIENTATION: u32 = 16;
+/// `MeasuredSample::channels` bit: angular velocities (gyro).
+pub const MEASURED_GYRO: u32 = 32;
+/// `MeasuredSample::channels` bit: specific forces (accelerometer).
+pub const MEASURED_ACCELEROMETER: u32 = 64;
 
 /// One actuator command: a target rest length (reached at the given or the actuator's largest
 /// rate), a rate alone (the winch runs at it until told otherwise), or a tension alone (a winch

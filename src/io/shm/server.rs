@@ -117,6 +117,21 @@ fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
             *to = [q[1], q[2], q[3], q[0]];
         }
     }
+    for (kind, bit, to) in [
+        (SensorKind::Gyro, MEASURED_GYRO, &mut out.body_angular_velocity),
+        (SensorKind::Accelerometer, MEASURED_ACCELEROMETER, &mut out.body_specific_force),
+    ] {
+        if let Some(x) = measured(kind) {
+            out.channels |= bit;
+            for (to, x) in to.iter_mut().zip(x.chunks_exact(3)) {
+                to.copy_from_slice(x);
+            }
+        }
+    }
+    for (body, imu) in v.imu_truth.chunks_exact(6).enumerate() {
+        out.true_angular_velocity[body].copy_from_slice(&imu[..3]);
+        out.true_specific_force[body].copy_from_slice(&imu[3..]);
+    }
 }
 
 /// Fills `out` (all zero on entry) with every contact of `v`.
