@@ -843,18 +843,18 @@ impl Simulator {
     }
 }
 
-/// Undoes a sub-step: `state` back to `before`, `ws` evaluated there (`evaluate_forces`), and the
-/// integrator restarted from consistent accelerations (its history is the undone sub-step's).
-/// `dV/dL0` of cable `c` (N) at its response `r`, at a fixed length: `-T_el (L + L0) / (2 L0)`
-/// while taut, 0 slack: the force an actuator moving its rest length works against.
+/// `-dV/dL0` of cable `c` (N) at its response `r`, at a fixed length: `T_el (L + L0) / (2 L0)`
+/// while taut, 0 slack: the force an actuator moving its rest length works against
+/// (`crate::forces::cable::elastic_energy_rest_derivative`).
 fn rest_force(model: &Model, r: &crate::forces::cable::CableResponse, c: usize) -> f64 {
-    if r.slack || r.length <= r.rest_length {
+    if r.slack {
         return 0.0;
     }
-    let t_el = model.cables[c].axial_stiffness / r.rest_length * (r.length - r.rest_length);
-    t_el * (r.length + r.rest_length) / (2.0 * r.rest_length)
+    -crate::forces::cable::elastic_energy_rest_derivative(&model.cables[c], r.rest_length, r.length)
 }
 
+/// Undoes a sub-step: `state` back to `before`, `ws` evaluated there (`evaluate_forces`), and the
+/// integrator restarted from consistent accelerations (its history is the undone sub-step's).
 fn undo_sub_step(
     model: &Model,
     dynamics: &mut Dynamics,

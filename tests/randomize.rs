@@ -8,29 +8,11 @@ mod common;
 use tensegrity::model::Model;
 use tensegrity::randomize::Parameter;
 
-/// A 10 kg load hanging on a rope (EA 1e5 N, damping 50 N s/m), with `randomize` appended.
+/// The hanging load (`common::hanging_load`: 10 kg on a rope of EA 1e5 N) with the rope damped
+/// at 50 N s/m, and `randomize` appended.
 fn hanging(randomize: &str) -> String {
-    format!(
-        r#"
-name = "hanging"
-gravity = [0.0, 0.0, -9.81]
-[[bodies]]
-name = "ceiling"
-kind = "fixed"
-points = {{ hook = [0.0, 0.0, 0.0] }}
-[[bodies]]
-name = "load"
-kind = "node"
-mass = 10.0
-position = [0.0, 0.0, -1.0]
-[[cables]]
-name = "rope"
-route = ["ceiling.hook", "load"]
-ea = 1e5
-damping = 50.0
-rest_length = 1.0
-{randomize}"#
-    )
+    common::hanging_load().replacen("rest_length = 1.0\n", "rest_length = 1.0\ndamping = 50.0\n", 1)
+        + randomize
 }
 
 const DECLARED: &str = r#"

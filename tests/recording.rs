@@ -584,18 +584,14 @@ fn a_run_with_pulley_friction_records_its_pulleys_and_replays_bit_for_bit() {
 /// seeded `seed`, into a fresh bag `name`; gives the bag and every `(cable_states,
 /// ground_truth/cable_states)` tension of the rope.
 fn sensed_hoist(name: &str, seed: u64) -> (PathBuf, Vec<(f64, f64)>) {
-    let text = "name = \"hanging\"\ngravity = [0.0, 0.0, -9.81]\nphysics_dt = 1e-5\n\
-        [[bodies]]\nname = \"ceiling\"\nkind = \"fixed\"\npoints = { hook = [0.0, 0.0, 0.0] }\n\
-        [[bodies]]\nname = \"load\"\nkind = \"node\"\nmass = 10.0\nposition = [0.0, 0.0, -1.0]\n\
-        [[cables]]\nname = \"rope\"\nroute = [\"ceiling.hook\", \"load\"]\nea = 1e5\nrest_length = 1.0\n\
-        [[actuators]]\nname = \"winch\"\ncable = \"rope\"\nmin_rest_length = 0.5\nmax_rest_length = 1.5\n\
-        max_rate = 0.1\n";
+    let gravity = "gravity = [0.0, 0.0, -9.81]\n";
+    let text = common::hanging_load().replacen(gravity, &format!("{gravity}physics_dt = 1e-5\n"), 1);
     let scene = common::scratch("sensors").join(format!("{name}.toml"));
     let sensors = format!(
         "\n[sensors]\nseed = {seed}\n[sensors.tension]\nsigma = 0.5\n\
          [sensors.rest_length]\nresolution = 1e-4\ndelay = 3\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\n"
     );
-    std::fs::write(&scene, text.to_string() + &sensors).unwrap();
+    std::fs::write(&scene, text + &sensors).unwrap();
     let dir = record_from_equilibrium(&scene, name, "0.02");
     let reader = BagReader::open(&dir).unwrap();
     let tensions = |topic: &str| -> Vec<f64> {
@@ -648,19 +644,25 @@ fn a_winch_driven_run_replays_bit_for_bit() {
     assert_replays_identically(&record_from_equilibrium(&scene, "winch", "0.03"));
 }
 
-#[test]
-fn a_node_randomized_per_reset_records_each_episode_and_replays_bit_for_bit() {
-    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
-    let text = std::fs::read_to_string(root.join("config/examples/randomized.toml")).unwrap();
-    let text = text.replace("seed = 11\n", "seed = 11\nper = \"reset\"\n");
-    let model = tensegrity::scene::from_toml(&text, "randomized.toml").unwrap();
-    let dir = bag_dir("randomized");
-    let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
-    let sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
-    let run = record::run_info(record::KIND_NODE, &model, "randomized", sim.settings(), &params);
+/// A node core on `model` (state every step, no pacing; from the static equilibrium when
+/// `from_equilibrium`), started into a recorder of the fresh bag directory `name`.
+fn core_recording(
+    model: &tensegrity::model::Model,
+    name: &str,
+    from_equilibrium: bool,
+) -> (NodeCore, record::BagRecorder, PathBuf) {
+    let dir = bag_dir(name);
+    let params = NodeParams {
+        real_time_factor: 0.0,
+        state_publish_rate: 0.0,
+        start_from_equilibrium: from_equilibrium,
+        ..NodeParams::default()
+    };
+    let sim = Simulator::start(model.clone(), SimSettings::default(), from_equilibrium).unwrap();
+    let run = record::run_info(record::KIND_NODE, model, name, sim.settings(), &params);
     let mut recorder = record::BagRecorder::create(
         &dir,
-        &model,
+        model,
         &params,
         &run,
         record::LogTime::Step,
@@ -669,6 +671,16 @@ fn a_node_randomized_per_reset_records_each_episode_and_replays_bit_for_bit() {
     .unwrap();
     let mut core = NodeCore::with_simulator(sim, params);
     core.start(&mut recorder);
+    (core, recorder, dir)
+}
+
+#[test]
+fn a_node_randomized_per_reset_records_each_episode_and_replays_bit_for_bit() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("config/examples/randomized.toml")).unwrap();
+    let text = text.replace("seed = 11\n", "seed = 11\nper = \"reset\"\n");
+    let model = tensegrity::scene::from_toml(&text, "randomized.toml").unwrap();
+    let (mut core, mut recorder, dir) = core_recording(&model, "randomized", false);
     for k in 0..90 {
         if k % 30 == 29 {
             core.reset(&mut recorder);
@@ -701,26 +713,7 @@ fn tension_commands_are_recorded_and_replay_bit_for_bit() {
     // effort, and a position command after them
     let scene = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/examples/hoist.toml");
     let model = tensegrity::scene::load(&scene).unwrap();
-    let dir = bag_dir("tension");
-    let params = NodeParams {
-        real_time_factor: 0.0,
-        state_publish_rate: 0.0,
-        start_from_equilibrium: true,
-        ..NodeParams::default()
-    };
-    let sim = Simulator::start(model.clone(), SimSettings::default(), true).unwrap();
-    let run = record::run_info(record::KIND_NODE, &model, "hoist", sim.settings(), &params);
-    let mut recorder = record::BagRecorder::create(
-        &dir,
-        &model,
-        &params,
-        &run,
-        record::LogTime::Step,
-        &BagOptions::default(),
-    )
-    .unwrap();
-    let mut core = NodeCore::with_simulator(sim, params);
-    core.start(&mut recorder);
+    let (mut core, mut recorder, dir) = core_recording(&model, "tension", true);
     let name = vec!["hoist".to_string()];
     for k in 0..300 {
         match k {
@@ -760,26 +753,18 @@ fn tension_commands_are_recorded_and_replay_bit_for_bit() {
 
 #[test]
 fn applied_commands_from_bags_written_before_tension_commands_still_decode() {
-    // the layout those bags have: no `tension` array at the end
-    #[derive(serde::Serialize)]
-    struct Before {
-        header: msg::Header,
-        step: u64,
-        reset: bool,
-        name: Vec<String>,
-        rest_length: Vec<f64>,
-        rate: Vec<f64>,
-    }
-    let before = Before {
-        header: msg::Header::default(),
+    // the layout those bags have: today's without the `tension` array at the end (an empty
+    // sequence is its 4-byte length, after the 8-byte aligned rates)
+    let today = msg::AppliedCommands {
         step: 7,
-        reset: false,
         name: vec!["ring_winch".into()],
         rest_length: vec![4.0],
         rate: vec![f64::NAN],
+        ..Default::default()
     };
     let mut data = vec![0, 1, 0, 0];
-    data.extend(cdr_encoding::to_vec::<_, byteorder::LittleEndian>(&before).unwrap());
+    data.extend(cdr_encoding::to_vec::<_, byteorder::LittleEndian>(&today).unwrap());
+    data.truncate(data.len() - 4);
     let recorded = bag::RecordedMessage {
         topic: "/tensegrity_sim/applied_commands".into(),
         type_name: "tensegrity_msgs/msg/AppliedCommands".into(),

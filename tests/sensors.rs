@@ -15,32 +15,7 @@ fn hanging(sensors: &str) -> Model {
 }
 
 fn hanging_text(sensors: &str) -> String {
-    format!(
-        r#"
-name = "hanging"
-gravity = [0.0, 0.0, -9.81]
-[[bodies]]
-name = "ceiling"
-kind = "fixed"
-points = {{ hook = [0.0, 0.0, 0.0] }}
-[[bodies]]
-name = "load"
-kind = "node"
-mass = 10.0
-position = [0.0, 0.0, -1.0]
-[[cables]]
-name = "rope"
-route = ["ceiling.hook", "load"]
-ea = 1e5
-rest_length = 1.0
-[[actuators]]
-name = "winch"
-cable = "rope"
-min_rest_length = 0.5
-max_rest_length = 1.5
-max_rate = 0.1
-{sensors}"#
-    )
+    common::hanging_load() + sensors
 }
 
 /// Steps a simulator at rest in its equilibrium `steps` times at 1 ms, updating `sensors` after

@@ -109,6 +109,21 @@ pub fn buckled_energy_rest_derivative(cable: &CableModel, l0: f64, l: f64) -> f6
     p * p / (2.0 * ea) + (p + k_b * u) * (1.0 - p / ea) - 0.5 * k_b * u * u / l0
 }
 
+/// `dV/dL0` at a fixed length `l` (N) for rest length `l0` (m): the force an actuator changing
+/// the rest length works against, its power `dV/dL0 dL0/dt`. `-T_el (L + L0) / (2 L0)` with
+/// `T_el = (EA/L0)(L - L0)` (a member in compression too), a buckled member's
+/// `buckled_energy_rest_derivative`, 0 for a slack cable or a `DISENGAGED` rest length.
+pub fn elastic_energy_rest_derivative(cable: &CableModel, l0: f64, l: f64) -> f64 {
+    if l0 == DISENGAGED || (cable.tension_only && l <= l0) {
+        0.0
+    } else if is_buckled(cable, l0, l) {
+        buckled_energy_rest_derivative(cable, l0, l)
+    } else {
+        let t_el = cable.axial_stiffness / l0 * (l - l0);
+        -(t_el * (l + l0) / (2.0 * l0))
+    }
+}
+
 /// Elastic energy (J): `EA/(2 L0) (L - L0)^2`, a cable's while taut (else 0), a member's
 /// always, a buckled member's `P^2 L0 / (2 EA) + P (s - s_cr) + k_b (s - s_cr)^2 / 2` (module
 /// docs); 0 at a `DISENGAGED` rest length.

@@ -147,6 +147,16 @@ ea = {ea}
 }
 
 /// An empty-or-new directory under the system temporary directory for one test's files.
+/// The hanging load of `config/examples/sensors.toml` without its `[sensors]`: a 10 kg node on a
+/// 1 m rope (EA 1e5 N) from a fixed hook, the rope's actuator `winch`. Tests append their own
+/// tables.
+pub fn hanging_load() -> String {
+    let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples/sensors.toml"))
+        .unwrap();
+    let end = text.find("\n[sensors]").expect("sensors.toml declares [sensors]");
+    text[..=end].to_string()
+}
+
 pub fn scratch(name: &str) -> std::path::PathBuf {
     let d = std::env::temp_dir().join(format!("tensegrity-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();

@@ -606,16 +606,9 @@ pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f
             continue; // a member works in compression too
         }
         let cable = &model.cables[c];
-        if crate::forces::cable::is_buckled(cable, r.rest_length, r.length) {
-            let t_el = crate::forces::cable::elastic_force(cable, r.rest_length, r.length);
-            actuator += crate::forces::cable::buckled_energy_rest_derivative(cable, r.rest_length, r.length)
-                * rest_rate[c];
-            loss += (r.tension - t_el) * r.length_rate;
-            continue;
-        }
-        let ea = cable.axial_stiffness;
-        let t_el = ea / r.rest_length * (r.length - r.rest_length);
-        actuator -= t_el * (r.length + r.rest_length) / (2.0 * r.rest_length) * rest_rate[c];
+        let t_el = crate::forces::cable::elastic_force(cable, r.rest_length, r.length);
+        let rest_force = crate::forces::cable::elastic_energy_rest_derivative(cable, r.rest_length, r.length);
+        actuator += rest_force * rest_rate[c];
         loss += (r.tension - t_el) * r.length_rate;
     }
     (actuator, loss)
