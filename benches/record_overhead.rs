@@ -300,8 +300,8 @@ impl NodeSink for Timed {
     ) {
         self.time(|t| t.commands_applied(time, step, commands))
     }
-    fn simulation_reset(&mut self, time: f64, step: u64) {
-        self.time(|t| t.simulation_reset(time, step))
+    fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
+        self.time(|t| t.simulation_reset(time, step, seed))
     }
 }
 

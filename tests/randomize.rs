@@ -247,3 +247,32 @@ fn a_scene_randomized_per_reset_draws_each_episode_anew_and_the_same_episodes_ag
     core.reset(&mut Structures(Vec::new()));
     assert_eq!(core.simulator().model().cables[0].axial_stiffness, before);
 }
+
+#[test]
+fn a_seeded_reset_draws_its_episode_from_the_seed_whatever_came_before() {
+    use tensegrity::io::node::{params::NodeParams, NodeCore};
+    // drawn once per run (no `per = "reset"`): a seeded reset draws anyway, from its seed
+    let model = drawn(5);
+    let params = NodeParams { start_paused: true, start_from_equilibrium: true, ..NodeParams::default() };
+    let mut core = NodeCore::new(model.clone(), params).unwrap();
+    let mut sink = Structures(Vec::new());
+    core.start(&mut sink);
+    let ea = |core: &NodeCore| core.simulator().model().cables[0].axial_stiffness;
+    let mut seeded = Vec::new();
+    for seed in [9, 9, 10, 9] {
+        core.reset_seeded(Some(seed), &mut sink);
+        assert!(core.fault().is_none());
+        seeded.push(ea(&core));
+    }
+    assert!(seeded[0] == seeded[1] && seeded[1] != seeded[2] && seeded[3] == seeded[0], "{seeded:?}");
+    // the seed's draw is the scene's with that seed
+    let by_seed = common::model_from_toml(&hanging(&DECLARED.replace("SEED", "9")));
+    assert_eq!(seeded[0], by_seed.cables[0].axial_stiffness);
+    // published with its seed, episode 0
+    let last = sink.0.last().unwrap();
+    assert_eq!((last.randomize_seed, last.randomize_episode, last.randomized_value[0]), (9, 0, seeded[0]));
+    // an unseeded reset of a scene drawn once per run starts the same episode over
+    core.reset(&mut sink);
+    assert_eq!(ea(&core), seeded[3]);
+    assert_ne!(ea(&core), model.cables[0].axial_stiffness);
+}

@@ -644,20 +644,27 @@ fn a_robot_on_the_ground_serves_its_contacts_with_each_lockstep_answer() {
     assert!(client.latest_contacts().unwrap().is_none());
 }
 
-#[test]
-fn a_scene_with_sensors_serves_what_they_report_with_each_lockstep_answer() {
-    use tensegrity::io::shm::{MEASURED_POSITION, MEASURED_TENSION};
+/// A paused shm node on `config/examples/sensors.toml` (from its equilibrium, state published
+/// with each lockstep answer) for test `test`, and a client of it.
+fn sensed_node(test: &str) -> (RunningNode, ShmClient) {
     let root = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"));
     let model = tensegrity::scene::load(&root.join("config/examples/sensors.toml")).unwrap();
     let params = NodeParams {
         start_paused: true,
         state_publish_rate: 0.0,
         start_from_equilibrium: true,
-        ..shm_params("measured")
+        ..shm_params(test)
     };
     let prefix = params.shm_prefix();
-    let _node = RunningNode::start_serving(model.clone(), params);
+    let node = RunningNode::start_serving(model, params);
     let client = ShmClient::connect(&prefix, WAIT).unwrap();
+    (node, client)
+}
+
+#[test]
+fn a_scene_with_sensors_serves_what_they_report_with_each_lockstep_answer() {
+    use tensegrity::io::shm::{MEASURED_POSITION, MEASURED_TENSION};
+    let (_node, client) = sensed_node("measured");
     let mut errors = Vec::new();
     for _ in 0..200 {
         let answer = client.lockstep(1, &[], WAIT).unwrap();
@@ -682,4 +689,24 @@ fn a_scene_with_sensors_serves_what_they_report_with_each_lockstep_answer() {
     let client = ShmClient::connect(&prefix, WAIT).unwrap();
     client.lockstep(1, &[], WAIT).unwrap();
     assert!(client.latest_measured().unwrap().is_none());
+}
+
+#[test]
+fn a_seeded_lockstep_reset_replays_the_same_noisy_episode() {
+    let (_node, client) = sensed_node("seeded_reset");
+    // an episode: reset with `seed`, then 50 steps of the noisy tension sensor
+    let episode = |seed: u64| -> Vec<u64> {
+        let first = client.lockstep_with(0, &[], Some(Some(seed)), WAIT).unwrap();
+        assert_eq!(first.payload().state.step, 0, "the reset starts at step 0");
+        (0..50)
+            .map(|_| {
+                client.lockstep(1, &[], WAIT).unwrap();
+                client.latest_measured().unwrap().unwrap().payload().cable_tension[0].to_bits()
+            })
+            .collect()
+    };
+    let a = episode(21);
+    client.lockstep(7, &[], WAIT).unwrap();
+    assert_eq!(episode(21), a, "the same seed, the same stream");
+    assert_ne!(episode(22), a, "another seed, another stream");
 }

@@ -48,6 +48,8 @@ class AppliedCommands(IdlStruct, typename="tensegrity_msgs::msg::dds_::AppliedCo
     rest_length: types.sequence[types.float64] = field(default_factory=list)
     rate: types.sequence[types.float64] = field(default_factory=list)
     tension: types.sequence[types.float64] = field(default_factory=list)
+    reset_seeded: bool = False
+    reset_seed: types.uint64 = 0
 
 
 @dataclass

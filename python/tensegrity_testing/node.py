@@ -364,12 +364,13 @@ class TensegrityNode:
         """Index of cable `name` in the state's arrays."""
         return self.names["cable_names"].index(name)
 
-    def lockstep(self, steps, commands=()):
+    def lockstep(self, steps, commands=(), reset=False, seed=None):
         """Applies `commands` (`command(...)` entries) at the next boundary, takes `steps` steps
-        (the node paused) and returns the `State` after them."""
+        (the node paused) and returns the `State` after them. With `reset`, the node resets
+        first, its episode drawn from `seed` when given (`TensegrityClient.lockstep`)."""
         if self.shm is None:
             raise RuntimeError("lockstep needs the shared-memory transport (transports)")
-        answer = self.shm.lockstep(steps, list(commands), timeout=self.timeout)
+        answer = self.shm.lockstep(steps, list(commands), timeout=self.timeout, reset=reset, seed=seed)
         state = State.of(answer.state)
         c = self.shm.latest_contacts()
         if c is not None and c.step == state.step:

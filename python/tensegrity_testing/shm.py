@@ -56,6 +56,8 @@ BY_NAME = 0xFFFFFFFF
 FIELD_REST_LENGTH = 1
 FIELD_RATE = 2
 FIELD_TENSION = 4
+LOCKSTEP_RESET = 1
+LOCKSTEP_SEEDED = 2
 
 RESULT_OK = 1
 
@@ -218,9 +220,10 @@ class CommandSample(ctypes.Structure):
 
 
 class LockstepRequest(ctypes.Structure):
-    """`TensegrityLockstepRequest`: apply `command`, take `steps` steps, answer the state."""
+    """`TensegrityLockstepRequest`: reset if `flags` say so (its episode from `seed` with
+    LOCKSTEP_SEEDED), apply `command`, take `steps` steps, answer the state."""
 
-    _fields_ = [("steps", u64), ("command", CommandSample)]
+    _fields_ = [("steps", u64), ("flags", u32), ("reserved", u32), ("seed", u64), ("command", CommandSample)]
 
     @staticmethod
     def type_name() -> str:
@@ -394,6 +397,9 @@ class TensegrityClient:
             "cable_names": [text(s.cable_names[i]) for i in range(s.cable_count)],
             "actuator_names": [text(s.actuator_names[i]) for i in range(s.actuator_count)],
             "actuator_cable": [s.actuator_cable[i] for i in range(s.actuator_count)],
+            "actuator_min_rest_length": [s.actuator_min_rest_length[i] for i in range(s.actuator_count)],
+            "actuator_max_rest_length": [s.actuator_max_rest_length[i] for i in range(s.actuator_count)],
+            "actuator_max_rate": [s.actuator_max_rate[i] for i in range(s.actuator_count)],
             "contacts": [(text(s.contact_point[i]), text(s.contact_with[i])) for i in range(s.contact_count)],
         }
 
@@ -456,11 +462,18 @@ class TensegrityClient:
         sample.assume_init().send()
         self.wake_node.notify_with_custom_event_id(iox2.EventId.new(EVENT_COMMAND))
 
-    def lockstep(self, steps, entries=(), timeout=10.0):
-        """Applies `entries`, takes `steps` steps and returns the `Answer` (node paused only)."""
+    def lockstep(self, steps, entries=(), timeout=10.0, reset=False, seed=None):
+        """Applies `entries`, takes `steps` steps and returns the `Answer` (node paused only).
+        With `reset`, the node resets first, its episode (the scene's randomization, the sensors'
+        streams) drawn from `seed` (an integer from 0 to 2**64 - 1) when given."""
+        if seed is not None and not reset:
+            raise ValueError("a seed is for a reset: lockstep(..., reset=True, seed=...)")
         request = self.lockstep_client.loan_uninit()
         payload = request.payload().contents
         payload.steps = steps
+        payload.flags = (LOCKSTEP_RESET if reset else 0) | (LOCKSTEP_SEEDED if seed is not None else 0)
+        payload.reserved = 0
+        payload.seed = 0 if seed is None else seed
         self._fill(payload.command, entries)
         pending = request.assume_init().send()
         self.wake_node.notify_with_custom_event_id(iox2.EventId.new(EVENT_LOCKSTEP))

@@ -604,8 +604,12 @@ pub struct AppliedCommands {
     /// Rates, m/s; NaN where the command gave none.
     pub rate: Vec<f64>,
     /// Tensions, N; NaN where the command gave none. Empty in bags written before tension
-    /// commands existed (`AppliedCommands::decode_cdr` reads both).
+    /// commands existed (`crate::io::record::applied_commands` reads both layouts).
     pub tension: Vec<f64>,
+    /// True: the reset drew its episode from `reset_seed` (`NodeCore::reset_seeded`).
+    pub reset_seeded: bool,
+    /// The reset episode's seed (with `reset_seeded`).
+    pub reset_seed: u64,
 }
 
 impl AppliedCommands {
@@ -625,6 +629,8 @@ impl AppliedCommands {
             rest_length: commands.iter().map(|(_, c)| c.rest_length.unwrap_or(f64::NAN)).collect(),
             rate: commands.iter().map(|(_, c)| c.rate.unwrap_or(f64::NAN)).collect(),
             tension: commands.iter().map(|(_, c)| c.tension.unwrap_or(f64::NAN)).collect(),
+            reset_seeded: false,
+            reset_seed: 0,
         }
     }
 }

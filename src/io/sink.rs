@@ -95,8 +95,10 @@ pub trait NodeSink {
     /// they were applied. For recorders; default: nothing.
     fn commands_applied(&mut self, _time: f64, _step: u64, _commands: &[(ActuatorId, ActuatorCommand)]) {}
     /// The simulation was just reset to its initial state (sim time `time`) after `step` steps
-    /// since the start; the reset state is published next. For recorders; default: nothing.
-    fn simulation_reset(&mut self, _time: f64, _step: u64) {}
+    /// since the start, its episode drawn from `seed` where the reset gave one
+    /// (`NodeCore::reset_seeded`); the reset state is published next. For recorders; default:
+    /// nothing.
+    fn simulation_reset(&mut self, _time: f64, _step: u64, _seed: Option<u64>) {}
 }
 
 /// Counters reported in `/diagnostics`.

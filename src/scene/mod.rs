@@ -795,15 +795,30 @@ pub fn from_toml(text: &str, file: &str) -> Result<Model, SceneError> {
 /// gives the same model to the bit; a model without randomization comes back as it is.
 pub fn redraw(model: &Model, episode: u64) -> Result<Model, SceneError> {
     let Some(r) = &model.randomization else { return Ok(model.clone()) };
-    let file = format!("{} (episode {episode})", model.name);
-    let mut spec = parse(&model.source, &file)?;
-    if let Some(declared) = &mut spec.randomize {
-        declared.seed = r.seed.wrapping_add(episode);
+    draw(model, r.seed, episode, &format!("{} (episode {episode})", model.name))
+}
+
+/// `model` (built from a scene with `[randomize]`) drawn anew from the seed `seed` (episode 0 of
+/// that seed): a seeded reset's episode (`crate::io::node::NodeCore::reset_seeded`). The same
+/// seed gives the same model to the bit; a model without randomization comes back as it is.
+pub fn redraw_seeded(model: &Model, seed: u64) -> Result<Model, SceneError> {
+    if model.randomization.is_none() {
+        return Ok(model.clone());
     }
-    let mut drawn = build_model(&spec, &file, Some(&model.source))?;
+    draw(model, seed, 0, &format!("{} (seed {seed})", model.name))
+}
+
+/// `model`'s scene text built again with its randomization's seed `seed + episode`, labelled
+/// `file` in errors.
+fn draw(model: &Model, seed: u64, episode: u64, file: &str) -> Result<Model, SceneError> {
+    let mut spec = parse(&model.source, file)?;
+    if let Some(declared) = &mut spec.randomize {
+        declared.seed = seed.wrapping_add(episode);
+    }
+    let mut drawn = build_model(&spec, file, Some(&model.source))?;
     drawn.name.clone_from(&model.name);
     if let Some(d) = &mut drawn.randomization {
-        d.seed = r.seed;
+        d.seed = seed;
         d.episode = episode;
     }
     Ok(drawn)

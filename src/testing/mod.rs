@@ -369,7 +369,13 @@ impl SimUnderTest {
     }
     /// Back to the initial state and time (pending commands dropped, a fault cleared).
     pub fn reset(&self) -> Result<(), KitError> {
-        self.ask(Request::Reset, "reset")
+        self.ask(|tx| Request::Reset(None, tx), "reset")
+    }
+
+    /// `reset`, the new episode drawn from `seed`: a randomized scene's draws and the sensors'
+    /// streams (`NodeCore::reset_seeded`). The same seed gives the same episode to the bit.
+    pub fn reset_seeded(&self, seed: u64) -> Result<(), KitError> {
+        self.ask(|tx| Request::Reset(Some(seed), tx), "reset")
     }
 
     /// The latest state the node published (its initial state before any step).

@@ -19,7 +19,7 @@ pub(super) enum Request {
     Command(Command, Sender<Result<(), KitError>>),
     Step(u64, Sender<Result<Snapshot, KitError>>),
     Pause(bool, Sender<Result<(), KitError>>),
-    Reset(Sender<Result<(), KitError>>),
+    Reset(Option<u64>, Sender<Result<(), KitError>>),
 }
 
 /// What the node thread shares with the handle: the latest state and the counters.
@@ -117,8 +117,8 @@ impl KitTransport {
                 core.set_paused(paused, &mut With { own: self, others });
                 let _ = reply.send(Ok(()));
             }
-            Request::Reset(reply) => {
-                core.reset(&mut With { own: self, others });
+            Request::Reset(seed, reply) => {
+                core.reset_seeded(seed, &mut With { own: self, others });
                 let _ = reply.send(Ok(()));
             }
         }

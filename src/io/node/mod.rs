@@ -407,10 +407,23 @@ impl NodeCore {
     /// Back to the initial state and time (actuators held again unless following the schedule,
     /// pending commands dropped, the fault cleared), and publishes that state and clock.
     pub fn reset(&mut self, sink: &mut dyn NodeSink) {
+        self.reset_seeded(None, sink);
+    }
+
+    /// `reset`, with the new episode drawn from `seed` where given (a learning environment's
+    /// `reset(seed)`): a randomized scene draws its model from it (`crate::scene::redraw_seeded`:
+    /// seed `seed`, episode 0), whether it redraws per reset or not, and the sensors' streams
+    /// start from it. Without a seed, a scene randomized per reset draws its next episode (after
+    /// a seeded reset, `seed + 1`, `seed + 2`, ...), any other starts its current episode over,
+    /// and the sensors start over with the node's seed.
+    pub fn reset_seeded(&mut self, seed: Option<u64>, sink: &mut dyn NodeSink) {
         self.interrupt_step_request(sink, "reset");
         // a scene randomized per reset draws its next episode's model; any other starts over
-        let redrawn = match self.sim.model().randomization {
-            Some(r) if r.per_reset => Some(self.redraw(r.episode + 1)),
+        let redrawn = match (self.sim.model().randomization, seed) {
+            (Some(_), Some(seed)) => {
+                Some(self.redraw_from(crate::scene::redraw_seeded(self.sim.model(), seed)))
+            }
+            (Some(r), None) if r.per_reset => Some(self.redraw(r.episode + 1)),
             _ => None,
         };
         let redraw_failure = match redrawn {
@@ -430,10 +443,11 @@ impl NodeCore {
                 None
             }
         };
-        // the sensors start over with the same seed: a reset run reports what a fresh one does
-        self.sensors = Sensors::new(self.sim.model(), self.params.sensor_seed);
+        // the sensors start over with the same seed (a reset run reports what a fresh one does),
+        // or with the episode's
+        self.sensors = Sensors::new(self.sim.model(), seed.or(self.params.sensor_seed));
         self.sensors.update(self.sim.model(), self.sim.state(), self.sim.workspace());
-        sink.simulation_reset(self.sim.state().time, self.stats.steps);
+        sink.simulation_reset(self.sim.state().time, self.stats.steps, seed);
         self.steps_since_reset = 0;
         self.fault = None;
         if !self.params.follow_schedule {
@@ -447,7 +461,8 @@ impl NodeCore {
         self.last_command = None;
         self.timed_out = false;
         self.anchor = None;
-        if redrawn_structure(self.sim.model()) {
+        if redrawn_structure(self.sim.model()) || (seed.is_some() && self.sim.model().randomization.is_some())
+        {
             // the new episode's draws
             self.publish(sink, Topic::Structure);
         }
@@ -461,7 +476,15 @@ impl NodeCore {
     /// The simulator of episode `episode` of a scene randomized per reset
     /// (`crate::scene::redraw`), started as the first was.
     fn redraw(&self, episode: u64) -> Result<Simulator, String> {
-        let model = crate::scene::redraw(self.sim.model(), episode).map_err(|e| e.to_string())?;
+        self.redraw_from(crate::scene::redraw(self.sim.model(), episode))
+    }
+
+    /// The simulator of a model drawn anew (`drawn`), started as the first was.
+    fn redraw_from(
+        &self,
+        drawn: Result<crate::model::Model, crate::error::SceneError>,
+    ) -> Result<Simulator, String> {
+        let model = drawn.map_err(|e| e.to_string())?;
         Simulator::start(model, *self.sim.settings(), self.params.start_from_equilibrium)
             .map_err(|e| e.to_string())
     }

@@ -107,9 +107,9 @@ impl NodeSink for TransportSinks<'_> {
             t.commands_applied(time, step, commands);
         }
     }
-    fn simulation_reset(&mut self, time: f64, step: u64) {
+    fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
         for t in self.each() {
-            t.simulation_reset(time, step);
+            t.simulation_reset(time, step, seed);
         }
     }
 }
@@ -284,8 +284,8 @@ impl NodeSink for With<'_> {
         self.own.commands_applied(time, step, commands);
         self.others.commands_applied(time, step, commands);
     }
-    fn simulation_reset(&mut self, time: f64, step: u64) {
-        self.own.simulation_reset(time, step);
-        self.others.simulation_reset(time, step);
+    fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
+        self.own.simulation_reset(time, step, seed);
+        self.others.simulation_reset(time, step, seed);
     }
 }

@@ -227,11 +227,13 @@ impl NodeSink for BagRecorder {
         self.write_applied(&m);
     }
 
-    fn simulation_reset(&mut self, time: f64, step: u64) {
+    fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
         let m = AppliedCommands {
             header: msg::Header { stamp: msg::Time::from_seconds(time), frame_id: String::new() },
             step,
             reset: true,
+            reset_seeded: seed.is_some(),
+            reset_seed: seed.unwrap_or(0),
             ..Default::default()
         };
         self.write_applied(&m);

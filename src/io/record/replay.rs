@@ -137,9 +137,9 @@ impl NodeSink for RerunSink {
             out.commands_applied(time, step, commands);
         }
     }
-    fn simulation_reset(&mut self, time: f64, step: u64) {
+    fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
         if let Some(out) = &mut self.out {
-            out.simulation_reset(time, step);
+            out.simulation_reset(time, step, seed);
         }
     }
 }
@@ -308,7 +308,7 @@ pub fn replay(
                 return Ok(report);
             }
             if a.reset {
-                core.reset(&mut sink);
+                core.reset_seeded(a.reset_seeded.then_some(a.reset_seed), &mut sink);
                 report.resets += 1;
             } else {
                 let commands = match a.commands(core.simulator().model()) {
@@ -434,7 +434,7 @@ struct AppliedCommandsWithoutTension {
 }
 
 /// A recorded `AppliedCommands`, from a bag of today's layout or of the one before tension
-/// commands (whose `tension` comes back empty: none given).
+/// commands and seeded resets (whose `tension` comes back empty: none given; no reset seeded).
 pub fn applied_commands(m: &crate::io::record::bag::RecordedMessage) -> Result<AppliedCommands, String> {
     m.decode::<AppliedCommands>().or_else(|why| {
         let old: AppliedCommandsWithoutTension = m.decode().map_err(|_| why)?;
@@ -445,7 +445,7 @@ pub fn applied_commands(m: &crate::io::record::bag::RecordedMessage) -> Result<A
             name: old.name,
             rest_length: old.rest_length,
             rate: old.rate,
-            tension: Vec::new(),
+            ..AppliedCommands::default()
         })
     })
 }

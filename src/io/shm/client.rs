@@ -307,10 +307,30 @@ impl ShmClient {
         entries: &[CommandEntry],
         timeout: Duration,
     ) -> Result<LockstepAnswer, ShmError> {
+        self.lockstep_with(steps, entries, None, timeout)
+    }
+
+    /// `lockstep` after a reset (`LOCKSTEP_RESET`), its episode drawn from `seed` where given
+    /// (`LOCKSTEP_SEEDED`): a learning environment's `reset(seed)`. With `reset` `None`, plain
+    /// `lockstep`.
+    pub fn lockstep_with(
+        &self,
+        steps: u64,
+        entries: &[CommandEntry],
+        reset: Option<Option<u64>>,
+        timeout: Duration,
+    ) -> Result<LockstepAnswer, ShmError> {
         check_entry_count(entries)?;
         let mut request = self.lockstep.loan_uninit().map_err(ipc("lockstep loan"))?;
         let r = zeroed(request.payload_mut());
         r.steps = steps;
+        if let Some(seed) = reset {
+            r.flags = LOCKSTEP_RESET;
+            if let Some(seed) = seed {
+                r.flags |= LOCKSTEP_SEEDED;
+                r.seed = seed;
+            }
+        }
         fill_command(&mut r.command, entries);
         // SAFETY: `zeroed` initialized the whole payload
         #[allow(unsafe_code)]

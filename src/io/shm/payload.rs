@@ -324,9 +324,22 @@ pub struct CommandSample {
 pub struct LockstepRequest {
     /// Steps to take (0: only check and queue the command, answer the current state).
     pub steps: u64,
-    /// Commands applied at the boundary before the first step.
+    /// `LOCKSTEP_RESET` | `LOCKSTEP_SEEDED`: reset first (as the reset service does), its episode
+    /// drawn from `seed` (`NodeCore::reset_seeded`).
+    pub flags: u32,
+    /// Zero.
+    pub reserved: u32,
+    /// The reset episode's seed (with `LOCKSTEP_SEEDED`): the scene's randomization and the
+    /// sensors' streams.
+    pub seed: u64,
+    /// Commands applied at the boundary before the first step (after the reset).
     pub command: CommandSample,
 }
+
+/// `LockstepRequest::flags` bit: reset before the command and the steps.
+pub const LOCKSTEP_RESET: u32 = 1;
+/// `LockstepRequest::flags` bit (with `LOCKSTEP_RESET`): draw the episode from `seed`.
+pub const LOCKSTEP_SEEDED: u32 = 2;
 
 /// The answer to a `LockstepRequest`.
 #[derive(Debug, Clone, ZeroCopySend)]

@@ -418,6 +418,17 @@ impl ShmTransport {
             Err(_) => return core.incoming_malformed(),
         };
         let steps = request.payload().steps;
+        let flags = request.payload().flags;
+        if flags & !(LOCKSTEP_RESET | LOCKSTEP_SEEDED) != 0 || flags == LOCKSTEP_SEEDED {
+            core.incoming_malformed();
+            let why = format!("lockstep flags {flags:#x}: only RESET (1), alone or with SEEDED (2)");
+            let view = core.view();
+            return self.answer(request, &SimResult::err(result_code::OPERATION_FAILED, why), 0, &view);
+        }
+        if flags & LOCKSTEP_RESET != 0 {
+            let seed = (flags & LOCKSTEP_SEEDED != 0).then_some(request.payload().seed);
+            core.reset_seeded(seed, &mut With { own: &mut *self, others });
+        }
         if request.payload().command.count > 0 {
             let command = &request.payload().command;
             let parsed = core.offer_parsed(|model, out| check_command(model, command, out));

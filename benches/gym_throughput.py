@@ -1,0 +1,97 @@
+#!/usr/bin/env python3
+"""Steps per second of a learning loop in Python: our Gymnasium environment (`TensegrityEnv`, the
+node in lockstep over shared memory) beside MuJoCo's own Python loop (a control write and
+`mujoco.mj_step`), on the free 3-strut prism, with one action per physics step and one per 10,
+in one interleaved run. Our plain lockstep call (`TensegrityClient.lockstep`, no Gymnasium
+wrapper) is timed too, to tell the transport's cost from the wrapper's.
+
+Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyPI):
+
+    python3 -m venv target/mujoco-venv
+    target/mujoco-venv/bin/pip install mujoco numpy gymnasium cyclonedds iceoryx2==0.10.0 pytest
+    target/mujoco-venv/bin/pip install --no-deps ./python
+    cargo build --release
+    target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000]
+
+Models (dt = 1 ms): benches/peers/prism_free_actuator.xml (MuJoCo, implicitfast, its vclu0
+actuator driven) and benches/peers/prism_free.toml (ours, generalized-alpha, its vclu0 winch
+driven by a rate). Each round times every case once, alternating engines; the table gives the
+median over rounds of steps per second (physics steps, not actions).
+"""
+import argparse
+import os
+import statistics
+import time
+
+import mujoco
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+os.environ.setdefault("TENSEGRITY_NODE", os.path.join(ROOT, "target", "release", "tensegrity_node"))
+
+from tensegrity_testing import command  # noqa: E402
+from tensegrity_testing.envs import TensegrityEnv  # noqa: E402
+
+
+def mujoco_steps_per_s(period, actions):
+    m = mujoco.MjModel.from_xml_path(os.path.join(HERE, "peers", "prism_free_actuator.xml"))
+    m.opt.timestep = 1e-3
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    d = mujoco.MjData(m)
+    a = m.nu - 1  # a_vclu0
+    rest = 0.0
+    t0 = time.perf_counter()
+    for k in range(actions):
+        d.ctrl[a] = rest + 1e-4 * np.sin(k * 0.01)  # a small, varying control, written each action
+        mujoco.mj_step(m, d, period)
+    return actions * period / (time.perf_counter() - t0)
+
+
+def ours_steps_per_s(env, period, actions):
+    env.action_period = period
+    env.reset(seed=0)
+    t0 = time.perf_counter()
+    for k in range(actions):
+        env.step(np.array([1e-3 * np.sin(k * 0.01)]))
+    return actions * period / (time.perf_counter() - t0)
+
+
+def lockstep_steps_per_s(env, period, actions):
+    client = env.node.shm
+    client.lockstep(0, reset=True)
+    t0 = time.perf_counter()
+    for k in range(actions):
+        client.lockstep(period, [command(0, rate=1e-4 * np.sin(k * 0.01))])
+    return actions * period / (time.perf_counter() - t0)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--actions", type=int, default=2000)
+    args = p.parse_args()
+    scene = os.path.join(HERE, "peers", "prism_free.toml")
+    env = TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9)
+    cases = {}
+    try:
+        for _ in range(args.rounds):
+            for period in (1, 10):
+                for name, f in (
+                    ("MuJoCo (mj_step, control write)", lambda: mujoco_steps_per_s(period, args.actions)),
+                    ("ours: TensegrityEnv.step", lambda: ours_steps_per_s(env, period, args.actions)),
+                    ("ours: lockstep call alone", lambda: lockstep_steps_per_s(env, period, args.actions)),
+                ):
+                    cases.setdefault((name, period), []).append(f())
+    finally:
+        env.close()
+    print(f"free 3-strut prism, dt 1 ms, median of {args.rounds} rounds of {args.actions} actions\n")
+    print("| loop | steps/s, one action per step | steps/s, one action per 10 steps |")
+    print("| --- | ---: | ---: |")
+    for name in dict.fromkeys(n for n, _ in cases):
+        row = [statistics.median(cases[(name, p)]) for p in (1, 10)]
+        print(f"| {name} | {row[0]:,.0f} | {row[1]:,.0f} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,205 @@
+"""Gymnasium environments on the tensegrity simulator: `TensegrityEnv` runs one `tensegrity_node`
+in lockstep over shared memory (no DDS, so no network) and turns it into a `gymnasium.Env`:
+
+- observations: chosen arrays of the state after each action (tensions, lengths, rest lengths,
+  rates, body positions and orientations), or what the scene's sensors report (`measured=True`:
+  noisy, delayed, as declared in its `[sensors]`);
+- actions: one number per actuator, a rest-length rate (m/s) or a rest-length target (m), within
+  the actuator's declared limits (clipped there); with `normalize=True` (the default) each in
+  [-1, 1], mapped linearly onto those limits;
+- an action holds for `action_period` physics steps; an episode ends after `max_episode_steps`
+  actions (truncated), or when `terminated(state)` says so or the physics fails (terminated);
+- reward: `reward(state, action)`, by default the tension-target task: minus the mean relative
+  error of the actuated cables' tensions from `target_tension` (N per cable name);
+- `reset(seed=...)` is deterministic: the environment's generator, seeded once, draws each
+  episode's seed, and the node resets with it, so the scene's randomization (`[randomize]`) and
+  its sensors' noise are that episode's. The same seed gives the same episodes to the bit.
+
+`make_vector_env(n, ...)` runs `n` of them in their own processes (`gymnasium.vector`), one node
+each: every core works. Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring
+driven to 300 N by its ring winch's rate).
+
+Needs `gymnasium` and `numpy` (`pip install ./python[gym]`).
+"""
+
+import math
+from functools import partial
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .node import TensegrityNode, command
+
+#: Arrays an observation may take from the state (`State` fields), per element.
+STATE_FIELDS = {
+    "cable_tension": "cable",
+    "cable_length": "cable",
+    "cable_rest_length": "cable",
+    "actuator_rest_length": "actuator",
+    "actuator_rate": "actuator",
+    "body_position": "body3",
+    "body_orientation": "body4",
+}
+#: What the sensors' channels fill instead, with `measured=True` (`State.measured` keys).
+MEASURED_FIELDS = {
+    "cable_tension": "tension",
+    "cable_length": "length",
+    "actuator_rest_length": "rest_length",
+    "body_position": "position",
+    "body_orientation": "orientation",
+}
+#: Reward of an action after which the physics failed (the episode terminates).
+FAILURE_REWARD = -10.0
+
+
+class TensegrityEnv(gym.Env):
+    """One simulator as a Gymnasium environment (see the module docs).
+
+    scene: a scene file (default: the bundled prism3); action: "rate" or "rest_length";
+    normalize: actions in [-1, 1] (mapped onto the limits) instead of in SI units;
+    actuators: the actuator names the action drives, in order (default: all); action_period:
+    physics steps per action; max_episode_steps: actions per episode; observation: `State`
+    fields, concatenated in order; measured: observe what the sensors report where the scene
+    declares them; target_tension: {cable: N} of the default reward (default: 1.5 times each
+    actuated cable's tension at the start, at least 1 N); reward(state, action) and
+    terminated(state): your task instead; params: node parameters; node_timeout: seconds.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, scene=None, action="rate", normalize=True, actuators=None, action_period=10,
+                 max_episode_steps=200,
+                 observation=("cable_tension", "actuator_rest_length"), measured=False, target_tension=None,
+                 reward=None, terminated=None, params=None, node_timeout=30.0):
+        if action not in ("rate", "rest_length"):
+            raise ValueError(f"action must be 'rate' or 'rest_length', got {action!r}")
+        if int(action_period) < 1 or int(max_episode_steps) < 1:
+            raise ValueError("action_period and max_episode_steps must be at least 1")
+        unknown = [f for f in observation if f not in STATE_FIELDS]
+        if unknown or not observation:
+            raise ValueError(f"observation fields must be some of {sorted(STATE_FIELDS)}, got {list(observation)}")
+        self.action_kind, self.action_period = action, int(action_period)
+        self.max_episode_steps, self.fields, self.measured = int(max_episode_steps), tuple(observation), measured
+        self._reward, self._terminated = reward, terminated
+        self.node = TensegrityNode(scene, params=params, paused=True, transports=("shm",), timeout=node_timeout)
+        try:
+            names = self.node.names
+            all_actuators = names["actuator_names"]
+            self.actuators = list(all_actuators if actuators is None else actuators)
+            missing = [a for a in self.actuators if a not in all_actuators]
+            if missing or not self.actuators:
+                raise ValueError(f"actuators must be some of {all_actuators}, got {self.actuators}")
+            index = [all_actuators.index(a) for a in self.actuators]
+            if action == "rate":
+                high = np.array([names["actuator_max_rate"][i] for i in index])
+                low = -high
+            else:
+                low = np.array([names["actuator_min_rest_length"][i] for i in index])
+                high = np.array([names["actuator_max_rest_length"][i] for i in index])
+            # the limits in SI units; the space the agent sees
+            self.limits = (low.astype(np.float64), high.astype(np.float64))
+            if normalize:
+                self.action_space = spaces.Box(low=-1.0, high=1.0, shape=low.shape, dtype=np.float64)
+            else:
+                self.action_space = spaces.Box(low=low, high=high, dtype=np.float64)
+            self.normalize = normalize
+            self._cables = [names["actuator_cable"][i] for i in index]
+            start = self.node.lockstep(0)
+            self._sizes = {"cable": len(names["cable_names"]), "actuator": len(all_actuators),
+                           "body3": 3 * len(names["body_names"]), "body4": 4 * len(names["body_names"])}
+            size = sum(self._sizes[STATE_FIELDS[f]] for f in self.fields)
+            self.observation_space = spaces.Box(low=-np.inf, high=np.inf, shape=(size,), dtype=np.float64)
+            cable_names = names["cable_names"]
+            if target_tension is None:
+                target_tension = {cable_names[c]: max(1.5 * start.cable_tension[c], 1.0) for c in self._cables}
+            self.target_tension = dict(target_tension)
+            self._targets = [(cable_names.index(c), t) for c, t in self.target_tension.items()]
+        except BaseException:
+            self.node.stop()
+            raise
+        self._state, self._steps, self.episode_seed = start, 0, None
+
+    # ----- what the agent sees ---------------------------------------------------------------
+
+    def observe(self, state):
+        """The observation of `state` (a `State`): the chosen arrays, concatenated."""
+        parts = []
+        for f in self.fields:
+            values = getattr(state, f)
+            key = MEASURED_FIELDS.get(f)
+            if self.measured and key in state.measured:
+                values = state.measured[key]
+            parts.append(np.asarray(values, dtype=np.float64).reshape(-1))
+        return np.concatenate(parts)
+
+    def tension_reward(self, state, action=None):
+        """The default reward: minus the mean of `|T - T*| / T*` over `target_tension`."""
+        return -sum(abs(state.cable_tension[c] - t) / t for c, t in self._targets) / len(self._targets)
+
+    def _info(self, state):
+        return {"time": state.time, "step": state.step, "episode_seed": self.episode_seed}
+
+    # ----- the Gymnasium interface -----------------------------------------------------------
+
+    def reset(self, *, seed=None, options=None):
+        """Resets the node, its episode drawn from this environment's generator (seeded by `seed`
+        when given), and returns the first observation and `info` (time, step, episode_seed)."""
+        super().reset(seed=seed)
+        self.episode_seed = int(self.np_random.integers(0, 2**63))
+        self._state = self.node.lockstep(0, reset=True, seed=self.episode_seed)
+        self._steps = 0
+        return self.observe(self._state), self._info(self._state)
+
+    def command_values(self, action):
+        """The rates (m/s) or rest lengths (m) `action` asks for: clipped to the action space,
+        mapped from [-1, 1] onto the limits when normalized."""
+        action = np.asarray(action, dtype=np.float64).reshape(self.action_space.shape)
+        if not np.all(np.isfinite(action)):
+            raise ValueError(f"the action is not finite: {action}")
+        action = np.clip(action, self.action_space.low, self.action_space.high)
+        if self.normalize:
+            low, high = self.limits
+            action = low + 0.5 * (action + 1.0) * (high - low)
+        return action
+
+    def step(self, action):
+        """Applies `action` (clipped to the action space) for `action_period` physics steps."""
+        values = self.command_values(action)
+        key = self.action_kind
+        entries = [command(a, **{key: float(x)}) for a, x in zip(self.actuators, values)]
+        self._steps += 1
+        truncated = self._steps >= self.max_episode_steps
+        try:
+            state = self.node.lockstep(self.action_period, entries)
+        except Exception as e:  # the physics failed (the node is faulted until reset), or refused
+            info = self._info(self._state)
+            info["failure"] = str(e)
+            return self.observe(self._state), FAILURE_REWARD, True, truncated, info
+        self._state = state
+        reward = (self._reward or self.tension_reward)(state, action)
+        terminated = bool(self._terminated(state)) if self._terminated else bool(state.faulted)
+        if not math.isfinite(reward):
+            raise ValueError(f"the reward is not finite: {reward}")
+        return self.observe(state), float(reward), terminated, truncated, self._info(state)
+
+    def close(self):
+        """Stops the node."""
+        if getattr(self, "node", None) is not None:
+            self.node.stop()
+            self.node = None
+
+
+def make_vector_env(n, asynchronous=True, **kwargs):
+    """`n` `TensegrityEnv(**kwargs)` as one `gymnasium.vector` environment: each in its own
+    process with its own node (`AsyncVectorEnv`, every core works), or one after another in this
+    process (`asynchronous=False`)."""
+    fns = [partial(TensegrityEnv, **kwargs) for _ in range(n)]
+    return gym.vector.AsyncVectorEnv(fns) if asynchronous else gym.vector.SyncVectorEnv(fns)
+
+
+gym.register(
+    id="tensegrity/Prism3Tension-v0",
+    entry_point="tensegrity_testing.envs:TensegrityEnv",
+    kwargs={"action": "rate", "actuators": ["ring_winch"], "target_tension": {"ring": 300.0}},
+)
