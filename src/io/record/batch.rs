@@ -462,11 +462,13 @@ mod tests {
         fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
     }
 
-    fn cdr(topic: Topic, view: &NodeView<'_>) -> Vec<u8> {
-        let message = TopicMessage::build(topic, view).unwrap().unwrap();
+    /// The CDR of `topic`'s message from `view`; `None` where the view has none (`~/imu` of a
+    /// scene without an IMU).
+    fn cdr(topic: Topic, view: &NodeView<'_>) -> Option<Vec<u8>> {
+        let message = TopicMessage::build(topic, view).unwrap()?;
         let mut out = Vec::new();
         crate::io::record::bag::encode_cdr(&mut out, &message).unwrap();
-        out
+        Some(out)
     }
 
     /// One recorder fed the states of two cores with different frames, turn about: each
