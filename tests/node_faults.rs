@@ -396,6 +396,7 @@ fn exit_statuses_say_why_the_node_stopped_and_the_ready_file_says_when_it_is_up(
         ("--ros-args -p no_such:=1", 2, "no_such"),
         (&format!("{} --ros-args", bad_scene.display()), 3, "bad.toml"),
         ("/no/such/scene.toml --ros-args", 3, "/no/such/scene.toml"),
+        ("bundled:prism4 --ros-args", 3, "no bundled scene 'prism4' (bundled: atwood, prism3"),
         ("--ros-args -p record:=/proc/no/such/dir", 4, "record"),
         ("--ros-args -p integrator:=symplectic-euler -p physics_dt:=0.05", 5, "stability limit"),
     ];

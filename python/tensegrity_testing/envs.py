@@ -17,7 +17,8 @@ in lockstep over shared memory (no DDS, so no network) and turns it into a `gymn
 
 `make_vector_env(n, ...)` runs `n` of them in their own processes (`gymnasium.vector`), one node
 each: every core works. Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring
-driven to 300 N by its ring winch's rate).
+driven to 300 N by its ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the
+six-bar robot on the ground rolled toward a goal by its 24 winches).
 
 Needs `gymnasium` and `numpy` (`pip install ./python[gym]`).
 """
@@ -56,7 +57,8 @@ FAILURE_REWARD = -10.0
 class TensegrityEnv(gym.Env):
     """One simulator as a Gymnasium environment (see the module docs).
 
-    scene: a scene file (default: the bundled prism3); action: "rate" or "rest_length";
+    scene: a scene file, or `bundled:NAME` for a scene built into the node (default: the bundled
+    prism3); action: "rate" or "rest_length";
     normalize: actions in [-1, 1] (mapped onto the limits) instead of in SI units;
     actuators: the actuator names the action drives, in order (default: all); action_period:
     physics steps per action; max_episode_steps: actions per episode; observation: `State`
@@ -190,6 +192,44 @@ class TensegrityEnv(gym.Env):
             self.node = None
 
 
+class SixbarRollEnv(TensegrityEnv):
+    """The bundled six-bar robot on the ground (`bundled:sixbar_rover`): its 24 winches' rest-length
+    targets as the action, every body's position and orientation and every cable's tension as
+    the observation, 50 physics steps (50 ms) per action. Reward: how much closer the centre of
+    its struts came to the goal (`goal`, m, in the floor's plane) during the action, m; the
+    episode ends there (within `reach` m).
+    """
+
+    def __init__(self, goal=(2.0, 0.0), reach=0.1, **kwargs):
+        kwargs.setdefault("scene", "bundled:sixbar_rover")
+        kwargs.setdefault("action", "rest_length")
+        kwargs.setdefault("action_period", 50)
+        kwargs.setdefault("max_episode_steps", 400)
+        kwargs.setdefault("observation", ("body_position", "body_orientation", "cable_tension"))
+        kwargs.setdefault("params", {"start_from_equilibrium": True})
+        self.goal, self.reach = np.asarray(goal, dtype=np.float64), float(reach)
+        super().__init__(reward=self._progress, terminated=self._arrived, **kwargs)
+        self._distance = self.distance(self._state)
+
+    def distance(self, state):
+        """How far the struts' centre is from the goal in the floor's plane, m."""
+        centre = np.mean(np.asarray(state.body_position, dtype=np.float64)[:, :2], axis=0)
+        return float(np.linalg.norm(centre - self.goal))
+
+    def reset(self, *, seed=None, options=None):
+        obs, info = super().reset(seed=seed, options=options)
+        self._distance = self.distance(self._state)
+        return obs, info
+
+    def _progress(self, state, action):
+        now = self.distance(state)
+        progress, self._distance = self._distance - now, now
+        return progress
+
+    def _arrived(self, state):
+        return state.faulted or self._distance <= self.reach
+
+
 def make_vector_env(n, asynchronous=True, **kwargs):
     """`n` `TensegrityEnv(**kwargs)` as one `gymnasium.vector` environment: each in its own
     process with its own node (`AsyncVectorEnv`, every core works), or one after another in this
@@ -203,3 +243,4 @@ gym.register(
     entry_point="tensegrity_testing.envs:TensegrityEnv",
     kwargs={"action": "rate", "actuators": ["ring_winch"], "target_tension": {"ring": 300.0}},
 )
+gym.register(id="tensegrity/SixbarRoll-v0", entry_point="tensegrity_testing.envs:SixbarRollEnv")

@@ -2,7 +2,8 @@
 //! and wiring only).
 //!
 //! Usage: `tensegrity_node [SCENE.toml] [--ros-args -p name:=value ...]` (`--help` lists every
-//! parameter); without a scene it runs the bundled `prism3`. Serves the transports of
+//! parameter); without a scene it runs the bundled `prism3`, and `bundled:NAME` runs another bundled
+//! scene (`config/scenes/NAME.toml`, built into the binary). Serves the transports of
 //! `-p transports:=` (default: every one built in, features `ros2` and `shm`). Stops cleanly on
 //! SIGINT and SIGTERM.
 
@@ -60,6 +61,16 @@ fn help() -> String {
          \x20                                  transports= lines; written whole, removed at exit) and\n\
          \x20                                  prints `ready` on stdout\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
     );
+    let bundled: Vec<&str> = tensegrity::scene::BUNDLED.iter().map(|(n, _)| *n).collect();
+    h = h.replacen(
+        "Options:",
+        &format!(
+            "SCENE.toml may also be bundled:NAME, a scene built into the node (the default is\n\
+             bundled:prism3); bundled: {}.\n\nOptions:",
+            bundled.join(", ")
+        ),
+        1,
+    );
     for (name, default, meaning) in PARAMETERS {
         h += &format!("  {name:<24} {default:<22} {meaning}\n");
     }
@@ -67,7 +78,8 @@ fn help() -> String {
           ROS_LOCALHOST_ONLY=1             bind DDS to 127.0.0.1 (not a firewall: see .ci/loopback-net)\n  \
           ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST   the same\n\n\
           Topics /clock, /tf, /tf_static, /diagnostics and ~/body_poses, ~/cable_states, ~/actuator_states,\n\
-          ~/structure, ~/markers out; ~/actuator_commands, ~/joint_commands in; simulation_interfaces\n\
+          ~/structure, ~/markers out (with sensors also ~/ground_truth/... and ~/imu); ~/actuator_commands,\n\
+          ~/joint_commands, ~/tension_commands in; simulation_interfaces\n\
           services in ~/ (see docs/node.md). -p record:=DIR also writes them and the applied commands\n\
           (~/applied_commands) to a rosbag2 bag (MCAP); `tensegrity replay DIR` runs it again.\n\n\
           Exit status (the reason is printed on stderr): 0 stopped by SIGINT, SIGTERM or\n\
@@ -168,7 +180,12 @@ fn run() -> Result<(), Failure> {
     }
     let bad_scene = fail(Exit::BadScene);
     let model = match &params.scene {
-        Some(path) => tensegrity::scene::load(path).map_err(|e| bad_scene(e.to_string()))?,
+        // `bundled:NAME` is a scene bundled with the node (config/scenes/NAME.toml)
+        Some(path) => match path.to_str().and_then(|p| p.strip_prefix("bundled:")) {
+            Some(name) => tensegrity::scene::bundled(name),
+            None => tensegrity::scene::load(path),
+        }
+        .map_err(|e| bad_scene(e.to_string()))?,
         None => tensegrity::scene::from_toml(
             tensegrity::scene::bundled_text("prism3").unwrap_or_default(),
             "<bundled prism3>",

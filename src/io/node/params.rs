@@ -206,7 +206,7 @@ pub const COMMAND_TIMEOUT_RANGE: (f64, f64) = (0.0, 1e6);
 /// Every node parameter: name, default (as `-p name:=value` takes it), meaning. `tensegrity_node
 /// --help` prints this table; a test sets each default through `NodeParams::set`.
 pub const PARAMETERS: &[(&str, &str, &str)] = &[
-    ("scene", "(bundled prism3)", "scene file; also the first plain argument"),
+    ("scene", "(bundled prism3)", "scene file, or bundled:NAME; also the first plain argument"),
     ("physics_dt", "(scene's, else 0.001)", "physics step, s, 1e-6 to 0.1"),
     ("real_time_factor", "1.0", "1 = real time, 0 = as fast as possible, at most 1000"),
     ("start_paused", "false", "start paused; advance with StepSimulation or unpause"),
