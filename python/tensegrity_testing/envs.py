@@ -121,6 +121,17 @@ class TensegrityEnv(gym.Env):
             self.node.stop()
             raise
         self._state, self._steps, self.episode_seed = start, 0, None
+        # the hot path, as plain Python over the shared-memory sample: one command entry per
+        # actuator, made once (by index), the limits as floats, where each observed array sits
+        self._entries = [command(i, **{action: 0.0}) for i in index]
+        self._bounds = list(zip(self.limits[0].tolist(), self.limits[1].tolist()))
+        counts = {"cable": len(names["cable_names"]), "actuator": len(all_actuators),
+                  "body3": len(names["body_names"]), "body4": len(names["body_names"])}
+        self._layout = [(f, counts[STATE_FIELDS[f]], STATE_FIELDS[f].startswith("body")) for f in self.fields]
+        # without callbacks or sensors a step reads the sample in place instead of a `State`
+        self._fast = reward is None and terminated is None and not measured
+        self._observation = self.observe(start)
+        self._last_info = self._info(start)
 
     # ----- what the agent sees ---------------------------------------------------------------
 
@@ -134,6 +145,18 @@ class TensegrityEnv(gym.Env):
                 values = state.measured[key]
             parts.append(np.asarray(values, dtype=np.float64).reshape(-1))
         return np.concatenate(parts)
+
+    def _observe_sample(self, s):
+        """`observe` of a `StateSample` `s` read in place (the same numbers as `State.of(s)`)."""
+        values = []
+        for field, n, per_body in self._layout:
+            array = getattr(s, field)
+            if per_body:
+                for i in range(n):
+                    values.extend(array[i])
+            else:
+                values.extend(array[:n])
+        return np.array(values, dtype=np.float64)
 
     def tension_reward(self, state, action=None):
         """The default reward: minus the mean of `|T - T*| / T*` over `target_tension`."""
@@ -151,39 +174,60 @@ class TensegrityEnv(gym.Env):
         self.episode_seed = int(self.np_random.integers(0, 2**63))
         self._state = self.node.lockstep(0, reset=True, seed=self.episode_seed)
         self._steps = 0
-        return self.observe(self._state), self._info(self._state)
+        self._observation = self.observe(self._state)
+        self._last_info = self._info(self._state)
+        return self._observation, dict(self._last_info)
 
     def command_values(self, action):
-        """The rates (m/s) or rest lengths (m) `action` asks for: clipped to the action space,
-        mapped from [-1, 1] onto the limits when normalized."""
-        action = np.asarray(action, dtype=np.float64).reshape(self.action_space.shape)
-        if not np.all(np.isfinite(action)):
-            raise ValueError(f"the action is not finite: {action}")
-        action = np.clip(action, self.action_space.low, self.action_space.high)
-        if self.normalize:
-            low, high = self.limits
-            action = low + 0.5 * (action + 1.0) * (high - low)
-        return action
+        """The rates (m/s) or rest lengths (m) `action` asks for, a list: clipped to the action
+        space, mapped from [-1, 1] onto the limits when normalized. A NaN or infinite value, or
+        the wrong number of them, is refused (`ValueError`)."""
+        flat = action if isinstance(action, (list, tuple)) else np.ravel(action)
+        if len(flat) != len(self._bounds):
+            raise ValueError(f"the action has {len(flat)} values for {len(self._bounds)} actuators")
+        values = []
+        for x, (low, high) in zip(flat, self._bounds):
+            x = float(x)
+            if not math.isfinite(x):
+                raise ValueError(f"the action is not finite: {action}")
+            if self.normalize:
+                x = low + 0.5 * (min(max(x, -1.0), 1.0) + 1.0) * (high - low)
+            else:
+                x = min(max(x, low), high)
+            values.append(x)
+        return values
 
     def step(self, action):
         """Applies `action` (clipped to the action space) for `action_period` physics steps."""
-        values = self.command_values(action)
         key = self.action_kind
-        entries = [command(a, **{key: float(x)}) for a, x in zip(self.actuators, values)]
+        for entry, x in zip(self._entries, self.command_values(action)):
+            setattr(entry, key, x)
         self._steps += 1
         truncated = self._steps >= self.max_episode_steps
         try:
-            state = self.node.lockstep(self.action_period, entries)
+            if self._fast:
+                answer = self.node.shm.lockstep(self.action_period, self._entries, timeout=self.node.timeout)
+            else:
+                state = self.node.lockstep(self.action_period, self._entries)
         except Exception as e:  # the physics failed (the node is faulted until reset), or refused
-            info = self._info(self._state)
-            info["failure"] = str(e)
-            return self.observe(self._state), FAILURE_REWARD, True, truncated, info
+            info = dict(self._last_info, failure=str(e))
+            return self._observation, FAILURE_REWARD, True, truncated, info
+        if self._fast:
+            s = answer.state
+            self._observation = self._observe_sample(s)
+            reward = -sum(abs(s.cable_tension[c] - t) / t for c, t in self._targets) / len(self._targets)
+            info = self._last_info = {"time": s.time, "step": s.step, "episode_seed": self.episode_seed}
+            terminated = bool(s.faulted)
+            del s, answer
+            return self._observation, reward, terminated, truncated, info
         self._state = state
+        self._observation = self.observe(state)
         reward = (self._reward or self.tension_reward)(state, action)
         terminated = bool(self._terminated(state)) if self._terminated else bool(state.faulted)
         if not math.isfinite(reward):
             raise ValueError(f"the reward is not finite: {reward}")
-        return self.observe(state), float(reward), terminated, truncated, self._info(state)
+        self._last_info = self._info(state)
+        return self._observation, float(reward), terminated, truncated, self._last_info
 
     def close(self):
         """Stops the node."""
