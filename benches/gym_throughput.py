@@ -3,7 +3,10 @@
 node in lockstep over shared memory) beside MuJoCo's own Python loop (a control write and
 `mujoco.mj_step`), on the free 3-strut prism, with one action per physics step and one per 10,
 in one interleaved run. Our plain lockstep call (`TensegrityClient.lockstep`, no Gymnasium
-wrapper) is timed too, to tell the transport's cost from the wrapper's.
+wrapper) is timed too, to tell the transport's cost from the wrapper's. Then the vector
+environments: `TensegrityVectorEnv` (this process steps every node, the nodes in parallel) and
+Gymnasium's `AsyncVectorEnv` (a process per environment), with 1, cores and twice as many
+environments.
 
 Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyPI):
 
@@ -31,7 +34,7 @@ ROOT = os.path.dirname(HERE)
 os.environ.setdefault("TENSEGRITY_NODE", os.path.join(ROOT, "target", "release", "tensegrity_node"))
 
 from tensegrity_testing import command  # noqa: E402
-from tensegrity_testing.envs import TensegrityEnv  # noqa: E402
+from tensegrity_testing.envs import TensegrityEnv, make_vector_env  # noqa: E402
 
 
 def mujoco_steps_per_s(period, actions):
@@ -66,6 +69,21 @@ def lockstep_steps_per_s(env, period, actions):
     return actions * period / (time.perf_counter() - t0)
 
 
+def vector_steps_per_s(vectorization, n, period, actions):
+    scene = os.path.join(HERE, "peers", "prism_free.toml")
+    vec = make_vector_env(n, vectorization=vectorization, scene=scene, actuators=["vclu0_winch"],
+                          action_period=period, max_episode_steps=10**9)
+    try:
+        vec.reset(seed=0)
+        a = np.zeros((n, 1))
+        t0 = time.perf_counter()
+        for _ in range(actions):
+            vec.step(a)
+        return actions * period * n / (time.perf_counter() - t0)
+    finally:
+        vec.close()
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--rounds", type=int, default=5)
@@ -91,6 +109,22 @@ def main():
     for name in dict.fromkeys(n for n, _ in cases):
         row = [statistics.median(cases[(name, p)]) for p in (1, 10)]
         print(f"| {name} | {row[0]:,.0f} | {row[1]:,.0f} |")
+    # vector environments: every environment's steps per second together, an action every 10 steps
+    cores = os.cpu_count() or 1
+    counts = sorted({1, cores, 2 * cores})
+    vectors = {}
+    for _ in range(args.rounds):
+        for vectorization in ("nodes", "async"):
+            for n in counts:
+                vectors.setdefault((vectorization, n), []).append(
+                    vector_steps_per_s(vectorization, n, 10, args.actions // 4))
+    print(f"\nvector environments on {cores} cores, an action every 10 steps, steps/s of all together\n")
+    print("| environments | " + " | ".join(str(n) for n in counts) + " |")
+    print("| --- | " + " | ".join("---:" for _ in counts) + " |")
+    for vectorization, label in (("nodes", "TensegrityVectorEnv (nodes in parallel)"),
+                                 ("async", "gymnasium AsyncVectorEnv (a process per env)")):
+        row = [statistics.median(vectors[(vectorization, n)]) for n in counts]
+        print(f"| {label} | " + " | ".join(f"{x:,.0f}" for x in row) + " |")
 
 
 if __name__ == "__main__":

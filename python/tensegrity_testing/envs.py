@@ -15,8 +15,9 @@ in lockstep over shared memory (no DDS, so no network) and turns it into a `gymn
   episode's seed, and the node resets with it, so the scene's randomization (`[randomize]`) and
   its sensors' noise are that episode's. The same seed gives the same episodes to the bit.
 
-`make_vector_env(n, ...)` runs `n` of them in their own processes (`gymnasium.vector`), one node
-each: every core works. Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring
+`make_vector_env(n, ...)` steps `n` of them as one `gymnasium.vector` environment, their nodes (one
+each, a process each) in parallel from this process (`TensegrityVectorEnv`), or each environment
+in a process of its own (`vectorization="async"`): every core works. Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring
 driven to 300 N by its ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the
 six-bar robot on the ground rolled toward a goal by its 24 winches).
 
@@ -199,16 +200,34 @@ class TensegrityEnv(gym.Env):
 
     def step(self, action):
         """Applies `action` (clipped to the action space) for `action_period` physics steps."""
+        return self.step_end(self.step_begin(action), action)
+
+    def step_begin(self, action):
+        """`step`'s request, sent to the node without waiting for it (several environments then
+        step their nodes in parallel: `TensegrityVectorEnv`); what it returns goes to `step_end`.
+        """
         key = self.action_kind
         for entry, x in zip(self._entries, self.command_values(action)):
             setattr(entry, key, x)
+        try:
+            if self._fast:
+                return self.node.shm.lockstep_begin(self.action_period, self._entries)
+            return self.node.lockstep_begin(self.action_period, self._entries)
+        except Exception as e:  # the node could not be asked
+            return e
+
+    def step_end(self, pending, action=None):
+        """The result of the request `step_begin` sent: observation, reward, terminated,
+        truncated, info."""
         self._steps += 1
         truncated = self._steps >= self.max_episode_steps
         try:
+            if isinstance(pending, Exception):
+                raise pending
             if self._fast:
-                answer = self.node.shm.lockstep(self.action_period, self._entries, timeout=self.node.timeout)
+                answer = self.node.shm.lockstep_end(pending, timeout=self.node.timeout)
             else:
-                state = self.node.lockstep(self.action_period, self._entries)
+                state = self.node.lockstep_end(pending)
         except Exception as e:  # the physics failed (the node is faulted until reset), or refused
             info = dict(self._last_info, failure=str(e))
             return self._observation, FAILURE_REWARD, True, truncated, info
@@ -274,12 +293,89 @@ class SixbarRollEnv(TensegrityEnv):
         return state.faulted or self._distance <= self.reach
 
 
-def make_vector_env(n, asynchronous=True, **kwargs):
-    """`n` `TensegrityEnv(**kwargs)` as one `gymnasium.vector` environment: each in its own
-    process with its own node (`AsyncVectorEnv`, every core works), or one after another in this
-    process (`asynchronous=False`)."""
+class TensegrityVectorEnv(gym.vector.VectorEnv):
+    """`n` `TensegrityEnv(**kwargs)` stepped from this process, their nodes in parallel: each step
+    sends every node its request (`TensegrityEnv.step_begin`) before it waits for any answer, so
+    the nodes, each a process of its own, use every core while this process only copies numbers
+    (no pipes, no pickling, unlike `gymnasium.vector.AsyncVectorEnv`). An environment whose
+    episode ended is reset at its next step (Gymnasium's next-step autoreset: that step's
+    observation is the reset one, its reward 0).
+    """
+
+    metadata = {"render_modes": [], "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
+
+    def __init__(self, n, **kwargs):
+        if int(n) < 1:
+            raise ValueError(f"a vector environment needs at least one environment, got {n}")
+        self.envs = []
+        try:
+            for _ in range(int(n)):
+                self.envs.append(TensegrityEnv(**kwargs))
+        except BaseException:
+            self.close()
+            raise
+        self.num_envs = len(self.envs)
+        self.single_observation_space = self.envs[0].observation_space
+        self.single_action_space = self.envs[0].action_space
+        self.observation_space = gym.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = gym.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self._ended = np.zeros(self.num_envs, dtype=bool)
+
+    def reset(self, *, seed=None, options=None):
+        """Resets every environment: `seed` an int (environment i gets `seed + i`), a list of
+        seeds, or None."""
+        if seed is None or isinstance(seed, int):
+            seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"{len(seeds)} seeds for {self.num_envs} environments")
+        observations, infos = [], {}
+        for i, (env, s) in enumerate(zip(self.envs, seeds)):
+            obs, info = env.reset(seed=s, options=options)
+            observations.append(obs)
+            infos = self._add_info(infos, info, i)
+        self._ended[:] = False
+        return np.stack(observations), infos
+
+    def step(self, actions):
+        """Steps every environment with its row of `actions`, the nodes in parallel."""
+        actions = np.asarray(actions, dtype=np.float64).reshape(self.action_space.shape)
+        pending = [None if self._ended[i] else env.step_begin(actions[i]) for i, env in enumerate(self.envs)]
+        observations = []
+        rewards = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, dtype=bool)
+        truncated = np.zeros(self.num_envs, dtype=bool)
+        infos = {}
+        for i, env in enumerate(self.envs):
+            if self._ended[i]:
+                obs, info = env.reset()
+            else:
+                obs, rewards[i], terminated[i], truncated[i], info = env.step_end(pending[i], actions[i])
+            observations.append(obs)
+            infos = self._add_info(infos, info, i)
+        self._ended = terminated | truncated
+        return np.stack(observations), rewards, terminated, truncated, infos
+
+    def close_extras(self, **kwargs):
+        """Stops every node."""
+        for env in self.envs:
+            env.close()
+
+
+def make_vector_env(n, vectorization="nodes", **kwargs):
+    """`n` `TensegrityEnv(**kwargs)` as one `gymnasium.vector` environment: `"nodes"` (the
+    default) steps them from this process with their nodes in parallel (`TensegrityVectorEnv`),
+    `"async"` runs each environment in a process of its own (`gymnasium.vector.AsyncVectorEnv`),
+    `"sync"` one after another (`SyncVectorEnv`)."""
+    if vectorization == "nodes":
+        return TensegrityVectorEnv(n, **kwargs)
     fns = [partial(TensegrityEnv, **kwargs) for _ in range(n)]
-    return gym.vector.AsyncVectorEnv(fns) if asynchronous else gym.vector.SyncVectorEnv(fns)
+    if vectorization == "async":
+        return gym.vector.AsyncVectorEnv(fns)
+    if vectorization == "sync":
+        return gym.vector.SyncVectorEnv(fns)
+    raise ValueError(f"vectorization must be 'nodes', 'async' or 'sync', got {vectorization!r}")
 
 
 gym.register(

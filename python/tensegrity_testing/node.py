@@ -368,9 +368,18 @@ class TensegrityNode:
         """Applies `commands` (`command(...)` entries) at the next boundary, takes `steps` steps
         (the node paused) and returns the `State` after them. With `reset`, the node resets
         first, its episode drawn from `seed` when given (`TensegrityClient.lockstep`)."""
+        return self.lockstep_end(self.lockstep_begin(steps, commands, reset, seed))
+
+    def lockstep_begin(self, steps, commands=(), reset=False, seed=None):
+        """`lockstep`'s request, sent without waiting (`TensegrityClient.lockstep_begin`); its
+        `State` comes from `lockstep_end`."""
         if self.shm is None:
             raise RuntimeError("lockstep needs the shared-memory transport (transports)")
-        answer = self.shm.lockstep(steps, list(commands), timeout=self.timeout, reset=reset, seed=seed)
+        return self.shm.lockstep_begin(steps, list(commands), reset, seed)
+
+    def lockstep_end(self, pending):
+        """The `State` after the request `lockstep_begin` sent."""
+        answer = self.shm.lockstep_end(pending, timeout=self.timeout)
         state = State.of(answer.state)
         c = self.shm.latest_contacts()
         if c is not None and c.step == state.step:

@@ -466,6 +466,12 @@ class TensegrityClient:
         """Applies `entries`, takes `steps` steps and returns the `Answer` (node paused only).
         With `reset`, the node resets first, its episode (the scene's randomization, the sensors'
         streams) drawn from `seed` (an integer from 0 to 2**64 - 1) when given."""
+        return self.lockstep_end(self.lockstep_begin(steps, entries, reset, seed), timeout)
+
+    def lockstep_begin(self, steps, entries=(), reset=False, seed=None):
+        """Sends a `lockstep` request and returns at once: the node steps while the caller does
+        other work (another node's request: several nodes then step in parallel). Pass what it
+        returns to `lockstep_end`."""
         if seed is not None and not reset:
             raise ValueError("a seed is for a reset: lockstep(..., reset=True, seed=...)")
         request = self.lockstep_client.loan_uninit()
@@ -477,6 +483,11 @@ class TensegrityClient:
         self._fill(payload.command, entries)
         pending = request.assume_init().send()
         self.wake_node.notify_with_custom_event_id(iox2.EventId.new(EVENT_LOCKSTEP))
+        return pending
+
+    def lockstep_end(self, pending, timeout=10.0):
+        """The `Answer` to a request `lockstep_begin` sent, once it arrives within `timeout` s; a
+        refusal raises `LockstepRefused`."""
         response = self._wait(pending.receive, timeout)
         if response is None:
             raise TimeoutError(f"no lockstep answer from '{self.prefix}' within {timeout} s")

@@ -90,10 +90,13 @@ def test_the_same_seed_gives_the_same_episodes_to_the_bit(tmp_path):
         b.close()
 
 
-def test_a_vector_environment_equals_its_environments_stepped_one_by_one():
-    kwargs = {"actuators": ["ring_winch"], "target_tension": {"ring": 300.0}, "max_episode_steps": 20}
+@pytest.mark.parametrize("vectorization", ["nodes", "async"])
+def test_a_vector_environment_equals_its_environments_stepped_one_by_one(vectorization):
+    # episodes of 6 actions: the 10 steps cross an autoreset (next-step mode: the step after the
+    # end resets, reward 0)
+    kwargs = {"actuators": ["ring_winch"], "target_tension": {"ring": 300.0}, "max_episode_steps": 6}
     actions = np.random.default_rng(3).uniform(-0.2, 0.2, size=(10, 2, 1))
-    vec = make_vector_env(2, **kwargs)
+    vec = make_vector_env(2, vectorization=vectorization, **kwargs)
     try:
         obs, _ = vec.reset(seed=[11, 12])
         together = [obs]
@@ -105,11 +108,17 @@ def test_a_vector_environment_equals_its_environments_stepped_one_by_one():
     for k, seed in enumerate([11, 12]):
         env = TensegrityEnv(**kwargs)
         try:
-            alone, _ = run(env, seed, actions[:, k])
+            alone, _ = run(env, seed, actions[:6, k])
+            # then the reset step (its reward 0) and three more actions
+            obs, _ = env.reset()
+            rest = [obs, np.array([0.0])]
+            for a in actions[7:, k]:
+                obs, reward, *_ = env.step(a)
+                rest += [obs, np.array([reward])]
         finally:
             env.close()
         mine = np.concatenate([t[k] for t in together])
-        assert np.array_equal(mine, alone), f"environment {k}"
+        assert np.array_equal(mine, np.concatenate([alone] + rest)), f"environment {k}"
 
 
 def test_recorded_seeded_episodes_replay_bit_for_bit(tmp_path):

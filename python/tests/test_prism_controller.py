@@ -96,3 +96,26 @@ def test_a_bad_scene_is_reported_with_its_exit_status(tensegrity_nodes, tmp_path
     with pytest.raises(NodeFailed) as e:
         tensegrity_nodes(params={"physics_dt": -1})
     assert e.value.status == 2 and "physics_dt" in e.value.stderr
+
+
+def test_a_lockstep_request_with_undefined_flags_is_refused_and_steps_nothing(tensegrity_node):
+    # a hand-made client's careless request: SEEDED without RESET, and an unknown bit
+    import iceoryx2 as iox2
+
+    from tensegrity_testing import shm
+
+    sim = tensegrity_node
+    client = sim.shm
+    before = sim.lockstep(0).step
+    for flags in (shm.LOCKSTEP_SEEDED, 8):
+        request = client.lockstep_client.loan_uninit()
+        payload = request.payload().contents
+        payload.steps, payload.flags, payload.reserved, payload.seed = 1, flags, 0, 0
+        payload.command.count = 0
+        pending = request.assume_init().send()
+        client.wake_node.notify_with_custom_event_id(iox2.EventId.new(shm.EVENT_LOCKSTEP))
+        answer = shm.Answer(client._wait(pending.receive, 10.0))
+        assert answer.payload.result != shm.RESULT_OK
+        assert "flags" in shm.text(answer.payload.message)
+        del answer
+    assert sim.lockstep(0).step == before
