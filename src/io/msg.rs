@@ -604,7 +604,7 @@ pub struct AppliedCommands {
     /// Rates, m/s; NaN where the command gave none.
     pub rate: Vec<f64>,
     /// Tensions, N; NaN where the command gave none. Empty in bags written before tension
-    /// commands existed (`crate::io::record::applied_commands` reads both layouts).
+    /// commands existed (the recorder's `applied_commands` reads both layouts).
     pub tension: Vec<f64>,
     /// True: the reset drew its episode from `reset_seed` (`NodeCore::reset_seeded`).
     pub reset_seeded: bool,
