@@ -167,3 +167,30 @@ def test_a_short_random_search_learns_the_tension_task():
         env.close()
     # doing nothing leaves the ring at 100 N (a return of about -0.67 per action)
     assert best > start + 0.25 * abs(start), (start, best, theta)
+
+
+def test_observations_can_be_what_the_sensors_report_seeded_per_episode():
+    # config/examples/sensors.toml: a load at rest on a winch's rope, its tension sensed with 0.5 N
+    # of noise at 100 Hz; an action every 10 ms sees a fresh, noisy reading
+    scene = ROOT / "config" / "examples" / "sensors.toml"
+    kwargs = {"action_period": 10, "params": {"start_from_equilibrium": True}}
+    sensed, exact = TensegrityEnv(scene, measured=True, **kwargs), TensegrityEnv(scene, **kwargs)
+    try:
+        still = np.zeros((20, 1))
+        noisy, _ = run(sensed, 4, still)
+        again, _ = run(sensed, 4, still)
+        other, _ = run(sensed, 5, still)
+        truth, _ = run(exact, 4, still)
+    finally:
+        sensed.close()
+        exact.close()
+    assert np.array_equal(noisy, again), "the same seed, the same noise"
+    assert not np.array_equal(noisy, other), "another seed, other noise"
+    # per action: [tension, rest length] then the reward (the first observation has none)
+    at = [0] + [2 + 3 * k for k in range(20)]
+    tension_error = noisy[at] - truth[at]
+    rms = float(np.sqrt(np.mean(tension_error**2)))
+    assert 0.2 < rms < 1.0, f"sensed with 0.5 N of noise, rms {rms} N"
+    # the rest length: an encoder of 1e-4 m counts
+    at = [a + 1 for a in at]
+    assert np.max(np.abs(noisy[at] - truth[at])) <= 0.5e-4 + 1e-12
