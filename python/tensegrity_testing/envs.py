@@ -15,11 +15,13 @@ in lockstep over shared memory (no DDS, so no network) and turns it into a `gymn
   episode's seed, and the node resets with it, so the scene's randomization (`[randomize]`) and
   its sensors' noise are that episode's. The same seed gives the same episodes to the bit.
 
-`make_vector_env(n, ...)` steps `n` of them as one `gymnasium.vector` environment, their nodes (one
-each, a process each) in parallel from this process (`TensegrityVectorEnv`), or each environment
-in a process of its own (`vectorization="async"`): every core works. Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring
-driven to 300 N by its ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the
-six-bar robot on the ground rolled toward a goal by its 24 winches).
+`make_vector_env(n, ...)` steps `n` of them as one `gymnasium.vector` environment, their nodes
+(one each, a process each) in parallel from this process (`TensegrityVectorEnv`), or each
+environment in a process of its own (`vectorization="async"`): every core works.
+
+Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring driven to 300 N by its
+ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the six-bar robot on the
+ground rolled toward a goal by its 24 winches).
 
 Needs `gymnasium` and `numpy` (`pip install ./python[gym]`).
 """
@@ -59,9 +61,9 @@ class TensegrityEnv(gym.Env):
     """One simulator as a Gymnasium environment (see the module docs).
 
     scene: a scene file, or `bundled:NAME` for a scene built into the node (default: the bundled
-    prism3); action: "rate" or "rest_length";
-    normalize: actions in [-1, 1] (mapped onto the limits) instead of in SI units;
-    actuators: the actuator names the action drives, in order (default: all); action_period:
+    prism3); action: "rate" or "rest_length"; normalize: actions in [-1, 1] (mapped onto the
+    limits) instead of in SI units; actuators: the actuator names the action drives, in order
+    (default: all); action_period:
     physics steps per action; max_episode_steps: actions per episode; observation: `State`
     fields, concatenated in order; measured: observe what the sensors report where the scene
     declares them; target_tension: {cable: N} of the default reward (default: 1.5 times each
@@ -72,9 +74,9 @@ class TensegrityEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, scene=None, action="rate", normalize=True, actuators=None, action_period=10,
-                 max_episode_steps=200,
-                 observation=("cable_tension", "actuator_rest_length"), measured=False, target_tension=None,
-                 reward=None, terminated=None, params=None, node_timeout=30.0):
+                 max_episode_steps=200, observation=("cable_tension", "actuator_rest_length"),
+                 measured=False, target_tension=None, reward=None, terminated=None, params=None,
+                 node_timeout=30.0):
         if action not in ("rate", "rest_length"):
             raise ValueError(f"action must be 'rate' or 'rest_length', got {action!r}")
         if int(action_period) < 1 or int(max_episode_steps) < 1:
