@@ -13,27 +13,23 @@ use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::State;
 
-fn target(l: f64) -> ActuatorCommand {
-    ActuatorCommand { rest_length: Some(l), rate: None, tension: None }
-}
-
 #[test]
 fn bad_commands_are_rejected_counted_and_change_nothing() {
     let mut sim = Simulator::new(bundled("prism3.toml"), SimSettings::default()).unwrap();
     let id = sim.model().actuator_id("ring_winch").unwrap();
     let act = sim.model().actuators[id.0];
     let cases = [
-        ("ring_winch", target(f64::NAN)),
-        ("ring_winch", ActuatorCommand { rest_length: None, rate: Some(f64::INFINITY), tension: None }),
-        ("ring_winch", target(act.max_rest_length * 2.0)),
-        ("ring_winch", target(0.0)),
-        ("ring_winch", ActuatorCommand { rest_length: None, rate: Some(-2.0 * act.max_rate), tension: None }),
+        ("ring_winch", ActuatorCommand::target(f64::NAN)),
+        ("ring_winch", ActuatorCommand::rate(f64::INFINITY)),
+        ("ring_winch", ActuatorCommand::target(act.max_rest_length * 2.0)),
+        ("ring_winch", ActuatorCommand::target(0.0)),
+        ("ring_winch", ActuatorCommand::rate(-2.0 * act.max_rate)),
         (
             "ring_winch",
             ActuatorCommand { rest_length: Some(act.min_rest_length), rate: Some(0.0), tension: None },
         ),
         ("ring_winch", ActuatorCommand::default()),
-        ("no_such_winch", target(act.min_rest_length)),
+        ("no_such_winch", ActuatorCommand::target(act.min_rest_length)),
     ];
     for (i, (name, cmd)) in cases.iter().enumerate() {
         let err = sim.command(name, *cmd).unwrap_err();
@@ -75,11 +71,7 @@ fn a_rate_stops_at_the_actuator_limit() {
         Simulator::new(bundled("tbar.toml"), SimSettings { dt: 2e-3, ..Default::default() }).unwrap();
     let id = sim.model().actuator_id("lower_winch").unwrap();
     let act = sim.model().actuators[id.0];
-    sim.command(
-        "lower_winch",
-        ActuatorCommand { rest_length: None, rate: Some(act.max_rate), tension: None },
-    )
-    .unwrap();
+    sim.command("lower_winch", ActuatorCommand::rate(act.max_rate)).unwrap();
     // lengthening at max rate: the lower string goes slack, the structure stays finite
     for _ in 0..600 {
         sim.step().unwrap();
@@ -95,7 +87,7 @@ fn shortening_a_cable_by_command_raises_its_tension_to_the_static_value() {
     let l_target = 0.95 * model.initial_rest_lengths[ring];
     let mut sim = Simulator::new(model.clone(), SimSettings::default()).unwrap();
     let t0 = sim.workspace().cables[ring].tension;
-    sim.command("ring_winch", target(l_target)).unwrap();
+    sim.command("ring_winch", ActuatorCommand::target(l_target)).unwrap();
     // the prestress-stabilized twist mode hardly stretches any cable, so cable damping barely
     // touches it: compare the mean over the last 3 s (equal to the equilibrium value to second
     // order in the amplitude)

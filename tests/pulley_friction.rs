@@ -414,11 +414,7 @@ fn thousands_of_stick_slip_switches_stay_finite_and_keep_newton_short() {
         let omega = 300.0;
         while sim.state().time < duration && switches < 2 * least {
             let rate = 0.02 * (omega * sim.state().time).sin();
-            sim.command(
-                "winch",
-                tensegrity::control::ActuatorCommand { rest_length: None, rate: Some(rate), tension: None },
-            )
-            .unwrap();
+            sim.command("winch", tensegrity::control::ActuatorCommand::rate(rate)).unwrap();
             let stats = sim.step().unwrap();
             newton += stats.newton_iterations;
             steps += stats.substeps;

@@ -35,7 +35,7 @@ fn hoist_sim(model: Model, dt: f64, integrator: Integrator) -> Simulator {
 
 /// Commands the hoist to change its rest length at `rate` m/s (negative reels in).
 fn at_rate(sim: &mut Simulator, rate: f64) {
-    sim.command("hoist", ActuatorCommand { rest_length: None, rate: Some(rate), tension: None }).unwrap();
+    sim.command("hoist", ActuatorCommand::rate(rate)).unwrap();
 }
 
 /// Mean reel-in speed (m/s) of the hoist's rest length over `steps` more steps.
@@ -315,9 +315,9 @@ fn careless_winches_are_refused_naming_the_field() {
     // commands a careless controller sends to a winch are refused and change nothing
     let mut sim = hoist_sim(hoist(10.0, ""), 1e-3, SimSettings::default().integrator);
     for cmd in [
-        ActuatorCommand { rest_length: None, rate: Some(f64::NAN), tension: None },
-        ActuatorCommand { rest_length: None, rate: Some(5.0), tension: None },
-        ActuatorCommand { rest_length: Some(-1.0), rate: None, tension: None },
+        ActuatorCommand::rate(f64::NAN),
+        ActuatorCommand::rate(5.0),
+        ActuatorCommand::target(-1.0),
         ActuatorCommand::default(),
     ] {
         assert!(sim.command("hoist", cmd).is_err(), "{cmd:?}");

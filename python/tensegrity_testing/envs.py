@@ -111,9 +111,12 @@ class TensegrityEnv(gym.Env):
             self.normalize = normalize
             self._cables = [names["actuator_cable"][i] for i in index]
             start = self.node.lockstep(0)
-            self._sizes = {"cable": len(names["cable_names"]), "actuator": len(all_actuators),
-                           "body3": 3 * len(names["body_names"]), "body4": 4 * len(names["body_names"])}
-            size = sum(self._sizes[STATE_FIELDS[f]] for f in self.fields)
+            # where each observed array sits: (field, elements, numbers per element)
+            bodies = len(names["body_names"])
+            shapes = {"cable": (len(names["cable_names"]), 1), "actuator": (len(all_actuators), 1),
+                      "body3": (bodies, 3), "body4": (bodies, 4)}
+            self._layout = [(f, *shapes[STATE_FIELDS[f]]) for f in self.fields]
+            size = sum(n * width for _, n, width in self._layout)
             self.observation_space = spaces.Box(low=-np.inf, high=np.inf, shape=(size,), dtype=np.float64)
             cable_names = names["cable_names"]
             if target_tension is None:
@@ -125,12 +128,9 @@ class TensegrityEnv(gym.Env):
             raise
         self._state, self._steps, self.episode_seed = start, 0, None
         # the hot path, as plain Python over the shared-memory sample: one command entry per
-        # actuator, made once (by index), the limits as floats, where each observed array sits
+        # actuator, made once (by index), and the limits as floats
         self._entries = [command(i, **{action: 0.0}) for i in index]
         self._bounds = list(zip(self.limits[0].tolist(), self.limits[1].tolist()))
-        counts = {"cable": len(names["cable_names"]), "actuator": len(all_actuators),
-                  "body3": len(names["body_names"]), "body4": len(names["body_names"])}
-        self._layout = [(f, counts[STATE_FIELDS[f]], STATE_FIELDS[f].startswith("body")) for f in self.fields]
         # without callbacks or sensors a step reads the sample in place instead of a `State`
         self._fast = reward is None and terminated is None and not measured
         self._observation = self.observe(start)
@@ -152,9 +152,9 @@ class TensegrityEnv(gym.Env):
     def _observe_sample(self, s):
         """`observe` of a `StateSample` `s` read in place (the same numbers as `State.of(s)`)."""
         values = []
-        for field, n, per_body in self._layout:
+        for field, n, width in self._layout:
             array = getattr(s, field)
-            if per_body:
+            if width > 1:
                 for i in range(n):
                     values.extend(array[i])
             else:
@@ -163,9 +163,15 @@ class TensegrityEnv(gym.Env):
 
     def tension_reward(self, state, action=None):
         """The default reward: minus the mean of `|T - T*| / T*` over `target_tension`."""
-        return -sum(abs(state.cable_tension[c] - t) / t for c, t in self._targets) / len(self._targets)
+        return self._tension_reward_of(state.cable_tension)
+
+    def _tension_reward_of(self, tensions):
+        """`tension_reward` of the cable tensions `tensions` (a `State`'s, or a sample's read in
+        place)."""
+        return -sum(abs(tensions[c] - t) / t for c, t in self._targets) / len(self._targets)
 
     def _info(self, state):
+        """`info` after `state` (a `State`, or a state sample read in place)."""
         return {"time": state.time, "step": state.step, "episode_seed": self.episode_seed}
 
     # ----- the Gymnasium interface -----------------------------------------------------------
@@ -236,8 +242,8 @@ class TensegrityEnv(gym.Env):
         if self._fast:
             s = answer.state
             self._observation = self._observe_sample(s)
-            reward = -sum(abs(s.cable_tension[c] - t) / t for c, t in self._targets) / len(self._targets)
-            info = self._last_info = {"time": s.time, "step": s.step, "episode_seed": self.episode_seed}
+            reward = self._tension_reward_of(s.cable_tension)
+            info = self._last_info = self._info(s)
             terminated = bool(s.faulted)
             del s, answer
             return self._observation, reward, terminated, truncated, info

@@ -66,7 +66,6 @@ struct Publishers {
     /// writers once a scene with sensors publishes on them (a scene without has none).
     truth_topics: [ros2_client::dds::rustdds::Topic; 2],
     truth: Option<(Publisher<msg::PoseArray>, Publisher<msg::CableStates>)>,
-    truth_qos: TopicQos,
     /// `~/imu` and `~/ground_truth/imu`: their topics, and their writers once a scene with a gyro
     /// or an accelerometer publishes on them.
     imu_topics: [ros2_client::dds::rustdds::Topic; 2],
@@ -125,6 +124,22 @@ pub struct DdsTransport {
     _context: Context,
 }
 
+/// The writers of two topics that only some scenes publish (`Topic::published_by`), made on
+/// first use, with the QoS the topic table offers for `like` (both topics offer the same).
+fn writer_pair<A: serde::Serialize, B: serde::Serialize>(
+    node: &mut Node,
+    topics: &[ros2_client::dds::rustdds::Topic; 2],
+    like: Topic,
+    what: &str,
+) -> Result<(Publisher<A>, Publisher<B>), PublishError> {
+    let offered = topics::topic_type(like).expect("a ROS topic").1;
+    let qos = Some(writer_qos(offered.depth as usize, offered.transient_local));
+    let failed = |e| PublishError::Failed(format!("{what} writer: {e:?}"));
+    let first = node.create_publisher(&topics[0], qos.clone()).map_err(failed)?;
+    let second = node.create_publisher(&topics[1], qos).map_err(failed)?;
+    Ok((first, second))
+}
+
 fn sent<D>(r: ros2_client::error::WriteResult<(), D>) -> Result<(), PublishError> {
     r.map_err(|e| match e {
         ros2_client::error::WriteError::WouldBlock { .. } => PublishError::WouldBlock,
@@ -150,25 +165,13 @@ impl NodeSink for DdsTransport {
         }
         let truth = matches!(topic, Topic::GroundTruthPoses | Topic::GroundTruthCables);
         if truth && self.publishers.truth.is_none() {
-            let (depth, transient) =
-                (self.publishers.truth_qos.depth, self.publishers.truth_qos.transient_local);
-            let [poses, cables] = &self.publishers.truth_topics;
-            let qos = Some(writer_qos(depth as usize, transient));
-            let failed = |e| PublishError::Failed(format!("~/ground_truth writer: {e:?}"));
-            let poses = self._node.create_publisher(poses, qos.clone()).map_err(failed)?;
-            let cables = self._node.create_publisher(cables, qos).map_err(failed)?;
-            self.publishers.truth = Some((poses, cables));
+            let topics = &self.publishers.truth_topics;
+            let pair = writer_pair(&mut self._node, topics, Topic::GroundTruthPoses, "~/ground_truth")?;
+            self.publishers.truth = Some(pair);
         }
         if matches!(topic, Topic::Imu | Topic::GroundTruthImu) && self.publishers.imu.is_none() {
-            let qos = Some(writer_qos(
-                self.publishers.truth_qos.depth as usize,
-                self.publishers.truth_qos.transient_local,
-            ));
-            let [measured, truth] = &self.publishers.imu_topics;
-            let failed = |e| PublishError::Failed(format!("~/imu writer: {e:?}"));
-            let measured = self._node.create_publisher(measured, qos.clone()).map_err(failed)?;
-            let truth = self._node.create_publisher(truth, qos).map_err(failed)?;
-            self.publishers.imu = Some((measured, truth));
+            let pair = writer_pair(&mut self._node, &self.publishers.imu_topics, Topic::Imu, "~/imu")?;
+            self.publishers.imu = Some(pair);
         }
         let p = &self.publishers;
         match (topic, M::build(topic, v)?) {
@@ -339,7 +342,6 @@ impl DdsTransport {
                 outputs.iter().find(|(t, _, _)| *t == topic).expect("every ROS topic is declared").1.clone()
             }),
             truth: None,
-            truth_qos: topics::topic_type(Topic::GroundTruthPoses).expect("a ROS topic").1,
             imu_topics: [Topic::Imu, Topic::GroundTruthImu].map(|topic| {
                 outputs.iter().find(|(t, _, _)| *t == topic).expect("every ROS topic is declared").1.clone()
             }),

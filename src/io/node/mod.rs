@@ -426,6 +426,8 @@ impl NodeCore {
             (Some(r), None) if r.per_reset => Some(self.redraw(r.episode + 1)),
             _ => None,
         };
+        // a redrawn scene publishes its structure again: the new episode's draws
+        let drew = redrawn.is_some();
         let redraw_failure = match redrawn {
             Some(Ok(sim)) => {
                 self.sim = sim;
@@ -461,9 +463,7 @@ impl NodeCore {
         self.last_command = None;
         self.timed_out = false;
         self.anchor = None;
-        if redrawn_structure(self.sim.model()) || (seed.is_some() && self.sim.model().randomization.is_some())
-        {
-            // the new episode's draws
+        if drew {
             self.publish(sink, Topic::Structure);
         }
         self.publish_state(sink);
@@ -829,10 +829,4 @@ impl NodeCore {
         };
         self.status(level, "simulation", message, values)
     }
-}
-
-/// True when a reset draws a new model (`[randomize] per = "reset"`), whose structure carries
-/// the new draws.
-fn redrawn_structure(model: &crate::model::Model) -> bool {
-    model.randomization.is_some_and(|r| r.per_reset)
 }
