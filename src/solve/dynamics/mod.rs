@@ -607,8 +607,12 @@ pub fn cable_powers(model: &Model, ws: &Workspace, rest_rate: &[f64]) -> (f64, f
         }
         let cable = &model.cables[c];
         let t_el = crate::forces::cable::elastic_force(cable, r.rest_length, r.length);
-        let rest_force = crate::forces::cable::elastic_energy_rest_derivative(cable, r.rest_length, r.length);
-        actuator += rest_force * rest_rate[c];
+        // only actuated cables change their rest length
+        if rest_rate[c] != 0.0 {
+            let rest_force =
+                crate::forces::cable::elastic_energy_rest_derivative(cable, r.rest_length, r.length);
+            actuator += rest_force * rest_rate[c];
+        }
         loss += (r.tension - t_el) * r.length_rate;
     }
     (actuator, loss)
