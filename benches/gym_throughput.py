@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
-"""Steps per second of a learning loop in Python: our Gymnasium environment (`TensegrityEnv`, the
-node in lockstep over shared memory) beside MuJoCo's own Python loop (a control write and
-`mujoco.mj_step`), on the free 3-strut prism, with one action per physics step and one per 10,
-in one interleaved run. Our plain lockstep call (`TensegrityClient.lockstep`, no Gymnasium
+"""Steps per second of a learning loop in Python: our Gymnasium environment (`TensegrityEnv`, with
+the simulator in process, `backend="inprocess"`, and with a node in lockstep over shared memory,
+`backend="node"`) beside MuJoCo's own Python loop (a control write and `mujoco.mj_step`), on the
+free 3-strut prism, with one action per physics step and one per 10, in one interleaved run. Our plain lockstep call (`TensegrityClient.lockstep`, no Gymnasium
 wrapper) is timed too, to tell the transport's cost from the wrapper's. Then the vector
 environments: `TensegrityVectorEnv` (this process steps every node, the nodes in parallel) and
 Gymnasium's `AsyncVectorEnv` (a process per environment), with 1, cores and twice as many
@@ -13,6 +13,8 @@ Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyP
     python3 -m venv target/mujoco-venv
     target/mujoco-venv/bin/pip install mujoco numpy gymnasium cyclonedds iceoryx2==0.10.0 pytest
     target/mujoco-venv/bin/pip install --no-deps ./python
+    target/mujoco-venv/bin/pip install maturin
+    PATH=$PWD/target/mujoco-venv/bin:$PATH target/mujoco-venv/bin/pip install --no-build-isolation ./python/native
     cargo build --release
     target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000]
 
@@ -90,19 +92,24 @@ def main():
     p.add_argument("--actions", type=int, default=2000)
     args = p.parse_args()
     scene = os.path.join(HERE, "peers", "prism_free.toml")
-    env = TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9)
+    env = TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9, backend="node")
+    native = TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9, backend="inprocess")
     cases = {}
     try:
         for _ in range(args.rounds):
             for period in (1, 10):
                 for name, f in (
                     ("MuJoCo (mj_step, control write)", lambda: mujoco_steps_per_s(period, args.actions)),
-                    ("ours: TensegrityEnv.step", lambda: ours_steps_per_s(env, period, args.actions)),
-                    ("ours: lockstep call alone", lambda: lockstep_steps_per_s(env, period, args.actions)),
+                    ("ours: TensegrityEnv.step, in process", lambda: ours_steps_per_s(native, period, args.actions)),
+                    ("ours: TensegrityEnv.step, node over shared memory",
+                     lambda: ours_steps_per_s(env, period, args.actions)),
+                    ("ours: shared-memory lockstep call alone",
+                     lambda: lockstep_steps_per_s(env, period, args.actions)),
                 ):
                     cases.setdefault((name, period), []).append(f())
     finally:
         env.close()
+        native.close()
     print(f"free 3-strut prism, dt 1 ms, median of {args.rounds} rounds of {args.actions} actions\n")
     print("| loop | steps/s, one action per step | steps/s, one action per 10 steps |")
     print("| --- | ---: | ---: |")

@@ -1,8 +1,10 @@
 //! Invariant: the Python test kit (`python/tensegrity_testing`, `pip install ./python`) works as
 //! its README examples say: its own tests (`python/tests`: the proportional controller in lockstep
 //! and in real time, bit-identical lockstep runs under a CPU hog, a refused command, exit statuses
-//! of a bad scene and a bad parameter) pass against the node binary, and a Python test that fails
-//! on purpose still has its node stopped (the process id it wrote is gone afterwards).
+//! of a bad scene and a bad parameter, the Gymnasium environments with the simulator in process
+//! (`tensegrity_native`, python/native/) and as a node) pass against the node binary and the
+//! extension, and a Python test that fails on purpose still has its node stopped (the process id
+//! it wrote is gone afterwards).
 
 #![cfg(all(feature = "ros2", feature = "shm"))]
 
@@ -42,11 +44,14 @@ fn the_python_kits_examples_pass_and_a_failing_test_still_stops_its_node() {
     if !tensegrity::testing::isolated_or_rerun(TEST) {
         return;
     }
-    let Some(python) = python::python_with("cyclonedds, iceoryx2, gymnasium, pytest") else { return };
+    let Some(python) = python::python_with("cyclonedds, iceoryx2, gymnasium, pytest, tensegrity_native")
+    else {
+        return;
+    };
     let out = pytest(&python, &["-v", "python/tests"], &[]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}\n{}", String::from_utf8_lossy(&out.stderr));
-    assert!(text.contains("20 passed"), "{text}");
+    assert!(text.contains("30 passed"), "{text}");
 
     let pid_file = std::env::temp_dir().join(format!("tensegrity-kit-pid-{}", std::process::id()));
     let _ = std::fs::remove_file(&pid_file);

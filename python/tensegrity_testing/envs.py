@@ -1,5 +1,10 @@
-"""Gymnasium environments on the tensegrity simulator: `TensegrityEnv` runs one `tensegrity_node`
-in lockstep over shared memory (no DDS, so no network) and turns it into a `gymnasium.Env`:
+"""Gymnasium environments on the tensegrity simulator: `TensegrityEnv` runs one simulator in
+lockstep and turns it into a `gymnasium.Env`. The simulator is in this process
+(`backend="inprocess"`: the extension `tensegrity_native`, `pip install ./python/native`; no
+round trip between processes, the fastest) or a `tensegrity_node` process of its own, stepped over
+shared memory (`backend="node"`: no DDS, so no network; isolated from this process's crashes).
+`backend="auto"` (the default) takes the extension when it is installed. Both run the same node
+core: the same seed and actions give the same episodes to the bit on either.
 
 - observations: chosen arrays of the state after each action (tensions, lengths, rest lengths,
   rates, body positions and orientations), or what the scene's sensors report (`measured=True`:
@@ -33,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from . import inprocess
 from .node import TensegrityNode, command
 
 #: Arrays an observation may take from the state (`State` fields), per element.
@@ -68,7 +74,8 @@ class TensegrityEnv(gym.Env):
     fields, concatenated in order; measured: observe what the sensors report where the scene
     declares them; target_tension: {cable: N} of the default reward (default: 1.5 times each
     actuated cable's tension at the start, at least 1 N); reward(state, action) and
-    terminated(state): your task instead; params: node parameters; node_timeout: seconds.
+    terminated(state): your task instead; params: node parameters; node_timeout: seconds;
+    backend: "inprocess", "node" or "auto" (module docs; `self.backend` says which it is).
     """
 
     metadata = {"render_modes": []}
@@ -76,7 +83,7 @@ class TensegrityEnv(gym.Env):
     def __init__(self, scene=None, action="rate", normalize=True, actuators=None, action_period=10,
                  max_episode_steps=200, observation=("cable_tension", "actuator_rest_length"),
                  measured=False, target_tension=None, reward=None, terminated=None, params=None,
-                 node_timeout=30.0):
+                 node_timeout=30.0, backend="auto"):
         if action not in ("rate", "rest_length"):
             raise ValueError(f"action must be 'rate' or 'rest_length', got {action!r}")
         if int(action_period) < 1 or int(max_episode_steps) < 1:
@@ -87,7 +94,15 @@ class TensegrityEnv(gym.Env):
         self.action_kind, self.action_period = action, int(action_period)
         self.max_episode_steps, self.fields, self.measured = int(max_episode_steps), tuple(observation), measured
         self._reward, self._terminated = reward, terminated
-        self.node = TensegrityNode(scene, params=params, paused=True, transports=("shm",), timeout=node_timeout)
+        if backend == "auto":
+            backend = "inprocess" if inprocess.available() else "node"
+        if backend == "inprocess":
+            self.node = inprocess.InProcessSimulator(scene, params=params)
+        elif backend == "node":
+            self.node = TensegrityNode(scene, params=params, paused=True, transports=("shm",), timeout=node_timeout)
+        else:
+            raise ValueError(f"backend must be 'inprocess', 'node' or 'auto', got {backend!r}")
+        self.backend = backend
         try:
             names = self.node.names
             all_actuators = names["actuator_names"]
@@ -122,7 +137,12 @@ class TensegrityEnv(gym.Env):
             if target_tension is None:
                 target_tension = {cable_names[c]: max(1.5 * start.cable_tension[c], 1.0) for c in self._cables}
             self.target_tension = dict(target_tension)
-            self._targets = [(cable_names.index(c), t) for c, t in self.target_tension.items()]
+            unknown = [c for c in self.target_tension if c not in cable_names]
+            bad = [t for t in self.target_tension.values() if not (math.isfinite(t) and t > 0)]
+            if unknown or bad or not self.target_tension:
+                raise ValueError(f"target_tension must map cables of {cable_names} to tensions > 0 N, "
+                                 f"got {self.target_tension}")
+            self._targets = [(cable_names.index(c), float(t)) for c, t in self.target_tension.items()]
         except BaseException:
             self.node.stop()
             raise
@@ -131,8 +151,14 @@ class TensegrityEnv(gym.Env):
         # actuator, made once (by index), and the limits as floats
         self._entries = [command(i, **{action: 0.0}) for i in index]
         self._bounds = list(zip(self.limits[0].tolist(), self.limits[1].tolist()))
-        # without callbacks or sensors a step reads the sample in place instead of a `State`
-        self._fast = reward is None and terminated is None and not measured
+        # without callbacks or sensors a step reads the sample in place instead of a `State`;
+        # in process, without callbacks, the whole step is one call into the extension
+        self._fast = reward is None and terminated is None and not measured and backend == "node"
+        self._native = None
+        if backend == "inprocess" and reward is None and terminated is None:
+            self._native = self.node.sim
+            self._native.configure(index, action == "rate", self.limits[0].tolist(), self.limits[1].tolist(),
+                                   normalize, list(self.fields), bool(measured), self._targets)
         self._observation = self.observe(start)
         self._last_info = self._info(start)
 
@@ -214,6 +240,8 @@ class TensegrityEnv(gym.Env):
         """`step`'s request, sent to the node without waiting for it (several environments then
         step their nodes in parallel: `TensegrityVectorEnv`); what it returns goes to `step_end`.
         """
+        if self._native is not None:
+            return self._act(action)
         key = self.action_kind
         for entry, x in zip(self._entries, self.command_values(action)):
             setattr(entry, key, x)
@@ -224,6 +252,17 @@ class TensegrityEnv(gym.Env):
         except Exception as e:  # the node could not be asked
             return e
 
+    def _act(self, action):
+        """`step_begin` in process: the whole step in one call (mapping, steps, observation,
+        reward); a failed step is handed to `step_end`."""
+        try:
+            try:
+                return self._native.act(action, self.action_period)
+            except TypeError:  # not float64 numbers: as `command_values` reads them
+                return self._native.act(np.ravel(np.asarray(action, dtype=np.float64)), self.action_period)
+        except self.node.PhysicsFailure as e:
+            return e
+
     def step_end(self, pending, action=None):
         """The result of the request `step_begin` sent: observation, reward, terminated,
         truncated, info."""
@@ -232,6 +271,10 @@ class TensegrityEnv(gym.Env):
         try:
             if isinstance(pending, Exception):
                 raise pending
+            if self._native is not None:
+                self._observation, reward, faulted, time, step = pending
+                info = self._last_info = {"time": time, "step": step, "episode_seed": self.episode_seed}
+                return self._observation, reward, faulted, truncated, info
             if self._fast:
                 answer = self.node.shm.lockstep_end(pending, timeout=self.node.timeout)
             else:
@@ -302,7 +345,8 @@ class SixbarRollEnv(TensegrityEnv):
 
 
 class TensegrityVectorEnv(gym.vector.VectorEnv):
-    """`n` `TensegrityEnv(**kwargs)` stepped from this process, their nodes in parallel: each step
+    """`n` `TensegrityEnv(**kwargs)` stepped from this process, their nodes in parallel (backend
+    "node" unless told otherwise; in process they would step one after another): each step
     sends every node its request (`TensegrityEnv.step_begin`) before it waits for any answer, so
     the nodes, each a process of its own, use every core while this process only copies numbers
     (no pipes, no pickling, unlike `gymnasium.vector.AsyncVectorEnv`). An environment whose
@@ -313,6 +357,8 @@ class TensegrityVectorEnv(gym.vector.VectorEnv):
     metadata = {"render_modes": [], "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
 
     def __init__(self, n, **kwargs):
+        # a node per environment is what puts the environments on every core
+        kwargs.setdefault("backend", "node")
         if int(n) < 1:
             raise ValueError(f"a vector environment needs at least one environment, got {n}")
         self.envs = []

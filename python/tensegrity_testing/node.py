@@ -149,6 +149,23 @@ class State:
         )
 
 
+def state_of(s, names, contacts=None, measured=None):
+    """The `State` of a `StateSample` `s`, with the contacts of a `ContactsSample` and what the
+    sensors report from a `MeasuredSample` where they are of the same step (`names`: the
+    structure's names)."""
+    state = State.of(s)
+    c = contacts
+    if c is not None and c.step == state.step:
+        state.contacts = [
+            Contact(point, other, bool(c.in_contact[i]), c.gap[i], c.normal_force[i],
+                    tuple(c.position[i]), tuple(c.normal[i]), tuple(c.friction[i]), c.slip_speed[i])
+            for i, (point, other) in enumerate(names["contacts"])
+        ]
+    if measured is not None and measured.step == state.step:
+        state.measured = measured_of(measured)
+    return state
+
+
 def measured_of(m):
     """The declared channels of a `MeasuredSample` `m`, as lists in the state's layout."""
     from . import shm
@@ -380,18 +397,7 @@ class TensegrityNode:
     def lockstep_end(self, pending):
         """The `State` after the request `lockstep_begin` sent."""
         answer = self.shm.lockstep_end(pending, timeout=self.timeout)
-        state = State.of(answer.state)
-        c = self.shm.latest_contacts()
-        if c is not None and c.step == state.step:
-            state.contacts = [
-                Contact(point, other, bool(c.in_contact[i]), c.gap[i], c.normal_force[i],
-                        tuple(c.position[i]), tuple(c.normal[i]), tuple(c.friction[i]), c.slip_speed[i])
-                for i, (point, other) in enumerate(self.names["contacts"])
-            ]
-        m = self.shm.latest_measured()
-        if m is not None and m.step == state.step:
-            state.measured = measured_of(m)
-        return state
+        return state_of(answer.state, self.names, self.shm.latest_contacts(), self.shm.latest_measured())
 
     # ----- the end -------------------------------------------------------------------------
 

@@ -1,10 +1,12 @@
-"""The Gymnasium environments (`tensegrity_testing.envs`): both pass Gymnasium's own checker, the
-same seed gives the same episodes to the bit (scene randomization included), a vector
-environment's results equal the same environments stepped one by one, a recorded run of seeded
-episodes replays bit for bit, and a short random search improves the return on the
-tension-target task (the environment is learnable, not only valid).
+"""The Gymnasium environments (`tensegrity_testing.envs`), with the simulator in process
+(`tensegrity_native`) and as a node over shared memory: both pass Gymnasium's own checker, the
+same seed gives the same episodes to the bit (scene randomization included) and the two backends
+give each other's episodes to the bit, a vector environment's results equal the same environments
+stepped one by one, a recorded run of seeded episodes replays bit for bit, and a short random
+search improves the return on the tension-target task (the environment is learnable, not only
+valid).
 
-Run: `pip install ./python[gym]` then `pytest python/tests`.
+Run: `pip install ./python[gym] ./python/native` then `pytest python/tests`.
 """
 
 import os
@@ -18,9 +20,13 @@ np = pytest.importorskip("numpy")
 
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
+from tensegrity_testing import command  # noqa: E402
 from tensegrity_testing.envs import TensegrityEnv, make_vector_env  # noqa: E402
+from tensegrity_testing.inprocess import InProcessSimulator  # noqa: E402
+from tensegrity_testing.shm import LockstepRefused  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
+BACKENDS = ["inprocess", "node"]
 
 
 def randomized_with_a_winch(tmp_path):
@@ -45,9 +51,11 @@ def run(env, seed, actions):
     return np.concatenate(out), info["episode_seed"]
 
 
-def test_the_bundled_environment_passes_gymnasiums_checker():
-    env = gym.make("tensegrity/Prism3Tension-v0")
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_the_bundled_environment_passes_gymnasiums_checker(backend):
+    env = gym.make("tensegrity/Prism3Tension-v0", backend=backend)
     try:
+        assert env.unwrapped.backend == backend
         check_env(env.unwrapped, skip_render_check=True)
         obs, _ = env.reset(seed=0)
         assert env.observation_space.contains(obs)
@@ -56,12 +64,16 @@ def test_the_bundled_environment_passes_gymnasiums_checker():
         assert np.isfinite(reward) and env.observation_space.contains(obs)
         with pytest.raises(ValueError, match="finite"):
             env.step(np.array([np.nan]))
+        # and the environment goes on
+        obs, reward, *_ = env.step(np.array([0.0]))
+        assert np.isfinite(reward) and env.observation_space.contains(obs)
     finally:
         env.close()
 
 
-def test_the_rolling_robot_environment_passes_gymnasiums_checker():
-    env = gym.make("tensegrity/SixbarRoll-v0")
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_the_rolling_robot_environment_passes_gymnasiums_checker(backend):
+    env = gym.make("tensegrity/SixbarRoll-v0", backend=backend)
     try:
         check_env(env.unwrapped, skip_render_check=True)
         obs, _ = env.reset(seed=0)
@@ -72,10 +84,11 @@ def test_the_rolling_robot_environment_passes_gymnasiums_checker():
         env.close()
 
 
-def test_the_same_seed_gives_the_same_episodes_to_the_bit(tmp_path):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_the_same_seed_gives_the_same_episodes_to_the_bit(tmp_path, backend):
     scene = randomized_with_a_winch(tmp_path)
     actions = np.random.default_rng(7).uniform(-1.0, 1.0, size=(30, 1))
-    a, b = TensegrityEnv(scene, action_period=5), TensegrityEnv(scene, action_period=5)
+    a, b = (TensegrityEnv(scene, action_period=5, backend=backend) for _ in range(2))
     try:
         first, seed_a = run(a, 42, actions)
         second, seed_b = run(b, 42, actions)
@@ -121,10 +134,11 @@ def test_a_vector_environment_equals_its_environments_stepped_one_by_one(vectori
         assert np.array_equal(mine, np.concatenate([alone] + rest)), f"environment {k}"
 
 
-def test_recorded_seeded_episodes_replay_bit_for_bit(tmp_path):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_recorded_seeded_episodes_replay_bit_for_bit(tmp_path, backend):
     scene = randomized_with_a_winch(tmp_path)
     bag = tmp_path / "episodes"
-    env = TensegrityEnv(scene, action_period=5, params={"record": str(bag)})
+    env = TensegrityEnv(scene, action_period=5, params={"record": str(bag)}, backend=backend)
     try:
         for seed in (5, None):
             env.reset(seed=seed)
@@ -194,3 +208,119 @@ def test_observations_can_be_what_the_sensors_report_seeded_per_episode():
     # the rest length: an encoder of 1e-4 m counts
     at = [a + 1 for a in at]
     assert np.max(np.abs(noisy[at] - truth[at])) <= 0.5e-4 + 1e-12
+
+
+def sixbar_episode(backend, seed, **kwargs):
+    """Observations, rewards and infos of a SixbarRoll episode under seeded random actions (some
+    outside [-1, 1], given as float32, as a list, as float64)."""
+    env = gym.make("tensegrity/SixbarRoll-v0", backend=backend, max_episode_steps=8, **kwargs).unwrapped
+    try:
+        obs, info = env.reset(seed=seed)
+        out, infos = [obs], [info]
+        rng = np.random.default_rng(seed)
+        for k in range(8):
+            a = rng.uniform(-1.5, 1.5, size=24)
+            a = [a.astype(np.float32), a.tolist(), a][k % 3]
+            obs, reward, terminated, truncated, info = env.step(a)
+            out += [obs, np.array([reward, terminated, truncated], dtype=np.float64)]
+            infos.append(info)
+        return np.concatenate(out), infos
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"measured": True}, {"action": "rest_length", "normalize": False}],
+                         ids=["state", "measured", "rest_length"])
+def test_in_process_and_node_give_the_same_episodes_to_the_bit(kwargs):
+    # the robot on the ground (contacts, 24 winches, sensors with noise when measured): the same
+    # seed and actions through the extension and through a node over shared memory
+    inproc, infos_a = sixbar_episode("inprocess", 9, **kwargs)
+    node, infos_b = sixbar_episode("node", 9, **kwargs)
+    assert np.array_equal(inproc, node)
+    assert infos_a == infos_b
+
+
+def test_in_process_callbacks_see_the_same_states_as_over_shared_memory():
+    # a reward and a termination of the user's: the slow path, a `State` per step, in both
+    def reward(state, action):
+        return -abs(state.cable_tension[3] - 250.0) + 1e-3 * sum(state.body_position[0])
+
+    def terminated(state):
+        return state.time > 0.045
+
+    rewards = {}
+    for backend in BACKENDS:
+        env = TensegrityEnv(actuators=["ring_winch"], reward=reward, terminated=terminated,
+                            observation=("cable_tension", "body_orientation"), backend=backend)
+        try:
+            env.reset(seed=1)
+            rewards[backend] = [env.step(np.array([0.3]))[1:3] for _ in range(6)]
+        finally:
+            env.close()
+    assert rewards["inprocess"] == rewards["node"]
+    assert [t for _, t in rewards["inprocess"]] == [False] * 4 + [True] * 2
+
+
+def test_the_in_process_simulator_refuses_careless_input_and_goes_on(tmp_path):
+    with pytest.raises(ValueError, match="nonexistent.toml"):
+        InProcessSimulator(tmp_path / "nonexistent.toml")
+    with pytest.raises(ValueError, match="physics_dt"):
+        InProcessSimulator("bundled:prism3", params={"physics_dt": -1})
+    with pytest.raises(ValueError, match="no bundled scene 'nothing_of_that_name'"):
+        InProcessSimulator("bundled:nothing_of_that_name")
+    bad = tmp_path / "bad.toml"
+    bad.write_text('name = "bad"\n[[bodies]]\nname = "b"\nkind = "bar"\nmass = -1.0\nends = [[0,0,0],[1,0,0]]\n')
+    with pytest.raises(ValueError, match="bad.toml"):
+        InProcessSimulator(bad)
+    with InProcessSimulator("bundled:prism3") as sim:
+        start = sim.lockstep(0)
+        # a NaN, an out-of-range value, an unknown actuator: refused whole, no step taken
+        for entry in (command(0, rate=float("nan")), command(0, rest_length=-5.0), command("no_such", rate=0.1)):
+            with pytest.raises(LockstepRefused, match="command rejected"):
+                sim.lockstep(5, [entry])
+        assert sim.lockstep(0).step == start.step
+        with pytest.raises(ValueError, match="seed"):
+            sim.lockstep(1, seed=3)
+        # and it goes on: the rejections counted as the node counts them
+        after = sim.lockstep(3, [command("ring_winch", rate=-0.01)])
+        assert after.step == 3 and after.commands_rejected == 3
+        assert all(np.isfinite(after.cable_tension))
+    env = TensegrityEnv(actuators=["ring_winch"], backend="inprocess")
+    try:
+        env.reset(seed=0)
+        for careless in ([0.1, 0.2], [], "fast"):
+            with pytest.raises((ValueError, TypeError)):
+                env.step(careless)
+        assert env.step(0.5)[0].shape == env.observation_space.shape
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="target_tension"):
+        TensegrityEnv(actuators=["ring_winch"], target_tension={"ring": 0.0}, backend="inprocess")
+    with pytest.raises(ValueError, match="backend"):
+        TensegrityEnv(backend="gpu")
+
+
+def test_a_physics_failure_in_process_ends_the_episode_and_a_reset_recovers():
+    # explicit Euler at 19 ms, just inside its stability limit for the rope as it starts (20 ms);
+    # hauling the rope in stiffens it (EA / L0) until the step is past the limit and diverges:
+    # the step is stopped and reported, the episode terminates, nothing non-finite comes out,
+    # and a reset recovers
+    scene = ROOT / "config" / "examples" / "sensors.toml"
+    params = {"integrator": "symplectic-euler", "physics_dt": 0.019}
+    env = TensegrityEnv(scene, backend="inprocess", params=params, max_episode_steps=1000)
+    try:
+        env.reset(seed=0)
+        for _ in range(60):
+            obs, reward, terminated, truncated, info = env.step(np.array([-1.0]))
+            assert np.all(np.isfinite(obs))
+            if terminated:
+                break
+        assert terminated and reward == -10.0 and "physics failure" in info["failure"], info
+        obs, info = env.reset(seed=0)
+        assert info["step"] == 0 and np.all(np.isfinite(obs))
+        assert not env.step(np.array([0.0]))[2]
+    finally:
+        env.close()
+    # past the limit from the start: refused when built, naming the limit
+    with pytest.raises(ValueError, match="stability limit"):
+        TensegrityEnv(scene, backend="inprocess", params={**params, "physics_dt": 0.05})

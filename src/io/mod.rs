@@ -5,7 +5,8 @@
 //! - `topics` (the one topic table: names, types, QoS, inputs), `commands` (command checks and
 //!   limits), `sink` (what a transport's outgoing side sees: `NodeSink`, `NodeView`, stats);
 //! - `node` (the transport-free core, its parameters and the loop that runs it with transports);
-//! - the transports, behind cargo features: `ros2` (DDS) and `shm` (shared memory);
+//! - the transports, behind cargo features: `ros2` (DDS) and `shm` (shared memory), and `python`
+//!   (the in-process Python extension `tensegrity_native`, which needs `shm`'s payloads);
 //! - `record` (bags: the recorder, offline runs, replay, the MCAP reader and writer).
 //!
 //! Nothing outside this module, `testing` and the binaries imports a transport crate.
@@ -22,6 +23,9 @@ pub mod topics;
 pub mod ros2;
 #[cfg(feature = "shm")]
 pub mod shm;
+
+#[cfg(feature = "python")]
+pub mod python;
 
 use crate::io::node::params::{NodeParams, TransportKind};
 use crate::io::node::runner::{SimNode, Transport};

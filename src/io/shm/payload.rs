@@ -443,7 +443,7 @@ unsafe impl ZeroValid for LockstepResponse {}
 
 /// Zeroes a loaned payload in place (no copy through the stack) and returns it initialized.
 #[allow(unsafe_code)]
-pub(super) fn zeroed<T: ZeroValid>(slot: &mut MaybeUninit<T>) -> &mut T {
+pub fn zeroed<T: ZeroValid>(slot: &mut MaybeUninit<T>) -> &mut T {
     // SAFETY: all-zero bytes are a valid `T` (`ZeroValid`), and the pointer is the slot's own
     unsafe {
         std::ptr::write_bytes(slot.as_mut_ptr(), 0, 1);

@@ -26,7 +26,7 @@ use super::payload::*;
 use super::service::*;
 
 /// Fills `out` (all zero on entry) from `view`; `commands_applied_ns` as in `StateSample`.
-fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64) {
+pub fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64) {
     let (model, state, ws) = (v.model, v.state, v.workspace);
     out.time = state.time;
     out.step = v.step;
@@ -83,7 +83,7 @@ fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64)
 }
 
 /// Fills `out` (all zero on entry) with what the sensors of `v` report (`NodeView::measured`).
-fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
+pub fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
     use crate::sensors::{reading, SensorKind};
     let model = v.model;
     out.time = v.state.time;
@@ -135,7 +135,7 @@ fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
 }
 
 /// Fills `out` (all zero on entry) with every contact of `v`.
-fn fill_contacts(out: &mut ContactsSample, v: &NodeView<'_>) {
+pub fn fill_contacts(out: &mut ContactsSample, v: &NodeView<'_>) {
     out.time = v.state.time;
     out.step = v.step;
     out.contact_count = v.workspace.contacts.len() as u32;

@@ -1,0 +1,542 @@
+//! The Python extension `tensegrity_native` (feature `python`, pyo3 + numpy, built by maturin from
+//! `python/native/`): takes a scene and node parameters from Python, gives `Simulator`, the node
+//! core (`NodeCore`) stepped in the caller's process, so a learning loop pays no round trip
+//! between processes.
+//!
+//! It is the shared-memory lockstep without the transport: the same core, the same command
+//! checks (`shm::check_command`, `commands::check_entry`), the same seeded resets, sensors and
+//! bag recording (`record`), and its state comes out as the same `#[repr(C)]` samples the shared-
+//! memory transport sends (`StateSample`, `MeasuredSample`, `ContactsSample`), which the Python
+//! kit reads with the same `ctypes` mirrors. A run in process and a run over shared memory from
+//! the same seed and actions give the same numbers to the bit (python/tests/test_gym_env.py).
+//!
+//! A learning environment's step is one call (`Simulator::act`): its action mapped onto the
+//! actuators' limits, the steps, the observation and the default tension reward, all here, so the
+//! Python side of a step is a few hundred nanoseconds (`TensegrityEnv` with `backend="inprocess"`).
+
+use std::collections::HashMap;
+use std::mem::MaybeUninit;
+use std::time::Instant;
+
+use numpy::{PyArray1, PyReadonlyArrayDyn};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict};
+
+use crate::control::ActuatorCommand;
+use crate::io::commands;
+use crate::io::msg::{result_code, SimResult};
+use crate::io::node::params::NodeParams;
+use crate::io::node::NodeCore;
+use crate::io::record::BagRecorder;
+use crate::io::shm::{
+    check_capacity, check_command, fill_contacts, fill_measured, fill_state, zeroed, CommandSample,
+    ContactsSample, MeasuredSample, StateSample, ZeroValid,
+};
+use crate::io::sink::{NodeSink, NodeView, PublishError};
+use crate::io::topics::Topic;
+use crate::model::{ActuatorId, Model};
+use crate::sensors::{reading, SensorKind};
+
+pyo3::create_exception!(
+    tensegrity_native,
+    PhysicsFailure,
+    PyRuntimeError,
+    "A step failed even at the smallest sub-step, or a request was refused (faulted until reset)."
+);
+
+/// The core's outgoing side in process: the bag recorder (with `record`) and the answer to the
+/// step request under way.
+struct Outputs {
+    recorder: Option<BagRecorder>,
+    done: Option<SimResult>,
+}
+
+impl NodeSink for Outputs {
+    fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
+        match &mut self.recorder {
+            Some(r) => r.publish(topic, view),
+            None => Ok(()),
+        }
+    }
+
+    fn step_request_done(&mut self, _ticket: u64, result: SimResult, _view: &NodeView<'_>) {
+        // one request at a time: whatever is answered is the one under way
+        self.done = Some(result);
+    }
+
+    fn commands_applied(&mut self, time: f64, step: u64, applied: &[(ActuatorId, ActuatorCommand)]) {
+        if let Some(r) = &mut self.recorder {
+            r.commands_applied(time, step, applied);
+        }
+    }
+
+    fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
+        if let Some(r) = &mut self.recorder {
+            r.simulation_reset(time, step, seed);
+        }
+    }
+}
+
+/// An array of the state an observation may take, per element (`STATE_FIELDS` of envs.py).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Field {
+    CableTension,
+    CableLength,
+    CableRestLength,
+    ActuatorRestLength,
+    ActuatorRate,
+    BodyPosition,
+    BodyOrientation,
+}
+
+impl Field {
+    fn parse(name: &str) -> Option<Self> {
+        Some(match name {
+            "cable_tension" => Self::CableTension,
+            "cable_length" => Self::CableLength,
+            "cable_rest_length" => Self::CableRestLength,
+            "actuator_rest_length" => Self::ActuatorRestLength,
+            "actuator_rate" => Self::ActuatorRate,
+            "body_position" => Self::BodyPosition,
+            "body_orientation" => Self::BodyOrientation,
+            _ => return None,
+        })
+    }
+
+    /// The sensor channel that reports this field instead, with `measured` (`MEASURED_FIELDS`).
+    fn sensor(self) -> Option<SensorKind> {
+        Some(match self {
+            Self::CableTension => SensorKind::Tension,
+            Self::CableLength => SensorKind::Length,
+            Self::ActuatorRestLength => SensorKind::RestLength,
+            Self::BodyPosition => SensorKind::Position,
+            Self::BodyOrientation => SensorKind::Orientation,
+            Self::CableRestLength | Self::ActuatorRate => return None,
+        })
+    }
+
+    /// Appends this field of `v` to `out` (orientations x, y, z, w as in the state sample; a
+    /// measured orientation arrives w, x, y, z and is reordered like `fill_measured` does).
+    fn append(self, v: &NodeView<'_>, measured: bool, out: &mut Vec<f64>) {
+        let (model, state, ws) = (v.model, v.state, v.workspace);
+        if let Some(values) = self.sensor().filter(|_| measured).and_then(|k| reading(model, v.measured, k)) {
+            if self == Self::BodyOrientation {
+                for q in values.chunks_exact(4) {
+                    out.extend_from_slice(&[q[1], q[2], q[3], q[0]]);
+                }
+            } else {
+                out.extend_from_slice(values);
+            }
+            return;
+        }
+        match self {
+            Self::CableTension => out.extend(ws.cables.iter().map(|c| c.tension)),
+            Self::CableLength => out.extend(ws.cables.iter().map(|c| c.length)),
+            Self::CableRestLength => out.extend(ws.cables.iter().map(|c| c.rest_length)),
+            Self::ActuatorRestLength => {
+                out.extend(model.actuators.iter().map(|a| state.rest_lengths[a.cable.0]))
+            }
+            Self::ActuatorRate => out.extend(model.actuators.iter().map(|a| v.rates[a.cable.0])),
+            Self::BodyPosition => {
+                for p in &state.poses {
+                    out.extend_from_slice(&[p.position.x, p.position.y, p.position.z]);
+                }
+            }
+            Self::BodyOrientation => {
+                for p in &state.poses {
+                    let q = p.rotation.quaternion();
+                    out.extend_from_slice(&[q.i, q.j, q.k, q.w]);
+                }
+            }
+        }
+    }
+}
+
+/// A learning task's constant description (`Simulator::configure`): which actuators an action
+/// drives and how, what is observed, and the default reward's targets.
+struct Task {
+    actuators: Vec<ActuatorId>,
+    /// True: each action value is a rate (m/s); false: a rest-length target (m).
+    rate: bool,
+    /// Each action value's limits in SI units (low, high).
+    bounds: Vec<(f64, f64)>,
+    /// Action values in [-1, 1], mapped linearly onto `bounds`; else clipped to them.
+    normalize: bool,
+    fields: Vec<Field>,
+    measured: bool,
+    /// (cable index, target tension N) of the default reward.
+    targets: Vec<(usize, f64)>,
+}
+
+impl Task {
+    /// The SI value of action value `x` for actuator slot `k` (`command_values` of envs.py,
+    /// the same operations in the same order, so both give the same bits).
+    fn value(&self, k: usize, x: f64) -> f64 {
+        let (low, high) = self.bounds[k];
+        if self.normalize {
+            low + 0.5 * (x.clamp(-1.0, 1.0) + 1.0) * (high - low)
+        } else {
+            x.max(low).min(high)
+        }
+    }
+
+    /// The default reward after `v`: minus the mean of `|T - T*| / T*` over the targets.
+    fn tension_reward(&self, v: &NodeView<'_>) -> f64 {
+        let sum: f64 = self.targets.iter().map(|&(c, t)| (v.workspace.cables[c].tension - t).abs() / t).sum();
+        -sum / self.targets.len() as f64
+    }
+}
+
+/// A boxed all-zero payload (large ones never pass through the stack).
+fn boxed_zeroed<T: ZeroValid>() -> Box<T> {
+    let mut slot: Box<MaybeUninit<T>> = Box::new_uninit();
+    zeroed(&mut slot);
+    // SAFETY: `zeroed` initialized it (all-zero bytes are a valid `T`: `ZeroValid`)
+    #[allow(unsafe_code)]
+    unsafe {
+        slot.assume_init()
+    }
+}
+
+/// The bytes of a payload, for Python's `ctypes` mirror (`from_buffer_copy`).
+fn payload_bytes<'py, T: ZeroValid>(py: Python<'py>, payload: &T) -> Bound<'py, PyBytes> {
+    // SAFETY: `T` is a `#[repr(C)]` struct of integers and floats (`ZeroValid`), fully
+    // initialized, so every byte of it may be read
+    #[allow(unsafe_code)]
+    let bytes =
+        unsafe { std::slice::from_raw_parts((payload as *const T).cast::<u8>(), std::mem::size_of::<T>()) };
+    PyBytes::new(py, bytes)
+}
+
+/// What `Simulator::act` returns: (observation, reward, faulted, time s, steps since reset).
+type Transition<'py> = (Bound<'py, PyArray1<f64>>, f64, bool, f64, u64);
+
+/// The simulator in the caller's process: see the module docs.
+///
+/// `Simulator(scene=None, params=None)`: `scene` is a scene file, `bundled:NAME` or `None` (the
+/// bundled prism3); `params` the node's parameters by name (`{"physics_dt": 0.001, "record":
+/// "run_bag"}`, values as the node's `-p name:=value` takes them; the transport ones are moot).
+/// The simulation is paused: it moves only when asked (`lockstep`, `act`).
+#[pyclass(module = "tensegrity_native", unsendable)]
+pub struct Simulator {
+    core: NodeCore,
+    out: Outputs,
+    /// The core's wall clock (diagnostics only: lockstep is not paced).
+    epoch: Instant,
+    task: Option<Task>,
+    /// Scratch of `act`: the observation, then the commands.
+    observation: Vec<f64>,
+}
+
+impl Simulator {
+    /// Takes `steps` steps (the core paused) and answers how the request ended.
+    fn run(&mut self, steps: u64) -> Result<(), String> {
+        self.out.done = None;
+        self.core.request_steps(steps, &mut self.out).map_err(|r| r.error_message)?;
+        while self.out.done.is_none() {
+            let now = self.epoch.elapsed();
+            self.core.tick(now, &mut self.out);
+        }
+        match self.out.done.take() {
+            Some(r) if r.result == result_code::OK => Ok(()),
+            Some(r) => Err(r.error_message),
+            None => Err("no answer".into()),
+        }
+    }
+
+    /// Offers one checked command message to the core; `parse` as in `NodeCore::offer_parsed`.
+    fn offer(
+        &mut self,
+        parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), commands::MessageError>,
+    ) -> PyResult<()> {
+        self.core.offer_parsed(parse).map_err(|e| PhysicsFailure::new_err(format!("command rejected: {e}")))
+    }
+}
+
+#[pymethods]
+impl Simulator {
+    #[new]
+    #[pyo3(signature = (scene=None, params=None))]
+    fn new(scene: Option<&str>, params: Option<HashMap<String, Bound<'_, PyAny>>>) -> PyResult<Self> {
+        let model = match scene {
+            Some(s) => match s.strip_prefix("bundled:") {
+                Some(name) => crate::scene::bundled(name),
+                None => crate::scene::load(std::path::Path::new(s)),
+            },
+            None => crate::scene::bundled("prism3"),
+        }
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let mut p = NodeParams::default();
+        for (name, value) in params.unwrap_or_default() {
+            // Python's words for booleans are the node's too
+            let text = match value.extract::<bool>() {
+                Ok(b) if value.is_instance_of::<pyo3::types::PyBool>() => b.to_string(),
+                _ => value.str()?.to_string(),
+            };
+            p.set(&name, &text).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        }
+        check_capacity(&model, &p.frame_id).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let record = p.record.clone();
+        let mut core = NodeCore::new(model, p).map_err(|e| PyValueError::new_err(e.to_string()))?;
+        let recorder = match &record {
+            Some(dir) => {
+                Some(BagRecorder::for_node(&core, dir).map_err(|e| PyValueError::new_err(e.to_string()))?)
+            }
+            None => None,
+        };
+        let mut out = Outputs { recorder, done: None };
+        core.set_paused(true, &mut out);
+        core.start(&mut out);
+        Ok(Self { core, out, epoch: Instant::now(), task: None, observation: Vec::new() })
+    }
+
+    /// The scene's names and limits, as the shared-memory client's `structure()` gives them:
+    /// scene_name, physics_dt, body_names, cable_names, actuator_names, actuator_cable,
+    /// actuator_min_rest_length, actuator_max_rest_length, actuator_max_rate, contacts.
+    fn names<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let m = self.core.simulator().model();
+        let d = PyDict::new(py);
+        d.set_item("scene_name", &m.name)?;
+        d.set_item("physics_dt", self.core.simulator().settings().dt)?;
+        d.set_item("body_names", m.bodies.iter().map(|b| b.name.clone()).collect::<Vec<_>>())?;
+        d.set_item("cable_names", &m.cable_names)?;
+        d.set_item("actuator_names", &m.actuator_names)?;
+        d.set_item("actuator_cable", m.actuators.iter().map(|a| a.cable.0).collect::<Vec<_>>())?;
+        d.set_item(
+            "actuator_min_rest_length",
+            m.actuators.iter().map(|a| a.min_rest_length).collect::<Vec<_>>(),
+        )?;
+        d.set_item(
+            "actuator_max_rest_length",
+            m.actuators.iter().map(|a| a.max_rest_length).collect::<Vec<_>>(),
+        )?;
+        d.set_item("actuator_max_rate", m.actuators.iter().map(|a| a.max_rate).collect::<Vec<_>>())?;
+        let contacts: Vec<(String, String)> =
+            m.contact_labels().map(|(p, w)| (p.to_string(), w.to_string())).collect();
+        d.set_item("contacts", contacts)?;
+        Ok(d)
+    }
+
+    /// A lockstep request, as over shared memory (`LockstepRequest`): with `reset`, back to the
+    /// start (the episode drawn from `seed` when given); then `command` (the bytes of a
+    /// `CommandSample`, checked like any command: a rejected one takes no step), then `steps`
+    /// steps. Raises `PhysicsFailure` when the command is rejected, the core is faulted or a
+    /// step fails (the state is then the last good one), `ValueError` on malformed input.
+    #[pyo3(signature = (steps, command=None, reset=false, seed=None))]
+    fn lockstep(
+        &mut self,
+        steps: u64,
+        command: Option<&[u8]>,
+        reset: bool,
+        seed: Option<u64>,
+    ) -> PyResult<()> {
+        if seed.is_some() && !reset {
+            return Err(PyValueError::new_err("a seed is for a reset: lockstep(..., reset=True, seed=...)"));
+        }
+        if reset {
+            self.core.reset_seeded(seed, &mut self.out);
+        }
+        if let Some(bytes) = command {
+            if bytes.len() != std::mem::size_of::<CommandSample>() {
+                return Err(PyValueError::new_err(format!(
+                    "a command is the {} bytes of a CommandSample, got {}",
+                    std::mem::size_of::<CommandSample>(),
+                    bytes.len()
+                )));
+            }
+            let mut sample = boxed_zeroed::<CommandSample>();
+            // SAFETY: as many bytes as a `CommandSample`, which any bytes form (integers and floats)
+            #[allow(unsafe_code)]
+            unsafe {
+                std::ptr::copy_nonoverlapping(
+                    bytes.as_ptr(),
+                    (&mut *sample as *mut CommandSample).cast::<u8>(),
+                    bytes.len(),
+                );
+            }
+            if sample.count > 0 {
+                self.offer(|model, out| check_command(model, &sample, out))?;
+            }
+        }
+        self.run(steps).map_err(PhysicsFailure::new_err)
+    }
+
+    /// The bytes of the `StateSample` of now (`shm.StateSample.from_buffer_copy`).
+    fn state_sample<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        let mut s = boxed_zeroed::<StateSample>();
+        fill_state(&mut s, &self.core.view(), 0);
+        payload_bytes(py, &*s)
+    }
+
+    /// The bytes of the `MeasuredSample` of now, `None` for a scene without sensors.
+    fn measured_sample<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyBytes>> {
+        let view = self.core.view();
+        if view.measured.is_empty() {
+            return None;
+        }
+        let mut s = boxed_zeroed::<MeasuredSample>();
+        fill_measured(&mut s, &view);
+        Some(payload_bytes(py, &*s))
+    }
+
+    /// The bytes of the `ContactsSample` of now, `None` for a scene without contacts.
+    fn contacts_sample<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyBytes>> {
+        let view = self.core.view();
+        if view.model.contact_pairs() == 0 {
+            return None;
+        }
+        let mut s = boxed_zeroed::<ContactsSample>();
+        fill_contacts(&mut s, &view);
+        Some(payload_bytes(py, &*s))
+    }
+
+    /// Closes the bag being recorded (with `record`), which is complete from then on; later
+    /// steps are not recorded. Also done when the simulator is dropped.
+    fn close(&mut self) -> PyResult<()> {
+        if let Some(r) = self.out.recorder.take() {
+            r.finish().map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        }
+        Ok(())
+    }
+
+    /// Sets the learning task `act` steps: `actuators` (indices) driven by `rate` (m/s) or
+    /// rest-length targets, each action value within `low[k]..high[k]` (SI), given in [-1, 1]
+    /// when `normalize`; `fields` observed (envs.py `STATE_FIELDS` names, concatenated; what
+    /// the sensors report where declared, with `measured`); `targets` the default reward's
+    /// (cable index, tension N > 0) pairs.
+    #[allow(clippy::too_many_arguments)]
+    fn configure(
+        &mut self,
+        actuators: Vec<usize>,
+        rate: bool,
+        low: Vec<f64>,
+        high: Vec<f64>,
+        normalize: bool,
+        fields: Vec<String>,
+        measured: bool,
+        targets: Vec<(usize, f64)>,
+    ) -> PyResult<()> {
+        let m = self.core.simulator().model();
+        let bad = |why: String| Err(PyValueError::new_err(why));
+        if actuators.is_empty() || actuators.len() != low.len() || actuators.len() != high.len() {
+            return bad(format!(
+                "{} actuators, {} lows and {} highs: one each, at least one",
+                actuators.len(),
+                low.len(),
+                high.len()
+            ));
+        }
+        if let Some(a) = actuators.iter().find(|a| **a >= m.actuators.len()) {
+            return bad(format!("actuator index {a} of {}", m.actuators.len()));
+        }
+        if low.iter().zip(&high).any(|(l, h)| !(l.is_finite() && h.is_finite() && l <= h)) {
+            return bad("every bound finite and low <= high".into());
+        }
+        let mut parsed = Vec::with_capacity(fields.len());
+        for f in &fields {
+            parsed
+                .push(Field::parse(f).ok_or_else(|| PyValueError::new_err(format!("unknown field {f:?}")))?);
+        }
+        if parsed.is_empty() {
+            return bad("observe at least one field".into());
+        }
+        if let Some((c, t)) =
+            targets.iter().find(|(c, t)| *c >= m.cables.len() || !(t.is_finite() && *t > 0.0))
+        {
+            return bad(format!("target ({c}, {t}): a cable index of {} and a tension > 0", m.cables.len()));
+        }
+        if targets.is_empty() {
+            return bad("at least one target tension".into());
+        }
+        self.task = Some(Task {
+            actuators: actuators.into_iter().map(ActuatorId).collect(),
+            rate,
+            bounds: low.into_iter().zip(high).collect(),
+            normalize,
+            fields: parsed,
+            measured,
+            targets,
+        });
+        Ok(())
+    }
+
+    /// One step of the learning task (`configure` first): `action` (a float64 array or a
+    /// sequence, one value per actuator) held for `steps` physics steps. Returns (observation,
+    /// reward, faulted, time, step). A value that is not finite, or the wrong count of them,
+    /// raises `ValueError` and takes no step; a failed step raises `PhysicsFailure`.
+    fn act<'py>(
+        &mut self,
+        py: Python<'py>,
+        action: &Bound<'py, PyAny>,
+        steps: u64,
+    ) -> PyResult<Transition<'py>> {
+        let Some(task) = self.task.take() else {
+            return Err(PyRuntimeError::new_err("configure the task before act"));
+        };
+        let result = self.act_with(&task, action, steps);
+        self.task = Some(task);
+        let (reward, faulted, time, step) = result?;
+        Ok((PyArray1::from_slice(py, &self.observation), reward, faulted, time, step))
+    }
+}
+
+impl Simulator {
+    /// `act` with the task taken out.
+    fn act_with(
+        &mut self,
+        task: &Task,
+        action: &Bound<'_, PyAny>,
+        steps: u64,
+    ) -> PyResult<(f64, bool, f64, u64)> {
+        let values = &mut self.observation;
+        values.clear();
+        if let Ok(a) = action.extract::<PyReadonlyArrayDyn<'_, f64>>() {
+            match a.as_slice() {
+                Ok(s) => values.extend_from_slice(s),
+                Err(_) => values.extend(a.as_array().iter().copied()),
+            }
+        } else {
+            values.extend(action.extract::<Vec<f64>>()?);
+        }
+        if values.len() != task.actuators.len() {
+            return Err(PyValueError::new_err(format!(
+                "the action has {} values for {} actuators",
+                values.len(),
+                task.actuators.len()
+            )));
+        }
+        if values.iter().any(|x| !x.is_finite()) {
+            return Err(PyValueError::new_err(format!("the action is not finite: {values:?}")));
+        }
+        for (k, x) in values.iter_mut().enumerate() {
+            *x = task.value(k, *x);
+        }
+        let commanded = std::mem::take(&mut self.observation);
+        let offered = self.offer(|model, out| {
+            for (&id, &x) in task.actuators.iter().zip(&commanded) {
+                let c = if task.rate { ActuatorCommand::rate(x) } else { ActuatorCommand::target(x) };
+                commands::check_entry(model, id, c, out)?;
+            }
+            Ok(())
+        });
+        self.observation = commanded;
+        offered?;
+        self.run(steps).map_err(PhysicsFailure::new_err)?;
+        let view = self.core.view();
+        self.observation.clear();
+        for f in &task.fields {
+            f.append(&view, task.measured, &mut self.observation);
+        }
+        Ok((task.tension_reward(&view), view.faulted, view.state.time, view.step))
+    }
+}
+
+/// The module `tensegrity_native`.
+#[pymodule]
+fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Simulator>()?;
+    m.add("PhysicsFailure", m.py().get_type::<PhysicsFailure>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}
