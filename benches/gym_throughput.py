@@ -2,18 +2,18 @@
 """Steps per second of a learning loop in Python: our Gymnasium environment (`TensegrityEnv`, with
 the simulator in process, `backend="inprocess"`, and with a node in lockstep over shared memory,
 `backend="node"`) beside MuJoCo's own Python loop (a control write and `mujoco.mj_step`), on the
-free 3-strut prism, with one action per physics step and one per 10, in one interleaved run. Our plain lockstep call (`TensegrityClient.lockstep`, no Gymnasium
-wrapper) is timed too, to tell the transport's cost from the wrapper's. Then the vector
-environments: `TensegrityVectorEnv` (this process steps every node, the nodes in parallel) and
-Gymnasium's `AsyncVectorEnv` (a process per environment), with 1, cores and twice as many
-environments.
+free 3-strut prism, with one action per physics step and one per 10, in one interleaved run. Our
+plain shared-memory lockstep call (`TensegrityClient.lockstep`, no Gymnasium wrapper) is timed
+too, to tell the transport's cost from the wrapper's. Then the vector
+environments: `TensegrityVectorEnv` in process (one call steps every simulator, in parallel) and
+with nodes (this process steps every node, the nodes in parallel), and Gymnasium's
+`AsyncVectorEnv` (a process per environment), with 1, cores and twice as many environments.
 
 Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyPI):
 
     python3 -m venv target/mujoco-venv
-    target/mujoco-venv/bin/pip install mujoco numpy gymnasium cyclonedds iceoryx2==0.10.0 pytest
+    target/mujoco-venv/bin/pip install mujoco numpy gymnasium cyclonedds iceoryx2==0.10.0 pytest maturin
     target/mujoco-venv/bin/pip install --no-deps ./python
-    target/mujoco-venv/bin/pip install maturin
     PATH=$PWD/target/mujoco-venv/bin:$PATH target/mujoco-venv/bin/pip install --no-build-isolation ./python/native
     cargo build --release
     target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000]
@@ -71,10 +71,10 @@ def lockstep_steps_per_s(env, period, actions):
     return actions * period / (time.perf_counter() - t0)
 
 
-def vector_steps_per_s(vectorization, n, period, actions):
+def vector_steps_per_s(vectorization, backend, n, period, actions):
     scene = os.path.join(HERE, "peers", "prism_free.toml")
-    vec = make_vector_env(n, vectorization=vectorization, scene=scene, actuators=["vclu0_winch"],
-                          action_period=period, max_episode_steps=10**9)
+    vec = make_vector_env(n, vectorization=vectorization, backend=backend, scene=scene,
+                          actuators=["vclu0_winch"], action_period=period, max_episode_steps=10**9)
     try:
         vec.reset(seed=0)
         a = np.zeros((n, 1))
@@ -120,17 +120,21 @@ def main():
     cores = os.cpu_count() or 1
     counts = sorted({1, cores, 2 * cores})
     vectors = {}
+    kinds = (
+        ("parallel", "inprocess", "TensegrityVectorEnv, in process (every simulator on a core)"),
+        ("parallel", "node", "TensegrityVectorEnv, nodes (the nodes in parallel)"),
+        ("async", "inprocess", "gymnasium AsyncVectorEnv (a process per env, the simulator in it)"),
+    )
     for _ in range(args.rounds):
-        for vectorization in ("nodes", "async"):
+        for vectorization, backend, _label in kinds:
             for n in counts:
-                vectors.setdefault((vectorization, n), []).append(
-                    vector_steps_per_s(vectorization, n, 10, args.actions // 4))
+                vectors.setdefault((vectorization, backend, n), []).append(
+                    vector_steps_per_s(vectorization, backend, n, 10, args.actions // 4))
     print(f"\nvector environments on {cores} cores, an action every 10 steps, steps/s of all together\n")
     print("| environments | " + " | ".join(str(n) for n in counts) + " |")
     print("| --- | " + " | ".join("---:" for _ in counts) + " |")
-    for vectorization, label in (("nodes", "TensegrityVectorEnv (nodes in parallel)"),
-                                 ("async", "gymnasium AsyncVectorEnv (a process per env)")):
-        row = [statistics.median(vectors[(vectorization, n)]) for n in counts]
+    for vectorization, backend, label in kinds:
+        row = [statistics.median(vectors[(vectorization, backend, n)]) for n in counts]
         print(f"| {label} | " + " | ".join(f"{x:,.0f}" for x in row) + " |")
 
 

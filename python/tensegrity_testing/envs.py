@@ -20,9 +20,9 @@ core: the same seed and actions give the same episodes to the bit on either.
   episode's seed, and the node resets with it, so the scene's randomization (`[randomize]`) and
   its sensors' noise are that episode's. The same seed gives the same episodes to the bit.
 
-`make_vector_env(n, ...)` steps `n` of them as one `gymnasium.vector` environment, their nodes
-(one each, a process each) in parallel from this process (`TensegrityVectorEnv`), or each
-environment in a process of its own (`vectorization="async"`): every core works.
+`make_vector_env(n, ...)` steps `n` of them as one `gymnasium.vector` environment, in parallel
+from this process (`TensegrityVectorEnv`: the simulators in process, each on a core, or their
+nodes), or each environment in a process of its own (`vectorization="async"`): every core works.
 
 Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring driven to 300 N by its
 ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the six-bar robot on the
@@ -345,20 +345,24 @@ class SixbarRollEnv(TensegrityEnv):
 
 
 class TensegrityVectorEnv(gym.vector.VectorEnv):
-    """`n` `TensegrityEnv(**kwargs)` stepped from this process, their nodes in parallel (backend
-    "node" unless told otherwise; in process they would step one after another): each step
-    sends every node its request (`TensegrityEnv.step_begin`) before it waits for any answer, so
-    the nodes, each a process of its own, use every core while this process only copies numbers
-    (no pipes, no pickling, unlike `gymnasium.vector.AsyncVectorEnv`). An environment whose
-    episode ended is reset at its next step (Gymnasium's next-step autoreset: that step's
-    observation is the reset one, its reward 0).
+    """`n` `TensegrityEnv(**kwargs)` stepped from this process, in parallel on every core, with
+    no pipes and no pickling (unlike `gymnasium.vector.AsyncVectorEnv`):
+
+    - in process (`backend="inprocess"`, or "auto" with `tensegrity_native` installed), one call
+      steps every simulator, each on a core of its own while Python waits
+      (`tensegrity_native.act_all`); with reward or termination callbacks they step one after
+      another;
+    - as nodes (`backend="node"`), each step sends every node its request
+      (`TensegrityEnv.step_begin`) before it waits for any answer, so the nodes, each a process
+      of its own, step in parallel while this process only copies numbers.
+
+    An environment whose episode ended is reset at its next step (Gymnasium's next-step
+    autoreset: that step's observation is the reset one, its reward 0).
     """
 
     metadata = {"render_modes": [], "autoreset_mode": gym.vector.AutoresetMode.NEXT_STEP}
 
     def __init__(self, n, **kwargs):
-        # a node per environment is what puts the environments on every core
-        kwargs.setdefault("backend", "node")
         if int(n) < 1:
             raise ValueError(f"a vector environment needs at least one environment, got {n}")
         self.envs = []
@@ -395,7 +399,17 @@ class TensegrityVectorEnv(gym.vector.VectorEnv):
     def step(self, actions):
         """Steps every environment with its row of `actions`, the nodes in parallel."""
         actions = np.asarray(actions, dtype=np.float64).reshape(self.action_space.shape)
-        pending = [None if self._ended[i] else env.step_begin(actions[i]) for i, env in enumerate(self.envs)]
+        live = [i for i in range(self.num_envs) if not self._ended[i]]
+        pending = [None] * self.num_envs
+        native = [self.envs[i]._native for i in live]
+        periods = {self.envs[i].action_period for i in live}
+        if live and all(n is not None for n in native) and len(periods) == 1:
+            # every simulator in this process: one call steps them all, in parallel
+            for i, result in zip(live, inprocess.act_all(native, [actions[i] for i in live], periods.pop())):
+                pending[i] = result
+        else:
+            for i in live:
+                pending[i] = self.envs[i].step_begin(actions[i])
         observations = []
         rewards = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, dtype=bool)
@@ -417,19 +431,20 @@ class TensegrityVectorEnv(gym.vector.VectorEnv):
             env.close()
 
 
-def make_vector_env(n, vectorization="nodes", **kwargs):
-    """`n` `TensegrityEnv(**kwargs)` as one `gymnasium.vector` environment: `"nodes"` (the
-    default) steps them from this process with their nodes in parallel (`TensegrityVectorEnv`),
-    `"async"` runs each environment in a process of its own (`gymnasium.vector.AsyncVectorEnv`),
-    `"sync"` one after another (`SyncVectorEnv`)."""
-    if vectorization == "nodes":
+def make_vector_env(n, vectorization="parallel", **kwargs):
+    """`n` `TensegrityEnv(**kwargs)` as one `gymnasium.vector` environment: `"parallel"` (the
+    default; `"nodes"` is the same) steps them from this process in parallel
+    (`TensegrityVectorEnv`: in process, or their nodes, as `backend` says), `"async"` runs each
+    environment in a process of its own (`gymnasium.vector.AsyncVectorEnv`), `"sync"` one after
+    another (`SyncVectorEnv`)."""
+    if vectorization in ("parallel", "nodes"):
         return TensegrityVectorEnv(n, **kwargs)
     fns = [partial(TensegrityEnv, **kwargs) for _ in range(n)]
     if vectorization == "async":
         return gym.vector.AsyncVectorEnv(fns)
     if vectorization == "sync":
         return gym.vector.SyncVectorEnv(fns)
-    raise ValueError(f"vectorization must be 'nodes', 'async' or 'sync', got {vectorization!r}")
+    raise ValueError(f"vectorization must be 'parallel', 'async' or 'sync', got {vectorization!r}")
 
 
 gym.register(

@@ -31,6 +31,15 @@ def available():
     return True
 
 
+def act_all(sims, actions, steps):
+    """`tensegrity_native.act_all`: one learning step on each of `sims` (`Simulator`s with a
+    task), in parallel; a list of `act` tuples, or the `PhysicsFailure` of a simulator that
+    failed."""
+    import tensegrity_native
+
+    return tensegrity_native.act_all(sims, actions, steps)
+
+
 class InProcessSimulator:
     """`tensegrity_native.Simulator` with `TensegrityNode`'s lockstep interface (module docs).
 

@@ -10,7 +10,10 @@ Run: `pip install ./python[gym] ./python/native` then `pytest python/tests`.
 """
 
 import os
+import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -103,13 +106,13 @@ def test_the_same_seed_gives_the_same_episodes_to_the_bit(tmp_path, backend):
         b.close()
 
 
-@pytest.mark.parametrize("vectorization", ["nodes", "async"])
-def test_a_vector_environment_equals_its_environments_stepped_one_by_one(vectorization):
+@pytest.mark.parametrize("vectorization,backend", [("parallel", "inprocess"), ("parallel", "node"), ("async", "auto")])
+def test_a_vector_environment_equals_its_environments_stepped_one_by_one(vectorization, backend):
     # episodes of 6 actions: the 10 steps cross an autoreset (next-step mode: the step after the
     # end resets, reward 0)
     kwargs = {"actuators": ["ring_winch"], "target_tension": {"ring": 300.0}, "max_episode_steps": 6}
     actions = np.random.default_rng(3).uniform(-0.2, 0.2, size=(10, 2, 1))
-    vec = make_vector_env(2, vectorization=vectorization, **kwargs)
+    vec = make_vector_env(2, vectorization=vectorization, backend=backend, **kwargs)
     try:
         obs, _ = vec.reset(seed=[11, 12])
         together = [obs]
@@ -261,6 +264,45 @@ def test_in_process_callbacks_see_the_same_states_as_over_shared_memory():
     assert [t for _, t in rewards["inprocess"]] == [False] * 4 + [True] * 2
 
 
+def test_the_in_process_simulator_steps_and_records_like_a_node(tmp_path):
+    bag = tmp_path / "run_bag"
+    with InProcessSimulator("bundled:prism3", params={"record": str(bag)}) as sim:
+        ring = sim.names["cable_names"].index("ring")
+        state = sim.lockstep(100, [command("ring_winch", rate=-0.01)])
+        assert state.step == 100 and abs(state.actuator_rate[0] + 0.01) < 1e-12
+        assert state.cable_tension[ring] > sim.lockstep(0, reset=True).cable_tension[ring]
+    # the bag it wrote replays bit for bit
+    cli = Path(os.environ.get("TENSEGRITY_NODE", "tensegrity_node")).with_name("tensegrity")
+    out = subprocess.run([str(cli), "replay", str(bag)], capture_output=True, text=True)
+    assert out.returncode == 0 and "identical" in out.stdout, out.stdout + out.stderr
+
+
+def test_a_huge_in_process_request_stops_at_ctrl_c():
+    # 10^12 steps asked for by mistake: Ctrl-C stops it (KeyboardInterrupt) within a piece of
+    # steps, and the simulator is usable at the step it reached
+    code = (
+        "from tensegrity_testing.inprocess import InProcessSimulator\n"
+        "sim = InProcessSimulator()\n"
+        "print('ready', flush=True)\n"
+        "try:\n"
+        "    sim.lockstep(10**12)\n"
+        "except KeyboardInterrupt:\n"
+        "    s = sim.lockstep(1)\n"
+        "    print('interrupted', s.step, min(s.cable_tension) > 0, flush=True)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "python"))
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert p.stdout.readline().strip() == "ready"
+        time.sleep(0.5)
+        p.send_signal(signal.SIGINT)
+        out, _ = p.communicate(timeout=20)
+    finally:
+        p.kill()
+    words = out.split()
+    assert p.returncode == 0 and words[0] == "interrupted" and int(words[1]) > 1 and words[2] == "True", out
+
+
 def test_the_in_process_simulator_refuses_careless_input_and_goes_on(tmp_path):
     with pytest.raises(ValueError, match="nonexistent.toml"):
         InProcessSimulator(tmp_path / "nonexistent.toml")
@@ -324,3 +366,28 @@ def test_a_physics_failure_in_process_ends_the_episode_and_a_reset_recovers():
     # past the limit from the start: refused when built, naming the limit
     with pytest.raises(ValueError, match="stability limit"):
         TensegrityEnv(scene, backend="inprocess", params={**params, "physics_dt": 0.05})
+
+
+def test_a_parallel_vector_environment_in_process_survives_a_failure_and_resets_it():
+    # two explicit-Euler loads as in the failure test above, one hauled in (it diverges), one held:
+    # the failing one terminates with the failure, the other goes on, and the next step resets
+    # the first (next-step autoreset: its reward 0)
+    scene = ROOT / "config" / "examples" / "sensors.toml"
+    vec = make_vector_env(2, scene=scene, backend="inprocess", max_episode_steps=1000,
+                          params={"integrator": "symplectic-euler", "physics_dt": 0.019})
+    try:
+        assert all(env.backend == "inprocess" for env in vec.envs)
+        vec.reset(seed=0)
+        for _ in range(60):
+            obs, reward, terminated, truncated, info = vec.step(np.array([[-1.0], [0.0]]))
+            assert np.all(np.isfinite(obs))
+            if terminated[0]:
+                break
+        assert terminated[0] and not terminated[1] and reward[0] == -10.0
+        assert "physics failure" in info["failure"][0]
+        obs, reward, terminated, truncated, info = vec.step(np.array([[0.0], [0.0]]))
+        assert reward[0] == 0.0 and info["step"][0] == 0 and info["step"][1] > 0
+        with pytest.raises(ValueError, match="finite"):
+            vec.step(np.array([[np.nan], [0.0]]))
+    finally:
+        vec.close()

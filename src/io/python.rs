@@ -16,6 +16,7 @@
 
 use std::collections::HashMap;
 use std::mem::MaybeUninit;
+use std::sync::Mutex;
 use std::time::Instant;
 
 use numpy::{PyArray1, PyReadonlyArrayDyn};
@@ -45,16 +46,28 @@ pyo3::create_exception!(
     "A step failed even at the smallest sub-step, or a request was refused (faulted until reset)."
 );
 
-/// The core's outgoing side in process: the bag recorder (with `record`) and the answer to the
-/// step request under way.
+/// Steps of a `Simulator::lockstep` request taken between two checks for Ctrl-C (about 10 ms of
+/// a small scene's physics).
+pub const LOCKSTEP_PIECE: u64 = 2000;
+
+/// The core's outgoing side in process: the bag recorder (with `record`; in a mutex only so the
+/// simulator may be shared between Python threads: the core reaches it through `&mut`, which
+/// needs no lock) and the answer to the step request under way.
 struct Outputs {
-    recorder: Option<BagRecorder>,
+    recorder: Option<Mutex<BagRecorder>>,
     done: Option<SimResult>,
+}
+
+impl Outputs {
+    fn recorder(&mut self) -> Option<&mut BagRecorder> {
+        // a poisoned recorder (a panic while recording) still records what it can
+        self.recorder.as_mut().map(|r| r.get_mut().unwrap_or_else(|e| e.into_inner()))
+    }
 }
 
 impl NodeSink for Outputs {
     fn publish(&mut self, topic: Topic, view: &NodeView<'_>) -> Result<(), PublishError> {
-        match &mut self.recorder {
+        match self.recorder() {
             Some(r) => r.publish(topic, view),
             None => Ok(()),
         }
@@ -66,13 +79,13 @@ impl NodeSink for Outputs {
     }
 
     fn commands_applied(&mut self, time: f64, step: u64, applied: &[(ActuatorId, ActuatorCommand)]) {
-        if let Some(r) = &mut self.recorder {
+        if let Some(r) = self.recorder() {
             r.commands_applied(time, step, applied);
         }
     }
 
     fn simulation_reset(&mut self, time: f64, step: u64, seed: Option<u64>) {
-        if let Some(r) = &mut self.recorder {
+        if let Some(r) = self.recorder() {
             r.simulation_reset(time, step, seed);
         }
     }
@@ -218,14 +231,16 @@ type Transition<'py> = (Bound<'py, PyArray1<f64>>, f64, bool, f64, u64);
 /// bundled prism3); `params` the node's parameters by name (`{"physics_dt": 0.001, "record":
 /// "run_bag"}`, values as the node's `-p name:=value` takes them; the transport ones are moot).
 /// The simulation is paused: it moves only when asked (`lockstep`, `act`).
-#[pyclass(module = "tensegrity_native", unsendable)]
+#[pyclass(module = "tensegrity_native")]
 pub struct Simulator {
     core: NodeCore,
     out: Outputs,
     /// The core's wall clock (diagnostics only: lockstep is not paced).
     epoch: Instant,
     task: Option<Task>,
-    /// Scratch of `act`: the observation, then the commands.
+    /// Scratch of `act`: the action's values, then the commands.
+    action: Vec<f64>,
+    /// Scratch of `act`: the observation.
     observation: Vec<f64>,
 }
 
@@ -285,10 +300,10 @@ impl Simulator {
             }
             None => None,
         };
-        let mut out = Outputs { recorder, done: None };
+        let mut out = Outputs { recorder: recorder.map(Mutex::new), done: None };
         core.set_paused(true, &mut out);
         core.start(&mut out);
-        Ok(Self { core, out, epoch: Instant::now(), task: None, observation: Vec::new() })
+        Ok(Self { core, out, epoch: Instant::now(), task: None, action: Vec::new(), observation: Vec::new() })
     }
 
     /// The scene's names and limits, as the shared-memory client's `structure()` gives them:
@@ -323,9 +338,13 @@ impl Simulator {
     /// `CommandSample`, checked like any command: a rejected one takes no step), then `steps`
     /// steps. Raises `PhysicsFailure` when the command is rejected, the core is faulted or a
     /// step fails (the state is then the last good one), `ValueError` on malformed input.
+    ///
+    /// Long requests run without the GIL (other Python threads go on) and in pieces of
+    /// `LOCKSTEP_PIECE` steps, between which Ctrl-C (`KeyboardInterrupt`) stops them.
     #[pyo3(signature = (steps, command=None, reset=false, seed=None))]
     fn lockstep(
         &mut self,
+        py: Python<'_>,
         steps: u64,
         command: Option<&[u8]>,
         reset: bool,
@@ -359,7 +378,16 @@ impl Simulator {
                 self.offer(|model, out| check_command(model, &sample, out))?;
             }
         }
-        self.run(steps).map_err(PhysicsFailure::new_err)
+        let mut left = steps;
+        loop {
+            let piece = left.min(LOCKSTEP_PIECE);
+            py.detach(|| self.run(piece)).map_err(PhysicsFailure::new_err)?;
+            left -= piece;
+            if left == 0 {
+                return Ok(());
+            }
+            py.check_signals()?;
+        }
     }
 
     /// The bytes of the `StateSample` of now (`shm.StateSample.from_buffer_copy`).
@@ -395,6 +423,7 @@ impl Simulator {
     /// steps are not recorded. Also done when the simulator is dropped.
     fn close(&mut self) -> PyResult<()> {
         if let Some(r) = self.out.recorder.take() {
+            let r = r.into_inner().unwrap_or_else(|e| e.into_inner());
             r.finish().map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
         }
         Ok(())
@@ -471,34 +500,45 @@ impl Simulator {
         action: &Bound<'py, PyAny>,
         steps: u64,
     ) -> PyResult<Transition<'py>> {
-        let Some(task) = self.task.take() else {
-            return Err(PyRuntimeError::new_err("configure the task before act"));
-        };
-        let result = self.act_with(&task, action, steps);
-        self.task = Some(task);
-        let (reward, faulted, time, step) = result?;
-        Ok((PyArray1::from_slice(py, &self.observation), reward, faulted, time, step))
+        read_action(action, &mut self.action)?;
+        self.offer_action()?;
+        let outcome = self.advance(steps).map_err(PhysicsFailure::new_err)?;
+        Ok(self.transition(py, outcome))
     }
 }
 
-impl Simulator {
-    /// `act` with the task taken out.
-    fn act_with(
-        &mut self,
-        task: &Task,
-        action: &Bound<'_, PyAny>,
-        steps: u64,
-    ) -> PyResult<(f64, bool, f64, u64)> {
-        let values = &mut self.observation;
-        values.clear();
-        if let Ok(a) = action.extract::<PyReadonlyArrayDyn<'_, f64>>() {
-            match a.as_slice() {
-                Ok(s) => values.extend_from_slice(s),
-                Err(_) => values.extend(a.as_array().iter().copied()),
-            }
-        } else {
-            values.extend(action.extract::<Vec<f64>>()?);
+/// What a step of the task ended with (`Simulator::advance`).
+#[derive(Debug, Clone, Copy)]
+struct Outcome {
+    reward: f64,
+    faulted: bool,
+    time: f64,
+    step: u64,
+}
+
+/// Reads `action` (a float64 array of any shape, or a sequence of numbers) into `out`.
+fn read_action(action: &Bound<'_, PyAny>, out: &mut Vec<f64>) -> PyResult<()> {
+    out.clear();
+    if let Ok(a) = action.extract::<PyReadonlyArrayDyn<'_, f64>>() {
+        match a.as_slice() {
+            Ok(s) => out.extend_from_slice(s),
+            Err(_) => out.extend(a.as_array().iter().copied()),
         }
+    } else {
+        out.extend(action.extract::<Vec<f64>>()?);
+    }
+    Ok(())
+}
+
+impl Simulator {
+    /// Checks the action values in `self.action` against the task (count, finite), maps them
+    /// onto the actuators' limits and offers them as one command message (applied at the next
+    /// step). Takes no step.
+    fn offer_action(&mut self) -> PyResult<()> {
+        let Some(task) = &self.task else {
+            return Err(PyRuntimeError::new_err("configure the task before act"));
+        };
+        let values = &mut self.action;
         if values.len() != task.actuators.len() {
             return Err(PyValueError::new_err(format!(
                 "the action has {} values for {} actuators",
@@ -512,30 +552,106 @@ impl Simulator {
         for (k, x) in values.iter_mut().enumerate() {
             *x = task.value(k, *x);
         }
-        let commanded = std::mem::take(&mut self.observation);
-        let offered = self.offer(|model, out| {
-            for (&id, &x) in task.actuators.iter().zip(&commanded) {
-                let c = if task.rate { ActuatorCommand::rate(x) } else { ActuatorCommand::target(x) };
-                commands::check_entry(model, id, c, out)?;
-            }
-            Ok(())
-        });
-        self.observation = commanded;
-        offered?;
-        self.run(steps).map_err(PhysicsFailure::new_err)?;
+        let (values, rate) = (&self.action, task.rate);
+        self.core
+            .offer_parsed(|model, out| {
+                for (&id, &x) in task.actuators.iter().zip(values) {
+                    let c = if rate { ActuatorCommand::rate(x) } else { ActuatorCommand::target(x) };
+                    commands::check_entry(model, id, c, out)?;
+                }
+                Ok(())
+            })
+            .map_err(|e| PhysicsFailure::new_err(format!("command rejected: {e}")))
+    }
+
+    /// Takes `steps` steps and observes the task's fields into `self.observation` (touches no
+    /// Python object: `act_all` runs it without the GIL, simulators in parallel).
+    fn advance(&mut self, steps: u64) -> Result<Outcome, String> {
+        self.run(steps)?;
+        let task = self.task.as_ref().ok_or("configure the task before act")?;
         let view = self.core.view();
         self.observation.clear();
         for f in &task.fields {
             f.append(&view, task.measured, &mut self.observation);
         }
-        Ok((task.tension_reward(&view), view.faulted, view.state.time, view.step))
+        Ok(Outcome {
+            reward: task.tension_reward(&view),
+            faulted: view.faulted,
+            time: view.state.time,
+            step: view.step,
+        })
     }
+
+    /// `act`'s answer after `outcome`.
+    fn transition<'py>(&self, py: Python<'py>, o: Outcome) -> Transition<'py> {
+        (PyArray1::from_slice(py, &self.observation), o.reward, o.faulted, o.time, o.step)
+    }
+}
+
+/// `act` on every simulator of `sims` at once, with its row of `actions`, the simulators
+/// stepping in parallel on the machine's cores (rayon) while Python waits without the GIL.
+/// Every action is checked before any simulator steps (a bad one raises `ValueError`, nothing
+/// steps). Returns one entry per simulator: `act`'s tuple, or the `PhysicsFailure` it raised
+/// (not raised here: the others' steps stand).
+#[pyfunction]
+fn act_all<'py>(
+    py: Python<'py>,
+    mut sims: Vec<PyRefMut<'py, Simulator>>,
+    actions: Vec<Bound<'py, PyAny>>,
+    steps: u64,
+) -> PyResult<Vec<Bound<'py, PyAny>>> {
+    if actions.len() != sims.len() {
+        return Err(PyValueError::new_err(format!(
+            "{} actions for {} simulators",
+            actions.len(),
+            sims.len()
+        )));
+    }
+    for (sim, action) in sims.iter_mut().zip(&actions) {
+        read_action(action, &mut sim.action)?;
+        let task =
+            sim.task.as_ref().ok_or_else(|| PyRuntimeError::new_err("configure the task before act"))?;
+        if sim.action.len() != task.actuators.len() || sim.action.iter().any(|x| !x.is_finite()) {
+            // the message says which
+            sim.offer_action()?;
+        }
+    }
+    let mut offered = Vec::with_capacity(sims.len());
+    for sim in sims.iter_mut() {
+        offered.push(sim.offer_action().err());
+    }
+    let mut each: Vec<&mut Simulator> = sims.iter_mut().map(|s| &mut **s).collect();
+    let mut outcomes: Vec<Result<Outcome, String>> = vec![Err(String::new()); each.len()];
+    py.detach(|| {
+        // this thread steps the first simulator itself while the pool's threads take the others:
+        // a pool thread's wake-up then overlaps work instead of adding to it
+        rayon::in_place_scope(|scope| {
+            let mut pairs = each.iter_mut().zip(outcomes.iter_mut());
+            let first = pairs.next();
+            for (sim, outcome) in pairs {
+                scope.spawn(move |_| *outcome = sim.advance(steps));
+            }
+            if let Some((sim, outcome)) = first {
+                *outcome = sim.advance(steps);
+            }
+        })
+    });
+    let mut out = Vec::with_capacity(sims.len());
+    for ((sim, outcome), refused) in sims.iter().zip(outcomes).zip(offered) {
+        out.push(match (refused, outcome) {
+            (Some(e), _) => e.into_value(py).into_bound(py).into_any(),
+            (None, Ok(o)) => sim.transition(py, o).into_pyobject(py)?.into_any(),
+            (None, Err(why)) => PhysicsFailure::new_err(why).into_value(py).into_bound(py).into_any(),
+        });
+    }
+    Ok(out)
 }
 
 /// The module `tensegrity_native`.
 #[pymodule]
 fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Simulator>()?;
+    m.add_function(pyo3::wrap_pyfunction!(act_all, m)?)?;
     m.add("PhysicsFailure", m.py().get_type::<PhysicsFailure>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
