@@ -136,31 +136,53 @@ fn a_mass_riding_on_a_sliding_cable_costs_the_same_at_every_stiffness() {
 }
 
 /// A prestressed structure with cables of axial stiffness `ea`, from its form-found start moved
-/// by small rotations and translations of every body (`seed`): back to an equilibrium within the
-/// budget.
+/// by rotations and translations of every body of up to 0.02, 0.05 and 0.1 (m, rad): back to its
+/// form-found geometry (the equilibrium it started in) within 1e-9 m. Returns the worst
+/// iteration count.
 fn prestressed_comes_back(model: &Model, what: &str) -> usize {
+    let start = State::initial(model);
     let mut worst = 0;
     for k in 0..4 {
-        let mut state = State::initial(model);
-        let dq = DVector::from_fn(model.dof_count, |i, _| 0.02 * ((i * 7 + k * 13) as f64).sin());
+        let mut state = start.clone();
+        let size = [0.02, 0.05, 0.1, 0.02][k];
+        let dq = DVector::from_fn(model.dof_count, |i, _| size * ((i * 7 + k * 13) as f64).sin());
         retract(model, &mut state.poses, &dq, 1.0);
         let (iterations, _) = solve(model, &mut state).unwrap_or_else(|e| panic!("{what}, case {k}: {e}"));
-        assert!(iterations <= BUDGET, "{what}, case {k}: {iterations} Newton iterations");
+        let off = state
+            .poses
+            .iter()
+            .zip(&start.poses)
+            .map(|(a, b)| (a.position - b.position).norm())
+            .fold(0.0, f64::max);
+        assert!(off < 1e-9, "{what}, case {k}: {off} m off the form-found geometry");
         worst = worst.max(iterations);
     }
     worst
 }
 
+/// The prism and the T-bar with their cables at EA 1e2 to 1e9 N: the displacement form below
+/// `statics::PRESTRESSED_STIFF_RATIO`, the bilateral mixed form above it
+/// (`statics::prestressed_stiff_cables`). The worst iteration count stays flat from 1e5 N
+/// (measured: prism 4, 6, 12, 16, 15, 16, 17, 16; T-bar 4, 6, 14, 11, 4, 4, 4, 4); the
+/// displacement form alone took the prism to 19, 22, 25 and 29 from 1e6 to 1e9 N, the T-bar to
+/// 10, 8, 8, 8.
 #[test]
 fn prestressed_structures_with_stiff_cables_come_back_from_disturbed_starts() {
+    let (mut prisms, mut tbars) = (Vec::new(), Vec::new());
     for ea in STIFFNESSES {
         let spec = prism(&PrismParams { ea, cluster_top_ring: true, ..Default::default() });
         let model = tensegrity::scene::build_model(&spec, "<prism>", None).unwrap();
-        let p = prestressed_comes_back(&model, &format!("prism, EA {ea:e} N"));
+        prisms.push(prestressed_comes_back(&model, &format!("prism, EA {ea:e} N")));
         let spec = tbar(&TbarParams { ea, ..Default::default() });
         let model = tensegrity::scene::build_model(&spec, "<tbar>", None).unwrap();
-        let t = prestressed_comes_back(&model, &format!("T-bar, EA {ea:e} N"));
-        println!("EA {ea:e} N: prism worst {p}, T-bar worst {t} Newton iterations");
+        tbars.push(prestressed_comes_back(&model, &format!("T-bar, EA {ea:e} N")));
+    }
+    println!("worst Newton iterations at EA 1e2..1e9 N: prism {prisms:?}, T-bar {tbars:?}");
+    let worst = prisms.iter().chain(&tbars).copied().max().unwrap_or(0);
+    assert!(worst <= 20, "{worst} Newton iterations");
+    // no growth with EA: the stiffest four within two iterations of the 1e5 N case
+    for counts in [&prisms, &tbars] {
+        assert!(counts[4..].iter().all(|&c| c <= counts[3] + 2), "{counts:?}");
     }
 }
 
