@@ -135,6 +135,11 @@ fn a_mass_riding_on_a_sliding_cable_costs_the_same_at_every_stiffness() {
     });
 }
 
+/// How far the body of `a` farthest from its place in `b` is from it, m.
+fn farthest_body(a: &State, b: &State) -> f64 {
+    a.poses.iter().zip(&b.poses).map(|(p, q)| (p.position - q.position).norm()).fold(0.0, f64::max)
+}
+
 /// A prestressed structure with cables of axial stiffness `ea`, from its form-found start moved
 /// by rotations and translations of every body of up to 0.02, 0.05 and 0.1 (m, rad): back to its
 /// form-found geometry (the equilibrium it started in) within 1e-9 m. Returns the worst
@@ -148,12 +153,7 @@ fn prestressed_comes_back(model: &Model, what: &str) -> usize {
         let dq = DVector::from_fn(model.dof_count, |i, _| size * ((i * 7 + k * 13) as f64).sin());
         retract(model, &mut state.poses, &dq, 1.0);
         let (iterations, _) = solve(model, &mut state).unwrap_or_else(|e| panic!("{what}, case {k}: {e}"));
-        let off = state
-            .poses
-            .iter()
-            .zip(&start.poses)
-            .map(|(a, b)| (a.position - b.position).norm())
-            .fold(0.0, f64::max);
+        let off = farthest_body(&state, &start);
         assert!(off < 1e-9, "{what}, case {k}: {off} m off the form-found geometry");
         worst = worst.max(iterations);
     }
@@ -209,12 +209,7 @@ fn a_nodal_prism_with_stiff_members_comes_back_at_every_member_stiffness() {
             retract(&model, &mut state.poses, &dq, 1.0);
             let (iterations, _) =
                 solve(&model, &mut state).unwrap_or_else(|e| panic!("EA {ea:e}, {size} m: {e}"));
-            let off = state
-                .poses
-                .iter()
-                .zip(&start.poses)
-                .map(|(a, b)| (a.position - b.position).norm())
-                .fold(0.0, f64::max);
+            let off = farthest_body(&state, &start);
             assert!(off < 1e-9, "EA {ea:e}, {size} m: {off} m off the form-found geometry");
             worst = worst.max(iterations);
         }
