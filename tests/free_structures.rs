@@ -125,8 +125,14 @@ fn the_work_precision_bench_compares_a_free_structures_shapes_and_says_so() {
     let out = std::env::temp_dir().join(format!("tensegrity-free-wp-{}", std::process::id()));
     let ga = tensegrity::solve::dynamics::Integrator::GeneralizedAlpha { rho_inf: 0.8 };
     use tensegrity::study::{RunConfig, WorkPrecisionSettings};
-    let settings =
-        |duration| WorkPrecisionSettings { reference_dt: 1e-4, duration, sample: 0.01, repeats: 1, jobs: 0 };
+    let settings = |duration| WorkPrecisionSettings {
+        reference_dt: 1e-4,
+        reference_integrator: tensegrity::solve::dynamics::Integrator::DormandPrince,
+        duration,
+        sample: 0.01,
+        repeats: 1,
+        jobs: 0,
+    };
     let runs = [RunConfig::fixed(ga, 4e-3), RunConfig::fixed(ga, 2e-3), RunConfig::fixed(ga, 1e-3)];
     let rows = tensegrity::study::work_precision(&model, &runs, settings(0.3), &out).unwrap();
     assert!(rows.windows(2).all(|w| w[1].error < w[0].error), "errors fall with the step: {rows:?}");

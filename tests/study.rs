@@ -338,7 +338,14 @@ fn parallel_runs_give_exactly_the_serial_results() {
         RunConfig::controlled(ga, 1e-4),
     ];
     let bench = |jobs, dir: &PathBuf| {
-        let s = WorkPrecisionSettings { reference_dt: 1e-4, duration: 0.5, sample: 0.01, repeats: 1, jobs };
+        let s = WorkPrecisionSettings {
+            reference_dt: 1e-4,
+            reference_integrator: Integrator::DormandPrince,
+            duration: 0.5,
+            sample: 0.01,
+            repeats: 1,
+            jobs,
+        };
         work_precision(&model, &configs, s, dir).unwrap()
     };
     let (x, y) = (bench(1, &serial), bench(2, &parallel));

@@ -95,8 +95,12 @@ fn sampled_positions(
 /// Work-precision settings besides the runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WorkPrecisionSettings {
-    /// Fixed step of the Dormand-Prince reference run, s.
+    /// Fixed step of the reference run, s.
     pub reference_dt: f64,
+    /// Integrator of the reference run: Dormand-Prince for smooth motion; generalized-alpha where
+    /// an explicit step that small is refused (ground contact: every contact pressed in counts
+    /// for the stability limit).
+    pub reference_integrator: Integrator,
     /// Simulated time, s.
     pub duration: f64,
     /// Sample interval of the error (and output interval of error-controlled runs), s.
@@ -107,8 +111,8 @@ pub struct WorkPrecisionSettings {
     pub jobs: usize,
 }
 
-/// Runs the work-precision benchmark: every run of `configs` against a Dormand-Prince reference
-/// at `reference_dt`; error = largest point distance from the reference over the samples (after
+/// Runs the work-precision benchmark: every run of `configs` against a fixed-step reference
+/// (`reference_integrator` at `reference_dt`); error = largest point distance from the reference over the samples (after
 /// the optimal rigid alignment onto it for a free-floating structure). The error runs go on
 /// `jobs` threads, then each run is timed `repeats` times one at a time (so that the timings do
 /// not share the cores); results are the same whatever `jobs` is. Fixed-step explicit runs
@@ -124,16 +128,16 @@ pub fn work_precision(
     out_dir: &Path,
 ) -> Result<Vec<WorkPrecisionRow>, String> {
     std::fs::create_dir_all(out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
-    let WorkPrecisionSettings { reference_dt, duration, sample, repeats, jobs } = bench;
+    let WorkPrecisionSettings { reference_dt, reference_integrator, duration, sample, repeats, jobs } = bench;
     if !(sample > 0.0 && reference_dt > 0.0 && reference_dt <= sample && duration >= sample) {
         return Err(format!(
             "the reference step ({reference_dt} s) must be positive and at most the sample interval ({sample} s), itself at most the duration ({duration} s)"
         ));
     }
     let reference_settings =
-        SimSettings { dt: reference_dt, integrator: Integrator::DormandPrince, ..Default::default() };
+        SimSettings { dt: reference_dt, integrator: reference_integrator, ..Default::default() };
     let (reference, _) = sampled_positions(model, reference_settings, duration, sample)
-        .map_err(|e| format!("reference run (Dormand-Prince at {reference_dt} s): {e}"))?;
+        .map_err(|e| format!("reference run ({} at {reference_dt} s): {e}", reference_integrator.name()))?;
     let start = State::initial(model);
     let limit = |i: Integrator| crate::solve::dynamics::explicit_stability_limit(model, &start, i);
     let runs: Vec<RunConfig> = configs
@@ -205,7 +209,7 @@ fn write_work_precision(
     free: bool,
     out_dir: &Path,
 ) -> Result<(), String> {
-    let WorkPrecisionSettings { reference_dt, duration, sample, repeats, .. } = bench;
+    let WorkPrecisionSettings { reference_dt, reference_integrator, duration, sample, repeats, .. } = bench;
     let start = State::initial(model);
     let mut csv = create(&out_dir.join("work_precision.csv"))?;
     let _ = writeln!(
@@ -223,7 +227,8 @@ fn write_work_precision(
         })
         .collect();
     let mut md = format!(
-        "Reference: dormand-prince at dt = {reference_dt:e} s; error = largest distance of any point from the reference{}, sampled every {sample} s over {duration} s; wall time = median of {repeats} runs, one at a time; error-controlled runs (tol) step between samples as their estimate decides. Stability limits of the explicit integrators at the start: {}.\n\n| integrator | dt s | tolerance m | max point error m | median wall time s | steps | rejected | Newton iterations / step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        "Reference: {} at dt = {reference_dt:e} s; error = largest distance of any point from the reference{}, sampled every {sample} s over {duration} s; wall time = median of {repeats} runs, one at a time; error-controlled runs (tol) step between samples as their estimate decides. Stability limits of the explicit integrators at the start: {}.\n\n| integrator | dt s | tolerance m | max point error m | median wall time s | steps | rejected | Newton iterations / step |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        reference_integrator.name(),
         if free {
             " after the optimal rigid alignment of each sample onto it (the structure floats free: shapes are compared, not drift)"
         } else {
