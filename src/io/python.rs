@@ -31,8 +31,8 @@ use crate::io::node::params::NodeParams;
 use crate::io::node::NodeCore;
 use crate::io::record::BagRecorder;
 use crate::io::shm::{
-    check_capacity, check_command, fill_contacts, fill_measured, fill_state, zeroed, CommandSample,
-    ContactsSample, MeasuredSample, StateSample, ZeroValid,
+    check_capacity, check_command, fill_contacts, fill_measured, fill_state, ros_order, ros_quaternion,
+    zeroed, CommandSample, ContactsSample, MeasuredSample, StateSample, ZeroValid,
 };
 use crate::io::sink::{NodeSink, NodeView, PublishError};
 use crate::io::topics::Topic;
@@ -136,7 +136,7 @@ impl Field {
         if let Some(values) = self.sensor().filter(|_| measured).and_then(|k| reading(model, v.measured, k)) {
             if self == Self::BodyOrientation {
                 for q in values.chunks_exact(4) {
-                    out.extend_from_slice(&[q[1], q[2], q[3], q[0]]);
+                    out.extend_from_slice(&ros_order(q));
                 }
             } else {
                 out.extend_from_slice(values);
@@ -158,8 +158,7 @@ impl Field {
             }
             Self::BodyOrientation => {
                 for p in &state.poses {
-                    let q = p.rotation.quaternion();
-                    out.extend_from_slice(&[q.i, q.j, q.k, q.w]);
+                    out.extend_from_slice(&ros_quaternion(p));
                 }
             }
         }
@@ -259,14 +258,15 @@ impl Simulator {
             None => Err("no answer".into()),
         }
     }
+}
 
-    /// Offers one checked command message to the core; `parse` as in `NodeCore::offer_parsed`.
-    fn offer(
-        &mut self,
-        parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), commands::MessageError>,
-    ) -> PyResult<()> {
-        self.core.offer_parsed(parse).map_err(|e| PhysicsFailure::new_err(format!("command rejected: {e}")))
-    }
+/// Offers one command message to `core` (`parse` as in `NodeCore::offer_parsed`); a refused one
+/// is a `PhysicsFailure` naming why, as a refused lockstep command is over shared memory.
+fn offer(
+    core: &mut NodeCore,
+    parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), commands::MessageError>,
+) -> PyResult<()> {
+    core.offer_parsed(parse).map_err(|e| PhysicsFailure::new_err(format!("command rejected: {e}")))
 }
 
 #[pymethods]
@@ -375,7 +375,7 @@ impl Simulator {
                 );
             }
             if sample.count > 0 {
-                self.offer(|model, out| check_command(model, &sample, out))?;
+                offer(&mut self.core, |model, out| check_command(model, &sample, out))?;
             }
         }
         let mut left = steps;
@@ -516,6 +516,22 @@ struct Outcome {
     step: u64,
 }
 
+/// The task, once `values` (an action's) are one per actuator and finite.
+fn checked_task<'a>(task: &'a Option<Task>, values: &[f64]) -> PyResult<&'a Task> {
+    let task = task.as_ref().ok_or_else(|| PyRuntimeError::new_err("configure the task before act"))?;
+    if values.len() != task.actuators.len() {
+        return Err(PyValueError::new_err(format!(
+            "the action has {} values for {} actuators",
+            values.len(),
+            task.actuators.len()
+        )));
+    }
+    if values.iter().any(|x| !x.is_finite()) {
+        return Err(PyValueError::new_err(format!("the action is not finite: {values:?}")));
+    }
+    Ok(task)
+}
+
 /// Reads `action` (a float64 array of any shape, or a sequence of numbers) into `out`.
 fn read_action(action: &Bound<'_, PyAny>, out: &mut Vec<f64>) -> PyResult<()> {
     out.clear();
@@ -531,37 +547,22 @@ fn read_action(action: &Bound<'_, PyAny>, out: &mut Vec<f64>) -> PyResult<()> {
 }
 
 impl Simulator {
-    /// Checks the action values in `self.action` against the task (count, finite), maps them
-    /// onto the actuators' limits and offers them as one command message (applied at the next
-    /// step). Takes no step.
+    /// Checks the action values in `self.action` (`checked_task`), maps them onto the
+    /// actuators' limits and offers them as one command message (applied at the next step).
+    /// Takes no step.
     fn offer_action(&mut self) -> PyResult<()> {
-        let Some(task) = &self.task else {
-            return Err(PyRuntimeError::new_err("configure the task before act"));
-        };
-        let values = &mut self.action;
-        if values.len() != task.actuators.len() {
-            return Err(PyValueError::new_err(format!(
-                "the action has {} values for {} actuators",
-                values.len(),
-                task.actuators.len()
-            )));
-        }
-        if values.iter().any(|x| !x.is_finite()) {
-            return Err(PyValueError::new_err(format!("the action is not finite: {values:?}")));
-        }
-        for (k, x) in values.iter_mut().enumerate() {
+        let Self { core, task, action, .. } = self;
+        let task = checked_task(task, action)?;
+        for (k, x) in action.iter_mut().enumerate() {
             *x = task.value(k, *x);
         }
-        let (values, rate) = (&self.action, task.rate);
-        self.core
-            .offer_parsed(|model, out| {
-                for (&id, &x) in task.actuators.iter().zip(values) {
-                    let c = if rate { ActuatorCommand::rate(x) } else { ActuatorCommand::target(x) };
-                    commands::check_entry(model, id, c, out)?;
-                }
-                Ok(())
-            })
-            .map_err(|e| PhysicsFailure::new_err(format!("command rejected: {e}")))
+        offer(core, |model, out| {
+            for (&id, &x) in task.actuators.iter().zip(action.iter()) {
+                let c = if task.rate { ActuatorCommand::rate(x) } else { ActuatorCommand::target(x) };
+                commands::check_entry(model, id, c, out)?;
+            }
+            Ok(())
+        })
     }
 
     /// Takes `steps` steps and observes the task's fields into `self.observation` (touches no
@@ -609,12 +610,7 @@ fn act_all<'py>(
     }
     for (sim, action) in sims.iter_mut().zip(&actions) {
         read_action(action, &mut sim.action)?;
-        let task =
-            sim.task.as_ref().ok_or_else(|| PyRuntimeError::new_err("configure the task before act"))?;
-        if sim.action.len() != task.actuators.len() || sim.action.iter().any(|x| !x.is_finite()) {
-            // the message says which
-            sim.offer_action()?;
-        }
+        checked_task(&sim.task, &sim.action)?;
     }
     let mut offered = Vec::with_capacity(sims.len());
     for sim in sims.iter_mut() {
@@ -626,7 +622,13 @@ fn act_all<'py>(
         // this thread steps the first simulator itself while the pool's threads take the others:
         // a pool thread's wake-up then overlaps work instead of adding to it
         rayon::in_place_scope(|scope| {
-            let mut pairs = each.iter_mut().zip(outcomes.iter_mut());
+            // a simulator whose command was refused takes no step, as in `act`
+            let mut pairs = each
+                .iter_mut()
+                .zip(outcomes.iter_mut())
+                .zip(&offered)
+                .filter(|(_, refused)| refused.is_none())
+                .map(|(pair, _)| pair);
             let first = pairs.next();
             for (sim, outcome) in pairs {
                 scope.spawn(move |_| *outcome = sim.advance(steps));

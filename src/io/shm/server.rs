@@ -25,6 +25,19 @@ use crate::model::{ActuatorId, Model};
 use super::payload::*;
 use super::service::*;
 
+/// A pose's orientation as the payloads carry it: ROS order (x, y, z, w).
+pub fn ros_quaternion(pose: &crate::model::Pose) -> [f64; 4] {
+    let q = pose.rotation.quaternion();
+    [q.i, q.j, q.k, q.w]
+}
+
+/// An orientation sensor's reading (w, x, y, z) in ROS order (x, y, z, w).
+///
+/// Precondition: `q.len() == 4`.
+pub fn ros_order(q: &[f64]) -> [f64; 4] {
+    [q[1], q[2], q[3], q[0]]
+}
+
 /// Fills `out` (all zero on entry) from `view`; `commands_applied_ns` as in `StateSample`.
 pub fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64) {
     let (model, state, ws) = (v.model, v.state, v.workspace);
@@ -41,9 +54,8 @@ pub fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: 
     out.simulation_state = v.simulation_state;
     out.faulted = u8::from(v.faulted);
     for (i, p) in state.poses.iter().enumerate() {
-        let q = p.rotation.quaternion();
         out.body_position[i] = [p.position.x, p.position.y, p.position.z];
-        out.body_orientation[i] = [q.i, q.j, q.k, q.w];
+        out.body_orientation[i] = ros_quaternion(p);
     }
     for (i, c) in ws.cables.iter().enumerate() {
         out.cable_tension[i] = c.tension;
@@ -114,7 +126,7 @@ pub fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
         out.channels |= MEASURED_ORIENTATION;
         // the sensors' w, x, y, z into ROS order
         for (to, q) in out.body_orientation.iter_mut().zip(q.chunks_exact(4)) {
-            *to = [q[1], q[2], q[3], q[0]];
+            *to = ros_order(q);
         }
     }
     for (kind, bit, to) in [
