@@ -217,6 +217,7 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
             );
             add_vector(model, BodyId(b), &(body.basis.transpose() * f6), -alpha, &mut ws.force);
         }
+        model.add_mass_coupling_times(v.as_slice(), -alpha, ws.force.as_mut_slice());
     }
 
     // rotational damping at joints that declare it
@@ -334,6 +335,7 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
                 sink.damping(BodyId(b), BodyId(b), &body.mass_matrix(), model.rayleigh.alpha);
             }
         }
+        model.for_each_mass_coupling_block(|a, b, blk| sink.damping(a, b, blk, model.rayleigh.alpha));
     }
     if model.damped_joints {
         crate::forces::joint_damping::add_joint_damping_tangents(
@@ -399,7 +401,9 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
 }
 
 /// Kinetic energy `v^T M v / 2` (J) of local velocities `v`: per body
-/// `(m |dx|^2 + w^T J w) / 2` with `(dx, w) = B v_b` (translation and body-frame rotation rates).
+/// `(m |dx|^2 + w^T J w) / 2` with `(dx, w) = B v_b` (translation and body-frame rotation rates),
+/// plus, for each member with a consistent mass matrix, `-(m/12) |dx_a - dx_b|^2`
+/// (`crate::model::MassCoupling`).
 pub fn kinetic_energy(model: &Model, v: &DVector<f64>) -> f64 {
     let mut e = 0.0;
     for body in &model.bodies {
@@ -410,6 +414,13 @@ pub fn kinetic_energy(model: &Model, v: &DVector<f64>) -> f64 {
         let dx = Vector3::new(local[0], local[1], local[2]);
         let w = Vector3::new(local[3], local[4], local[5]);
         e += 0.5 * (body.mass * dx.norm_squared() + w.dot(&(body.inertia * w)));
+    }
+    for coupling in &model.mass_couplings {
+        let [a, b] = coupling.ends.map(|x| {
+            let local = model.bodies[x.0].local_increment(v.as_slice(), 1.0);
+            Vector3::new(local[0], local[1], local[2])
+        });
+        e -= 0.5 * coupling.coefficient * (a - b).norm_squared();
     }
     e
 }

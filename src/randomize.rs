@@ -14,7 +14,7 @@ use rand_pcg::Pcg64;
 
 pub use crate::model::{Draw, Parameter, RandomizationRun};
 
-use crate::model::Model;
+use crate::model::{BodyId, Model};
 
 /// A distribution of draws.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -120,6 +120,15 @@ pub fn apply(model: &mut Model, randomization: &Randomization, seed: u64) -> Vec
                     let written = b.mass;
                     b.mass *= drawn;
                     b.inertia *= drawn;
+                    // a lighter node takes a proportionally smaller share of its members'
+                    // consistent coupling, so that the mass matrix stays positive definite
+                    if drawn < 1.0 {
+                        for coupling in
+                            model.mass_couplings.iter_mut().filter(|c| c.ends.contains(&BodyId(e)))
+                        {
+                            coupling.coefficient *= drawn;
+                        }
+                    }
                     (b.name.clone(), written, b.mass)
                 }
                 Parameter::RestLength => {

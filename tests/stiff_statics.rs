@@ -199,7 +199,7 @@ fn a_nodal_prism_with_stiff_members_comes_back_at_every_member_stiffness() {
     let mut worst_by_ea = Vec::new();
     for ea in [1e4, 1e6, 1e8, 1e9, 1e10, 1e11, 1e12] {
         let mut spec = prism(&PrismParams::default());
-        tensegrity::scene::generate::nodal_struts(&mut spec, ea);
+        tensegrity::scene::generate::nodal_struts(&mut spec, ea, Default::default());
         let model = tensegrity::scene::build_model(&spec, "<nodal prism>", None).unwrap();
         let start = State::initial(&model);
         let mut worst = 0;

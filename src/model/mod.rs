@@ -683,6 +683,23 @@ impl Default for SolverSettings {
     }
 }
 
+/// A member's consistent-mass correction (`[[members]] mass_matrix = "consistent"`).
+///
+/// A uniform bar element of mass `m` has the consistent mass matrix `(m/6) [[2 I, I], [I, 2 I]]`
+/// on its end translations; the end nodes already carry the lumped `(m/2) I` each, so the model
+/// adds the difference `(m/6) [[-I, I], [I, -I]]`. Its rows sum to zero: weight, total mass,
+/// centre of mass and momentum are the lumped ones; what changes is how the mass resists
+/// relative motion of the ends (a straight member turning about its middle has the rigid bar's
+/// `m L^2 / 12` instead of the lumped `m L^2 / 4`). An end on a fixed body keeps only its own
+/// diagonal term. The sum stays positive definite (eigenvalues `m/2` and `m/6` per pair).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MassCoupling {
+    /// The member's end bodies (nodes or fixed bodies).
+    pub ends: [BodyId; 2],
+    /// `m / 6`, kg: the off-diagonal coefficient of the consistent element matrix.
+    pub coefficient: f64,
+}
+
 /// The constant description of a structure. See the module docs for the coordinates.
 #[derive(Debug, Clone)]
 pub struct Model {
@@ -748,6 +765,9 @@ pub struct Model {
     /// True when some joint has rotational damping (`JointModel::damping`); false: the joints'
     /// damping is not visited at all.
     pub damped_joints: bool,
+    /// Consistent-mass corrections of the members that ask for them (`MassCoupling`; empty:
+    /// every mass is lumped, the mass matrix is block diagonal, and this costs nothing).
+    pub mass_couplings: Vec<MassCoupling>,
     /// Physics step the scene asks for, s (None: the tool's default).
     pub physics_dt: Option<f64>,
     /// The scene text this model was built from (for a generated scene, its TOML), so that a
@@ -756,6 +776,45 @@ pub struct Model {
 }
 
 impl Model {
+    /// Calls `f(a, b, block)` for every block of the consistent-mass corrections
+    /// (`MassCoupling`): `block = B_a^T [[c I, 0], [0, 0]] B_b` in the bodies' local coordinates
+    /// (their `k_a x k_b` corner), with `c = -m/6` on `(a, a)` and `(b, b)` and `+m/6` on `(a, b)`
+    /// and `(b, a)`, kg. Blocks of fixed bodies (no coordinates) are skipped. Nothing is called
+    /// when every mass is lumped.
+    pub fn for_each_mass_coupling_block(&self, mut f: impl FnMut(BodyId, BodyId, &Matrix6<f64>)) {
+        for coupling in &self.mass_couplings {
+            let [a, b] = coupling.ends;
+            let c = coupling.coefficient;
+            for (x, y, sign) in [(a, a, -1.0), (b, b, -1.0), (a, b, 1.0), (b, a, 1.0)] {
+                let (bx, by) = (&self.bodies[x.0], &self.bodies[y.0]);
+                if bx.dof_count == 0 || by.dof_count == 0 {
+                    continue;
+                }
+                let mut t = Matrix6::zeros();
+                for i in 0..3 {
+                    t[(i, i)] = sign * c;
+                }
+                f(x, y, &(bx.basis.transpose() * t * by.basis));
+            }
+        }
+    }
+
+    /// `out += scale * dM v`: the consistent-mass corrections (`MassCoupling`) times a vector
+    /// `v` of local coordinates (N s for velocities, N for accelerations, as `v` is). No-op
+    /// with lumped mass only.
+    pub fn add_mass_coupling_times(&self, v: &[f64], scale: f64, out: &mut [f64]) {
+        self.for_each_mass_coupling_block(|a, b, blk| {
+            let (ba, bb) = (&self.bodies[a.0], &self.bodies[b.0]);
+            for r in 0..ba.dof_count {
+                let mut sum = 0.0;
+                for c in 0..bb.dof_count {
+                    sum += blk[(r, c)] * v[bb.dof_offset + c];
+                }
+                out[ba.dof_offset + r] += scale * sum;
+            }
+        });
+    }
+
     /// Route of cable `c`: its points from the first anchor to the last.
     pub fn route(&self, c: CableId) -> &[PointId] {
         let cable = &self.cables[c.0];

@@ -6,13 +6,15 @@ use std::collections::{BTreeMap, BTreeSet};
 use nalgebra::{Matrix3, Matrix6, SymmetricEigen, UnitQuaternion, Vector3};
 
 use super::{
-    limits, BodyKindSpec, CableSpec, CollisionPairsSpec, JointKindSpec, PointSpec, SceneSpec, WinchSpec,
+    limits, BodyKindSpec, CableSpec, CollisionPairsSpec, JointKindSpec, MassMatrixSpec, PointSpec, SceneSpec,
+    WinchSpec,
 };
 use crate::error::{readable_number, SceneError};
 use crate::forces::winch::{PositionGains, WinchModel};
 use crate::model::{
     ActuatorModel, BodyId, BodyKind, BodyModel, CableModel, ContactMaterial, ContactSphere, GroundModel,
-    JointModel, JointTarget, Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings, StrutPair,
+    JointModel, JointTarget, MassCoupling, Model, PointId, PointModel, Pose, Ramp, Schedule, SolverSettings,
+    StrutPair,
 };
 use crate::solve::formfind::{find_rest_lengths, RestLengthSpec};
 
@@ -111,7 +113,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
     let (strut_pairs, strut_material) =
         build_strut_pairs(spec, &cx, &bodies, &points, &point_names, &joints)?;
     let mut bodies = bodies;
-    lump_member_masses(spec, &cx, &mut bodies, &points, &point_names)?;
+    let mass_couplings = lump_member_masses(spec, &cx, &mut bodies, &points, &point_names)?;
     let mut model = Model {
         name: if spec.name.is_empty() { file.to_string() } else { spec.name.clone() },
         bodies,
@@ -141,6 +143,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         randomized: Vec::new(),
         randomization: None,
         damped_joints,
+        mass_couplings,
         physics_dt: match spec.physics_dt {
             Some(dt) => Some(in_range(dt, limits::PHYSICS_DT, "s").map_err(|r| cx.top("physics_dt", r))?),
             None => None,
@@ -1219,18 +1222,31 @@ fn check_contacts(spec: &SceneSpec, model: &Model, cx: &Ctx) -> Result<(), Scene
 
 /// Adds half of each member's mass to each of its ends' bodies: nodes take it, fixed bodies
 /// carry it to the ground; a member with mass may not end on a bar or rigid body (its lumped
-/// mass would move their centre of mass and inertia).
+/// mass would move their centre of mass and inertia). Returns the consistent-mass corrections
+/// of the members that ask for them (`MassCoupling`).
 fn lump_member_masses(
     spec: &SceneSpec,
     cx: &Ctx,
     bodies: &mut [BodyModel],
     points: &[PointModel],
     point_names: &BTreeMap<String, PointId>,
-) -> Result<(), SceneError> {
+) -> Result<Vec<MassCoupling>, SceneError> {
+    let mut couplings = Vec::new();
     for (i, m) in spec.members.iter().enumerate() {
-        let Some(mass) = m.mass else { continue };
         let e = |field: &str, reason: String| cx.err("members", i, field, reason);
+        let Some(mass) = m.mass else {
+            if m.mass_matrix == MassMatrixSpec::Consistent {
+                return Err(e("mass_matrix", "a consistent mass matrix needs the member's `mass`".into()));
+            }
+            continue;
+        };
         let mass = in_range(mass, limits::MASS, "kg").map_err(|r| e("mass", r))?;
+        let ends = m.ends.each_ref().map(|end| point_names.get(end).map(|p| points[p.0].body));
+        if let (MassMatrixSpec::Consistent, [Some(a), Some(b)]) = (m.mass_matrix, ends) {
+            if a != b && mass > 0.0 {
+                couplings.push(MassCoupling { ends: [a, b], coefficient: mass / 6.0 });
+            }
+        }
         for end in &m.ends {
             // unknown points are reported by `build_cables` with the route's wording
             let Some(pid) = point_names.get(end) else { continue };
@@ -1251,7 +1267,7 @@ fn lump_member_masses(
             }
         }
     }
-    Ok(())
+    Ok(couplings)
 }
 
 /// The cables, their routes, and what sets their rest lengths and damping (`build_cables`).

@@ -14,7 +14,7 @@ use std::f64::consts::PI;
 
 use super::{
     ActuatorSpec, BodyKindSpec, BodySpec, CableSpec, DeploymentSpec, GroundSpec, JointKindSpec, JointSpec,
-    PointSpec, RampSpec, SceneSpec,
+    MassMatrixSpec, PointSpec, RampSpec, SceneSpec,
 };
 
 /// Parameters of the regular n-strut prism.
@@ -42,6 +42,9 @@ pub struct PrismParams {
     /// The nodal (finite-element) form: every bar an elastic member of this EA (N) between two
     /// nodes (`nodal_struts`). `None`: rigid bars.
     pub nodal_strut_ea: Option<f64>,
+    /// How the nodal form's members carry their mass (lumped or consistent); ignored for
+    /// rigid bars.
+    pub nodal_mass_matrix: MassMatrixSpec,
 }
 
 impl Default for PrismParams {
@@ -57,6 +60,7 @@ impl Default for PrismParams {
             damping_ratio: 0.05,
             deploy_shortening: 0.1,
             nodal_strut_ea: None,
+            nodal_mass_matrix: MassMatrixSpec::Lumped,
         }
     }
 }
@@ -107,7 +111,7 @@ pub fn prism(p: &PrismParams) -> SceneSpec {
         deploy_shortening: p.deploy_shortening,
     });
     if let Some(ea) = p.nodal_strut_ea {
-        nodal_struts(&mut spec, ea);
+        nodal_struts(&mut spec, ea, p.nodal_mass_matrix);
         spec.name = format!("{}_nodal", spec.name);
         spec.description = format!(
             "{} (nodal: struts as elastic members of EA {ea} N between point masses)",
@@ -119,12 +123,13 @@ pub fn prism(p: &PrismParams) -> SceneSpec {
 
 /// Turns `spec` into its nodal (finite-element) form: every bar `B` becomes the nodes `B_a` and
 /// `B_b` at its ends and an elastic member `B` between them of axial stiffness `strut_ea` (N),
-/// the bar's mass lumped half on each node, its axial force whatever makes the initial geometry
-/// an equilibrium (`form_find`); references to `B.a` and `B.b` (routes, joints, ramps) move to
-/// the nodes. A bar with other points keeps them nowhere: only its ends are carried over.
-/// Lumped mass gives a strut the transverse inertia of its two end masses, `m l^2 / 4` about
-/// its middle, where the uniform rigid bar has `m l^2 / 12`.
-pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64) {
+/// the bar's mass on the two nodes as `mass_matrix` says, its axial force whatever makes the
+/// initial geometry an equilibrium (`form_find`); references to `B.a` and `B.b` (routes,
+/// joints, ramps) move to the nodes. A bar with other points keeps them nowhere: only its ends
+/// are carried over. Lumped mass gives a strut the transverse inertia of its two end masses,
+/// `m l^2 / 4` about its middle, where the uniform rigid bar has `m l^2 / 12`; the consistent
+/// mass matrix gives it exactly `m l^2 / 12`.
+pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64, mass_matrix: MassMatrixSpec) {
     let mut bodies = Vec::new();
     let mut renamed = std::collections::BTreeMap::new();
     for b in std::mem::take(&mut spec.bodies) {
@@ -147,6 +152,7 @@ pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64) {
             force: None,
             form_find: true,
             mass: b.mass,
+            mass_matrix,
             bending_stiffness: None,
             buckling_load: None,
         });

@@ -581,9 +581,14 @@ pub struct MemberSpec {
     /// for a cable given neither rest length nor prestress).
     #[serde(default, skip_serializing_if = "is_false")]
     pub form_find: bool,
-    /// Mass, kg, lumped half on each end; the ends must then be nodes or fixed points.
+    /// Mass, kg, on its ends; the ends must then be nodes or fixed points.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mass: Option<f64>,
+    /// How `mass` sits on the ends: `"lumped"` (the default, half on each) or `"consistent"`
+    /// (the uniform bar's consistent mass matrix, `crate::model::MassCoupling`; needs an
+    /// implicit integrator or the Runge-Kutta methods' linear solve, see the scene format).
+    #[serde(default, skip_serializing_if = "MassMatrixSpec::is_lumped")]
+    pub mass_matrix: MassMatrixSpec,
     /// Bending stiffness EI, N m² (> 0): the member buckles at the Euler load of a pinned-pinned
     /// column of its initial rest length, `P = pi^2 EI / L0^2`. Excludes `buckling_load`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -591,6 +596,23 @@ pub struct MemberSpec {
     /// Buckling load P, N (> 0), given directly. Excludes `bending_stiffness`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub buckling_load: Option<f64>,
+}
+
+/// How a member's mass sits on its end nodes (`MemberSpec::mass_matrix`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MassMatrixSpec {
+    /// Half the mass on each end node, no coupling (block-diagonal mass matrix).
+    #[default]
+    Lumped,
+    /// The uniform bar's consistent mass matrix `(m/6) [[2 I, I], [I, 2 I]]`.
+    Consistent,
+}
+
+impl MassMatrixSpec {
+    fn is_lumped(&self) -> bool {
+        *self == MassMatrixSpec::Lumped
+    }
 }
 
 /// An actuator: sets one cable's rest length within limits.

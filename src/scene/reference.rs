@@ -283,7 +283,15 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "number",
             "kg",
             "0",
-            format!("{}; lumped half on each end (ends on nodes or fixed bodies)", range(limits::MASS)),
+            format!("{}; on its ends, which must be nodes or fixed bodies", range(limits::MASS)),
+        ),
+        f(
+            members,
+            "mass_matrix",
+            "string",
+            "-",
+            "`lumped`",
+            "`lumped` (half the mass on each end) or `consistent` (the uniform bar's (m/6) [[2, 1], [1, 2]], whose turning inertia is m L^2 / 12); needs `mass`".into(),
         ),
         f(
             members,

@@ -711,6 +711,9 @@ impl KktSystem {
         for pair in &model.strut_pairs {
             couple(pair.bars[0], pair.bars[1], &mut cols);
         }
+        for coupling in &model.mass_couplings {
+            couple(coupling.ends[0], coupling.ends[1], &mut cols);
+        }
         for joint in &model.joints {
             for (p, _) in joint_points(joint) {
                 for r in 0..joint.rows {

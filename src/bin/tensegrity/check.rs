@@ -60,6 +60,12 @@ pub fn run(scene: &Path) -> Result<(), String> {
             "members: {} (elastic: push and pull; in the cable lists, negative tension is compression)",
             s.members
         );
+        if !model.mass_couplings.is_empty() {
+            say!(
+                "consistent mass: {} members (the uniform bar's mass matrix, coupling their end nodes)",
+                model.mass_couplings.len()
+            );
+        }
         let buckling: Vec<String> = model
             .cables
             .iter()

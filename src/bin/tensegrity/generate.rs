@@ -26,6 +26,10 @@ pub enum GenerateKind {
         /// point masses, instead of rigid bars.
         #[arg(long, allow_hyphen_values = true)]
         nodal_strut_ea: Option<f64>,
+        /// With --nodal-strut-ea: each strut's consistent mass matrix (a uniform bar's inertia)
+        /// instead of half its mass lumped on each end.
+        #[arg(long, requires = "nodal_strut_ea")]
+        consistent_mass: bool,
     },
     /// Tower of stacked prisms with clustered side cables.
     Tower {
@@ -61,7 +65,7 @@ pub enum GenerateKind {
 /// Runs `generate`, to `out` or standard output.
 pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
     let spec = match kind {
-        GenerateKind::Prism { n, cluster, prestress, nodal_strut_ea } => {
+        GenerateKind::Prism { n, cluster, prestress, nodal_strut_ea, consistent_mass } => {
             if n < 3 {
                 return Err("a prism needs n >= 3".into());
             }
@@ -71,6 +75,11 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
                 side_prestress: prestress,
                 deploy_shortening: if cluster { 0.1 } else { 0.0 },
                 nodal_strut_ea,
+                nodal_mass_matrix: if consistent_mass {
+                    scene::MassMatrixSpec::Consistent
+                } else {
+                    scene::MassMatrixSpec::Lumped
+                },
                 ..Default::default()
             })
         }

@@ -38,7 +38,6 @@ use nalgebra::{DVector, Quaternion, UnitQuaternion, Vector3, Vector4};
 use super::{add_gyroscopic, assemble_mass_and_joints, Dynamics};
 use crate::evaluate::evaluate_forces;
 use crate::model::{Model, Pose};
-use crate::solve::linear::LinearBackend;
 use crate::state::State;
 
 /// Dormand-Prince aims each step's local error at this share of the tolerance: the local errors
@@ -276,7 +275,7 @@ impl Dynamics {
     /// `solve_factored_mass_and_joints` (the sparse backend's factors replace the Newton
     /// matrix's: the next implicit step refactors).
     pub(super) fn factor_mass_and_joints(&mut self, model: &Model) -> bool {
-        if self.kkt.backend() == LinearBackend::Dense {
+        if self.uses_joint_schur(model) {
             return self.schur.factor(model, &self.ws);
         }
         assemble_mass_and_joints(model, &self.ws, &self.mass, &mut self.kkt);
@@ -287,7 +286,7 @@ impl Dynamics {
     /// Solves `[M, Phi_q^T; Phi_q, 0] x = work` in place of `self.explicit.work` with the
     /// factors of the last `factor_mass_and_joints`.
     pub(super) fn solve_factored_mass_and_joints(&mut self, model: &Model) -> bool {
-        if self.kkt.backend() == LinearBackend::Dense {
+        if self.uses_joint_schur(model) {
             return self.schur.solve_factored(model, &mut self.explicit.work);
         }
         let size = self.kkt.size();

@@ -252,12 +252,14 @@ pub fn add_gyroscopic_damping<S: TangentSink + ?Sized>(model: &Model, v: &DVecto
     }
 }
 
-/// Constant mass matrix of `model` (dense, block diagonal, kg and kg m^2).
+/// Constant mass matrix of `model` (dense, kg and kg m^2): block diagonal, plus the members'
+/// consistent-mass corrections (`crate::model::MassCoupling`) if any.
 pub fn mass_matrix(model: &Model) -> DMatrix<f64> {
     let mut m = DMatrix::zeros(model.dof_count, model.dof_count);
     for (b, body) in model.bodies.iter().enumerate() {
         add_block(model, BodyId(b), BodyId(b), &body.mass_matrix(), 1.0, &mut m);
     }
+    model.for_each_mass_coupling_block(|a, b, blk| add_block(model, a, b, blk, 1.0, &mut m));
     m
 }
 
@@ -358,7 +360,8 @@ impl Dynamics {
         &self.kkt
     }
 
-    /// `out = M x` with the block-diagonal mass matrix (no `n x n` product).
+    /// `out = M x` with the block-diagonal mass matrix and the members' consistent-mass
+    /// corrections, if any (no `n x n` product).
     fn mass_times(&self, model: &Model, x: &DVector<f64>, out: &mut DVector<f64>) {
         for (b, body) in model.bodies.iter().enumerate() {
             let (o, k) = (body.dof_offset, body.dof_count);
@@ -370,6 +373,15 @@ impl Dynamics {
                 out[o + r] = sum;
             }
         }
+        model.add_mass_coupling_times(x.as_slice(), 1.0, out.as_mut_slice());
+    }
+
+    /// True when the explicit integrators solve `[M, Phi_q^T; Phi_q, 0]` through the joints'
+    /// Schur complement (`JointSchur`, per-body mass inverses): the dense backend with a
+    /// block-diagonal mass matrix. Consistent member masses couple bodies, and take the
+    /// `KktSystem`'s factorization instead.
+    fn uses_joint_schur(&self, model: &Model) -> bool {
+        self.kkt.backend() == LinearBackend::Dense && model.mass_couplings.is_empty()
     }
 
     /// Starts the matrix `[M, Phi_q^T; Phi_q, 0]` (bordered rows `dT = 0`) at the point
@@ -465,12 +477,14 @@ fn body_reach(model: &Model) -> Vec<f64> {
 }
 
 /// Zeroes `kkt` and adds `[M, Phi_q^T; Phi_q, 0]`: the body mass blocks `mass` (one 6 x 6 per
-/// body, `BodyModel::mass_matrix`) and the joint Jacobian rows at the point kinematics in `ws`.
+/// body, `BodyModel::mass_matrix`), the members' consistent-mass corrections if any, and the
+/// joint Jacobian rows at the point kinematics in `ws`.
 pub fn assemble_mass_and_joints(model: &Model, ws: &Workspace, mass: &[Matrix6<f64>], kkt: &mut KktSystem) {
     kkt.clear();
     for (b, m) in mass.iter().enumerate() {
         kkt.add_body_block(BodyId(b), BodyId(b), m, 1.0);
     }
+    model.for_each_mass_coupling_block(|a, b, blk| kkt.add_body_block(a, b, blk, 1.0));
     kkt.add_joints(model, &ws.poses, &ws.points);
 }
 

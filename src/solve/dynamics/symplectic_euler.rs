@@ -11,7 +11,6 @@
 
 use crate::evaluate::evaluate_forces;
 use crate::model::Model;
-use crate::solve::linear::LinearBackend;
 use crate::state::{retract, State};
 
 use super::{add_gyroscopic, AttemptStats, Dynamics};
@@ -53,7 +52,7 @@ impl Dynamics {
         self.rhs.rows_mut(0, n).copy_from(&self.vdot);
         self.rhs.rows_mut(0, n).axpy(h, &self.residual, 1.0);
         self.rhs.rows_mut(n, nc).axpy(-1.0 / h, &self.ws.constraint, 0.0);
-        if self.kkt.backend() == LinearBackend::Dense {
+        if self.uses_joint_schur(model) {
             // small scenes: the joints' Schur complement (nc x nc) instead of the whole matrix
             if !self.schur.solve(model, &self.ws, &mut self.rhs) {
                 return None;
