@@ -16,16 +16,29 @@
 //! rotation blocks of `d(Phi_q^T lambda)/dq` are
 //! `sum_k lambda_k [n_k]x [w'_a]x` (a, a), `-sum_k lambda_k [n_k]x R_a^T R_b [u]x` (a, b),
 //! `sum_k lambda_k [u]x [e'_k]x` (b, b) and `-sum_k lambda_k [u]x R_b^T R_a [n_k]x` (b, a).
+//!
+//! The point row of a planar joint between two moving bodies (`JointModel::plane_normal`) holds
+//! point `a` in a plane that turns with body `b`: `Phi = n . d`, `n = R_b u`, `d = r_a - r_b`.
+//! Its rows are `n^T J_a` on `a` and `-(n^T J_b + (d x n)^T G_b)` on `b`, its multiplier the
+//! force `n lambda` on `a`, and with `f = lambda n`, `w = lambda (d x n)` its derivative
+//! `d(Phi_q^T lambda)/dq` has the blocks `d(J_a^T f)/dq_a` (a, a), `-lambda J_a^T [n]x G_b`
+//! (a, b), `lambda G_b^T [n]x J_a` (b, a) and `-(d(J_b^T f)/dq_b - lambda J_b^T [n]x G_b +
+//! B_r^T [R_b^T w]x B_r + lambda G_b^T ([n]x J_b - [d]x [n]x G_b))` (b, b) (`add_plane_hessian`).
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3};
 
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
-use crate::kinematics::{force_jacobian_derivative, PointJacobian, PointKinematics};
+use crate::kinematics::{force_jacobian_derivative, point_jacobian, PointJacobian, PointKinematics};
 use crate::model::{skew, Alignment, BodyId, JointModel, JointTarget, Model, PointId, Pose};
 
 /// Fills `phi` (rows, m; an alignment's rows are dimensionless) for all joints.
 pub fn evaluate_values(model: &Model, poses: &[Pose], kin: &[PointKinematics], phi: &mut DVector<f64>) {
     for joint in &model.joints {
+        if let Some(u) = &joint.plane_normal {
+            let (n, d) = plane_vectors(model, poses, joint, u);
+            phi[joint.row_offset] = n.dot(&d);
+            continue;
+        }
         if let Some(al) = &joint.alignment {
             let (e, w) = alignment_vectors(model, poses, joint, al);
             for (r, e) in e.iter().enumerate() {
@@ -99,10 +112,38 @@ pub fn side_jacobian(
     joint: &JointModel,
     p: &PointKinematics,
 ) -> PointJacobian {
+    if let Some(u) = &joint.plane_normal {
+        let (n, d) = plane_vectors(model, poses, joint, u);
+        let mut row = n.transpose() * p.jacobian;
+        if p.body != model.points[joint.point.0].body {
+            row += d.cross(&n).transpose() * spin_jacobian(model, poses, p.body);
+        }
+        let mut out = PointJacobian::zeros();
+        out.set_row(0, &row);
+        return out;
+    }
     match &joint.alignment {
         None => joint_jacobian(joint, &p.jacobian),
         Some(al) => alignment_directions(model, poses, joint, al) * spin_jacobian(model, poses, p.body),
     }
+}
+
+/// The world normal `n = R_b u` and the gap `d = r_a - r_b` (m) of a planar joint's point row
+/// between two bodies (`JointModel::plane_normal`, `u` its normal in body `b`'s frame).
+pub fn plane_vectors(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    u: &Vector3<f64>,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let at = |p: PointId| {
+        let point = &model.points[p.0];
+        (poses[point.body.0].transform_point(&point.local), point.body)
+    };
+    let (ra, _) = at(joint.point);
+    let JointTarget::Point(pb) = joint.target else { return (*u, Vector3::zeros()) };
+    let (rb, body_b) = at(pb);
+    (poses[body_b.0].rotation * u, ra - rb)
 }
 
 /// `G = [0 | R] B` of `body` (3 x 6, unused columns zero): its world angular velocity is `G v_b`.
@@ -205,6 +246,34 @@ pub fn alignment_bias(
     out
 }
 
+/// `d/dt(Phi_q) v` of a planar joint's point row between two bodies (m/s^2): with `n = R_b u`,
+/// `d = r_a - r_b` (`plane_vectors`) and `omega_b` body b's world angular velocity,
+/// `(omega_b x (omega_b x n)) . d + 2 (omega_b x n) . (v_a - v_b) + n . (c_a - c_b)`, `c` the
+/// points' centripetal accelerations `R (w x (w x p))` (`w` body-frame angular velocity).
+pub fn plane_bias(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    joint: &JointModel,
+    u: &Vector3<f64>,
+) -> f64 {
+    let JointTarget::Point(pb) = joint.target else { return 0.0 };
+    let (n, d) = plane_vectors(model, poses, joint, u);
+    // world velocity and centripetal acceleration of a point, and its body's world spin
+    let motion = |p: PointId| {
+        let point = &model.points[p.0];
+        let local = model.bodies[point.body.0].local_increment(v.as_slice(), 1.0);
+        let w = Vector3::new(local[3], local[4], local[5]);
+        let rot = poses[point.body.0].rotation;
+        let velocity = Vector3::new(local[0], local[1], local[2]) + rot * w.cross(&point.local);
+        (velocity, rot * w.cross(&w.cross(&point.local)), rot * w)
+    };
+    let (va, ca, _) = motion(joint.point);
+    let (vb, cb, omega) = motion(pb);
+    let turning = omega.cross(&n);
+    omega.cross(&turning).dot(&d) + 2.0 * turning.dot(&(va - vb)) + n.dot(&(ca - cb))
+}
+
 /// The points a joint ties, with the sign of their position in `Phi`: `(a, +1)` and, for a
 /// joint between two points, `(b, -1)`.
 pub fn joint_points(joint: &JointModel) -> impl Iterator<Item = (PointId, f64)> {
@@ -215,11 +284,20 @@ pub fn joint_points(joint: &JointModel) -> impl Iterator<Item = (PointId, f64)> 
     std::iter::once((joint.point, 1.0)).chain(b)
 }
 
-/// A joint's multipliers as a world force `D^T lambda` (N; z is 0 in planar scenes). Zero for
-/// an alignment's rows, which carry a moment (`joint_moment`).
-pub fn joint_reaction(joint: &JointModel, lambda: &DVector<f64>) -> Vector3<f64> {
+/// A joint's multipliers as a world force `D^T lambda` (N; z is 0 in planar scenes; a planar
+/// joint's between two bodies `n lambda`, `plane_vectors`). Zero for an alignment's rows, which
+/// carry a moment (`joint_moment`).
+pub fn joint_reaction(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    lambda: &DVector<f64>,
+) -> Vector3<f64> {
     if joint.alignment.is_some() {
         return Vector3::zeros();
+    }
+    if let Some(u) = &joint.plane_normal {
+        return plane_vectors(model, poses, joint, u).0 * lambda[joint.row_offset];
     }
     let mut f = Vector3::zeros();
     for r in 0..joint.rows {
@@ -248,7 +326,17 @@ pub fn add_reaction_force(
             }
             continue;
         }
-        let f = joint_reaction(joint, lambda);
+        if joint.plane_normal.is_some() {
+            // the plane's side also turns: the rows themselves, not a force at the points
+            for (pid, sign) in joint_points(joint) {
+                let p = &kin[pid.0];
+                let row = side_jacobian(model, poses, joint, p).row(0).transpose();
+                let f6 = nalgebra::Vector6::from_fn(|c, _| row[c] * lambda[joint.row_offset]);
+                add_vector(model, p.body, &f6, sign * scale, out);
+            }
+            continue;
+        }
+        let f = joint_reaction(model, poses, joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let p = &kin[pid.0];
             add_vector(model, p.body, &(p.jacobian.transpose() * f), sign * scale, out);
@@ -266,7 +354,7 @@ pub fn evaluate_rates(
     out: &mut DVector<f64>,
 ) {
     for joint in &model.joints {
-        if joint.alignment.is_some() {
+        if joint.alignment.is_some() || joint.plane_normal.is_some() {
             let mut rate = Vector3::zeros();
             for (pid, sign) in joint_points(joint) {
                 let p = &kin[pid.0];
@@ -308,7 +396,11 @@ pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
             add_alignment_hessian(model, poses, joint, al, lambda, scale, sink);
             continue;
         }
-        let f = joint_reaction(joint, lambda);
+        if let Some(u) = &joint.plane_normal {
+            add_plane_hessian(model, poses, joint, u, lambda[joint.row_offset], scale, sink);
+            continue;
+        }
+        let f = joint_reaction(model, poses, joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let body = model.points[pid.0].body;
             if model.bodies[body.0].dof_count == 0 {
@@ -363,6 +455,46 @@ fn add_alignment_hessian<S: TangentSink + ?Sized>(
     }
     if let Some(b) = body_b {
         sink.stiffness(b, b, &block(b, &bb, b), scale);
+    }
+}
+
+/// Adds `scale * d(Phi_q^T lambda)/dq` of a planar joint's point row between two bodies (the
+/// module docs' four blocks; `lambda` its multiplier, N).
+#[allow(clippy::too_many_arguments)]
+fn add_plane_hessian<S: TangentSink + ?Sized>(
+    model: &Model,
+    poses: &[Pose],
+    joint: &JointModel,
+    u: &Vector3<f64>,
+    lambda: f64,
+    scale: f64,
+    sink: &mut S,
+) {
+    let JointTarget::Point(pb) = joint.target else { return };
+    let pa = joint.point;
+    let (body_a, body_b) = (model.points[pa.0].body, model.points[pb.0].body);
+    let (n, d) = plane_vectors(model, poses, joint, u);
+    let (ja, jb) = (point_jacobian(model, poses, pa), point_jacobian(model, poses, pb));
+    let gb = spin_jacobian(model, poses, body_b);
+    let nx = skew(&n);
+    let f = n * lambda;
+    let moving = |b: BodyId| model.bodies[b.0].dof_count > 0;
+    if moving(body_a) {
+        sink.stiffness(body_a, body_a, &force_jacobian_derivative(model, poses, pa, &f), scale);
+        if moving(body_b) {
+            sink.stiffness(body_a, body_b, &(ja.transpose() * nx * gb), -lambda * scale);
+            sink.stiffness(body_b, body_a, &(gb.transpose() * nx * ja), lambda * scale);
+        }
+    }
+    if moving(body_b) {
+        let b = &model.bodies[body_b.0];
+        let rb = poses[body_b.0].rotation.to_rotation_matrix().into_inner();
+        let w = d.cross(&n) * lambda;
+        let mut turn = Matrix6::zeros();
+        turn.fixed_view_mut::<3, 3>(3, 3).copy_from(&skew(&(rb.transpose() * w)));
+        let mut bb = force_jacobian_derivative(model, poses, pb, &f) + b.basis.transpose() * turn * b.basis;
+        bb += (gb.transpose() * (nx * jb - skew(&d) * nx * gb) - jb.transpose() * nx * gb) * lambda;
+        sink.stiffness(body_b, body_b, &bb, -scale);
     }
 }
 

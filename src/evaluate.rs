@@ -113,7 +113,7 @@ impl Workspace {
             joint_loss_power: 0.0,
             segment_lengths: vec![0.0; model.route_points.len() - model.cables.len()],
             energies: Energies::default(),
-            poses: if model.joints.iter().any(|j| j.alignment.is_some()) {
+            poses: if model.joints.iter().any(|j| j.alignment.is_some() || j.plane_normal.is_some()) {
                 Vec::with_capacity(model.bodies.len())
             } else {
                 Vec::new()

@@ -357,7 +357,7 @@ pub fn joint_reports(model: &Model, state: &State) -> Vec<JointReport> {
                 crate::model::JointTarget::Point(p) => model.points[p.0].name.clone(),
                 crate::model::JointTarget::World(_) => String::new(),
             },
-            force_n: (-crate::constraints::joint_reaction(j, &state.multipliers)).into(),
+            force_n: (-crate::constraints::joint_reaction(model, &state.poses, j, &state.multipliers)).into(),
             moment_nm: [0.0; 3],
         });
     }

@@ -420,10 +420,16 @@ axis = [0.0, 0.0, 1.0]
             "a node has none",
         ),
         ("kind = \"pin\"\na = \"box.q\"\naxis = [0.0, 0.0, 1.0]", "joints[1].axis", "only a hinge"),
+        // a planar joint may join two bodies, but a node has no orientation to hold
         (
             "kind = \"planar\"\na = \"box.q\"\nb = \"n\"\nnormal = [0.0, 0.0, 1.0]",
+            "joints[1].a",
+            "a node has none",
+        ),
+        (
+            "kind = \"slider\"\na = \"box.q\"\nb = \"n\"\nnormal = [0.0, 0.0, 1.0]",
             "joints[1].b",
-            "planar joint holds one point",
+            "slider holds one point to the ground",
         ),
         ("kind = \"planar\"\na = \"box.q\"", "joints[1].normal", "missing"),
         ("kind = \"planar\"\na = \"n\"\nnormal = [0.0, 0.0, 1.0]", "joints[1].a", "a node has none"),

@@ -39,7 +39,7 @@ fn equilibrium_with(model: &Model, sparse: bool) -> State {
 
 /// The world force joint `j`'s rows carry (`D^T lambda`): what holds the body is its negative.
 fn support_force(model: &Model, state: &State, j: usize) -> nalgebra::Vector3<f64> {
-    tensegrity::constraints::joint_reaction(&model.joints[j], &state.multipliers)
+    tensegrity::constraints::joint_reaction(model, &state.poses, &model.joints[j], &state.multipliers)
 }
 
 /// A beam of length 4 m and 10 kg from (0,0,0) to (4,0,0), pinned at `a`, on a roller along x at

@@ -319,6 +319,11 @@ pub struct JointModel {
     pub damping: f64,
     /// `Some`: these rows hold an axis, not a point (`Alignment`); `directions` is unused.
     pub alignment: Option<Alignment>,
+    /// `Some(u)`: the point row of a planar joint between two moving bodies, whose plane turns
+    /// with body `b` (`u` its unit normal in `b`'s frame): `Phi = (R_b u) . (r_a - r_b)`, one row
+    /// (`crate::constraints::plane_vectors`); `directions` is unused. `None` for every other
+    /// joint (a planar joint to the ground or to a fixed body holds a world direction).
+    pub plane_normal: Option<Vector3<f64>>,
     /// Index of the scene's `[[joints]]` entry this joint comes from (a hinge or a planar joint
     /// gives two `JointModel`s with the same index).
     pub scene_index: usize,

@@ -684,7 +684,9 @@ fn build_joints(
         let a = lookup(&j.a).ok_or_else(|| e("a", format!("unknown point '{}'", j.a)))?;
         let body_a = points[a.0].body;
         let target = match j.kind {
-            JointKindSpec::Ball | JointKindSpec::Hinge if j.kind == JointKindSpec::Ball || j.b.is_some() => {
+            JointKindSpec::Ball | JointKindSpec::Hinge | JointKindSpec::Planar
+                if j.kind == JointKindSpec::Ball || j.b.is_some() =>
+            {
                 let bname =
                     j.b.as_ref()
                         .ok_or_else(|| e("b", "missing: a ball joint joins point a to point b".into()))?;
@@ -712,7 +714,7 @@ fn build_joints(
                 if j.b.is_some() {
                     return Err(e(
                         "b",
-                        "a pin, roller, slider or planar joint holds one point to the ground; use kind = \"ball\" (or \"hinge\") to join two bodies".into(),
+                        "a pin, roller or slider holds one point to the ground; use kind = \"ball\", \"hinge\" or \"planar\" to join two bodies".into(),
                     ));
                 }
                 if bodies[body_a.0].dof_count == 0 {
@@ -747,6 +749,10 @@ fn build_joints(
                 crate::model::JointKind::Slider => format!(
                     "the point is {held_gap:.3e} m off the slider's plane at the start; it must lie in it"
                 ),
+                crate::model::JointKind::Planar => format!(
+                    "the point is {held_gap:.3e} m off the planar joint's plane (through {}, normal `normal`) at the start; it must lie in it",
+                    j.b.as_deref().or(j.at.map(|_| "`at`")).unwrap_or("the point's start")
+                ),
                 _ => {
                     format!("the joint's points are {held_gap:.3e} m apart at the start; they must coincide")
                 }
@@ -767,6 +773,16 @@ fn build_joints(
                 format!("joints[{first}] already holds these points: the constraint would be repeated (redundant)"),
             ));
         }
+        // a planar joint's plane turns with a moving body b: its normal is kept in b's frame
+        let (directions, plane_normal) = match (target, held.aligned_axis) {
+            (JointTarget::Point(b), Some(n))
+                if kind == crate::model::JointKind::Planar && bodies[points[b.0].body.0].dof_count > 0 =>
+            {
+                let body_b = &bodies[points[b.0].body.0];
+                (None, Some(body_b.initial_pose.rotation.inverse() * n))
+            }
+            _ => (directions, None),
+        };
         let damping = match j.damping {
             None => 0.0,
             Some(c) => {
@@ -819,6 +835,7 @@ fn build_joints(
             kind,
             damping,
             alignment: None,
+            plane_normal,
             scene_index: i,
         };
         joints.push(base);
@@ -830,6 +847,7 @@ fn build_joints(
                 directions: None,
                 damping: 0.0,
                 alignment,
+                plane_normal: None,
                 ..base
             });
             row_offset += 2;

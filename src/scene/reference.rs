@@ -159,10 +159,10 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             "string",
             "-",
             "required",
-            "`ball` (a on b), `pin` (a on a world position), `roller` (a on a world line), `slider` (a on a world plane), `hinge` (a on b, or on a world position, turning about `axis` only), `planar` (a on a world plane, turning about its normal only)".into(),
+            "`ball` (a on b), `pin` (a on a world position), `roller` (a on a world line), `slider` (a on a world plane), `hinge` (a on b, or on a world position, turning about `axis` only), `planar` (a on a world plane, or on the plane through b that turns with b's body, turning about its normal only)".into(),
         ),
         f(joints, "a", "string", "-", "required", "point `body.point`, or `body` for its origin".into()),
-        f(joints, "b", "string", "-", "required (ball)", "second point of a ball joint or a hinge between two bodies".into()),
+        f(joints, "b", "string", "-", "required (ball)", "second point of a ball joint, a hinge or a planar joint between two bodies".into()),
         f(
             joints,
             "at",

@@ -714,6 +714,13 @@ impl KktSystem {
         for coupling in &model.mass_couplings {
             couple(coupling.ends[0], coupling.ends[1], &mut cols);
         }
+        // rows that turn with both bodies (a hinge's or planar joint's axis, a planar joint's
+        // point row) couple them in `d(Phi_q^T lambda)/dq`
+        for joint in model.joints.iter().filter(|j| j.alignment.is_some() || j.plane_normal.is_some()) {
+            if let crate::model::JointTarget::Point(b) = joint.target {
+                couple(model.points[joint.point.0].body, model.points[b.0].body, &mut cols);
+            }
+        }
         for joint in &model.joints {
             for (p, _) in joint_points(joint) {
                 for r in 0..joint.rows {
@@ -936,7 +943,7 @@ impl KktSystem {
         for (j, joint) in model.joints.iter().enumerate() {
             for (side, (p, sign)) in joint_points(joint).enumerate() {
                 let point = &points[p.0];
-                if joint.alignment.is_some() {
+                if joint.alignment.is_some() || joint.plane_normal.is_some() {
                     let jacobian = side_jacobian(model, poses, joint, point);
                     self.add_joint_jacobian(j, joint.row_offset, side, point.body, &jacobian, sign);
                     continue;

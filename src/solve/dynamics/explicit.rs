@@ -235,7 +235,7 @@ impl Dynamics {
         }
         if nc > 0 {
             for joint in &model.joints {
-                if joint.alignment.is_some() {
+                if joint.alignment.is_some() || joint.plane_normal.is_some() {
                     continue; // alignment_biases
                 }
                 let mut bias = Vector3::zeros();
@@ -457,6 +457,11 @@ impl Dynamics {
 #[inline(never)]
 fn alignment_biases(model: &Model, state: &State, n: usize, work: &mut DVector<f64>) {
     for joint in &model.joints {
+        if let Some(u) = &joint.plane_normal {
+            work[n + joint.row_offset] =
+                -crate::constraints::plane_bias(model, &state.poses, &state.velocities, joint, u);
+            continue;
+        }
         if let Some(al) = &joint.alignment {
             let bias = crate::constraints::alignment_bias(model, &state.poses, &state.velocities, joint, al);
             for r in 0..joint.rows {

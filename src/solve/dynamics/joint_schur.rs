@@ -123,6 +123,7 @@ impl JointSchur {
                 let joint = &model.joints[j];
                 let point = &ws.points[p.0];
                 self.rows[w] = match (&joint.alignment, &joint.directions) {
+                    _ if joint.plane_normal.is_some() => side_jacobian(model, &ws.poses, joint, point),
                     (None, None) => point.jacobian,
                     (None, Some(d)) => d * point.jacobian,
                     (Some(_), _) => side_jacobian(model, &ws.poses, joint, point),
