@@ -107,3 +107,42 @@ fn an_explicit_run_that_stiffens_past_its_limit_is_stopped_at_its_last_good_stat
         assert!(sim.energy().numerical_loss().abs() <= 10.0 * scale, "{}", integrator.name());
     }
 }
+
+/// `|R(z)|` of an explicit Runge-Kutta tableau applied to `y' = lambda y`, `z = h lambda`,
+/// computed from its stages: `k_i = z (1 + sum_j a_ij k_j)`, `R = 1 + sum_i b_i k_i`.
+fn amplification(tableau: &tensegrity::solve::dynamics::explicit::Tableau, z: nalgebra::Complex<f64>) -> f64 {
+    let one = nalgebra::Complex::new(1.0, 0.0);
+    let mut k: Vec<nalgebra::Complex<f64>> = Vec::new();
+    for row in tableau.a.iter() {
+        let sum = row.iter().zip(&k).fold(one, |s, (a, kj)| s + kj * *a);
+        k.push(z * sum);
+    }
+    (one + tableau.b.iter().zip(&k).fold(nalgebra::Complex::new(0.0, 0.0), |s, (b, ki)| s + ki * *b)).norm()
+}
+
+#[test]
+fn the_exact_stability_region_limits_an_undamped_oscillator_where_its_tableau_says() {
+    // the hung mass with its cable counted taut: one undamped mode, eigenvalues +-i omega
+    let model = hung_mass(1.0);
+    let omega = 1000f64.sqrt();
+    let state = State::initial(&model);
+    use tensegrity::solve::dynamics::{explicit, stability_region_limit};
+    // RK4 reaches 2 sqrt(2) on the imaginary axis, where its half-disk stops at 2.615
+    let rk4 = stability_region_limit(&model, &state, Integrator::Rk4);
+    assert!((rk4 * omega - 8f64.sqrt()).abs() < 1e-9, "RK4: h omega = {}", rk4 * omega);
+    for (integrator, tableau) in
+        [(Integrator::Rk4, &explicit::RK4), (Integrator::DormandPrince, &explicit::DOPRI5)]
+    {
+        let h = stability_region_limit(&model, &state, integrator);
+        let at = |scale: f64| amplification(tableau, nalgebra::Complex::new(0.0, scale * h * omega));
+        assert!((at(1.0) - 1.0).abs() < 1e-9, "{}: |R| {} at the limit", integrator.name(), at(1.0));
+        assert!(at(0.99) < 1.0 && at(1.01) > 1.0, "{}: the limit is the region's edge", integrator.name());
+    }
+    // on the imaginary axis RK4's region reaches past its half-disk (2.828 against 2.615);
+    // Dormand-Prince's leaves it at about 0.99, where its half-disk ends too
+    assert!(rk4 > 1.05 * explicit_stability_limit(&model, &state, Integrator::Rk4));
+    let dopri = stability_region_limit(&model, &state, Integrator::DormandPrince) * omega;
+    assert!((0.95..1.0).contains(&dopri), "Dormand-Prince: h omega = {dopri}");
+    // other integrators have no region to stay in
+    assert_eq!(stability_region_limit(&model, &state, Integrator::SymplecticEuler), f64::INFINITY);
+}

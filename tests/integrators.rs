@@ -387,6 +387,41 @@ fn dormand_prince_meets_tight_tolerances() {
     }
 }
 
+/// The nodal prism's stiff members (struts as elastic members between point masses): a
+/// Dormand-Prince step above its stability limit lets a member's mode grow until the estimate
+/// sees it, which held the error at about ten times the tolerance from 1e-3 to 1e-6 m, and the
+/// many short steps the limit forces add up past the tolerance at 1e-8 m. Under the limit
+/// (`sim::EXPLICIT_STEP_CAP`) and with the step share of the tolerance
+/// (`sim::EXPLICIT_ERROR_STEP`) it delivers its tolerance at every level.
+#[test]
+fn dormand_prince_meets_its_tolerance_on_stiff_members() {
+    let model = bundled("prism3_nodal.toml");
+    let duration = 1.5;
+    let settings = SimSettings { dt: 2e-5, integrator: Integrator::DormandPrince, ..Default::default() };
+    let (reference, _) = sampled(&model, settings, duration);
+    let limit = tensegrity::solve::dynamics::stability_region_limit(
+        &model,
+        &State::initial(&model),
+        Integrator::DormandPrince,
+    );
+    for tol in [1e-3, 1e-5, 1e-7, 1e-8, 1e-9] {
+        let settings = SimSettings {
+            dt: 0.01,
+            integrator: Integrator::DormandPrince,
+            tolerance: Some(tol),
+            ..Default::default()
+        };
+        let (run, steps) = sampled(&model, settings, duration);
+        let error = largest_distance(&run, &reference);
+        assert!(error <= 3.0 * tol, "prism3_nodal at tolerance {tol:e}: largest point error {error:e}");
+        // no sub-step above the limit: at least the steps it allows
+        assert!(
+            steps as f64 >= duration / (tensegrity::sim::EXPLICIT_STEP_CAP * limit) - 1.0,
+            "tolerance {tol:e}: {steps} steps, under the limit {limit:e} s takes more"
+        );
+    }
+}
+
 /// Generalized-alpha at tight tolerances too: with its accelerations taken along the joints
 /// (`project_onto_joint_tangents`) the joints' misfit no longer puts a floor under its estimate
 /// (prism3 delivered 3.5, 4.0 and 173 times 1e-7, 1e-8 and 1e-9 m, refusing nine attempts in ten
