@@ -293,11 +293,18 @@ pub fn joint_reaction(
     joint: &JointModel,
     lambda: &DVector<f64>,
 ) -> Vector3<f64> {
-    if joint.alignment.is_some() {
-        return Vector3::zeros();
-    }
     if let Some(u) = &joint.plane_normal {
         return plane_vectors(model, poses, joint, u).0 * lambda[joint.row_offset];
+    }
+    point_reaction(joint, lambda)
+}
+
+/// `joint_reaction` of a joint whose rows turn with no body (point rows with fixed directions),
+/// or zero for an alignment's.
+#[inline]
+fn point_reaction(joint: &JointModel, lambda: &DVector<f64>) -> Vector3<f64> {
+    if joint.alignment.is_some() {
+        return Vector3::zeros();
     }
     let mut f = Vector3::zeros();
     for r in 0..joint.rows {
@@ -336,7 +343,7 @@ pub fn add_reaction_force(
             }
             continue;
         }
-        let f = joint_reaction(model, poses, joint, lambda);
+        let f = point_reaction(joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let p = &kin[pid.0];
             add_vector(model, p.body, &(p.jacobian.transpose() * f), sign * scale, out);
@@ -400,7 +407,7 @@ pub fn add_multiplier_hessian_to<S: TangentSink + ?Sized>(
             add_plane_hessian(model, poses, joint, u, lambda[joint.row_offset], scale, sink);
             continue;
         }
-        let f = joint_reaction(model, poses, joint, lambda);
+        let f = point_reaction(joint, lambda);
         for (pid, sign) in joint_points(joint) {
             let body = model.points[pid.0].body;
             if model.bodies[body.0].dof_count == 0 {

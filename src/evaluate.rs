@@ -400,6 +400,23 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     }
 }
 
+/// The consistent-mass corrections' share of the kinetic energy, `-(m/12) |dx_a - dx_b|^2` per
+/// member (J); kept out of line, so that `kinetic_energy` of a scene with lumped mass only
+/// never runs it.
+#[cold]
+#[inline(never)]
+fn coupled_kinetic_energy(model: &Model, v: &DVector<f64>) -> f64 {
+    let mut e = 0.0;
+    for coupling in &model.mass_couplings {
+        let [a, b] = coupling.ends.map(|x| {
+            let local = model.bodies[x.0].local_increment(v.as_slice(), 1.0);
+            Vector3::new(local[0], local[1], local[2])
+        });
+        e -= 0.5 * coupling.coefficient * (a - b).norm_squared();
+    }
+    e
+}
+
 /// Kinetic energy `v^T M v / 2` (J) of local velocities `v`: per body
 /// `(m |dx|^2 + w^T J w) / 2` with `(dx, w) = B v_b` (translation and body-frame rotation rates),
 /// plus, for each member with a consistent mass matrix, `-(m/12) |dx_a - dx_b|^2`
@@ -415,12 +432,8 @@ pub fn kinetic_energy(model: &Model, v: &DVector<f64>) -> f64 {
         let w = Vector3::new(local[3], local[4], local[5]);
         e += 0.5 * (body.mass * dx.norm_squared() + w.dot(&(body.inertia * w)));
     }
-    for coupling in &model.mass_couplings {
-        let [a, b] = coupling.ends.map(|x| {
-            let local = model.bodies[x.0].local_increment(v.as_slice(), 1.0);
-            Vector3::new(local[0], local[1], local[2])
-        });
-        e -= 0.5 * coupling.coefficient * (a - b).norm_squared();
+    if !model.mass_couplings.is_empty() {
+        e += coupled_kinetic_energy(model, v);
     }
     e
 }

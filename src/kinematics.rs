@@ -43,27 +43,35 @@ pub fn point_kinematics(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: Po
     let body = &model.bodies[point.body.0];
     let pose = &poses[point.body.0];
     let rot = pose.rotation.to_rotation_matrix();
-    let jacobian = jacobian_at(model, &rot, pid);
+    let mut jacobian = PointJacobian::zeros();
     let mut velocity = Vector3::zeros();
-    for c in 0..body.dof_count {
-        velocity += jacobian.column(c) * v[body.dof_offset + c];
-    }
+    for_each_jacobian_column(model, &rot, pid, |c, col| {
+        jacobian.set_column(c, &col);
+        velocity += col * v[body.dof_offset + c];
+    });
     PointKinematics { body: point.body, position: pose.position + rot * point.local, velocity, jacobian }
 }
 
 /// `dr/dq_b` of point `pid` at `poses` alone (`PointKinematics::jacobian`, without its position
 /// and velocity), 3 x 6.
 pub fn point_jacobian(model: &Model, poses: &[Pose], pid: PointId) -> PointJacobian {
-    jacobian_at(model, &poses[model.points[pid.0].body.0].rotation.to_rotation_matrix(), pid)
+    let rot = poses[model.points[pid.0].body.0].rotation.to_rotation_matrix();
+    let mut jacobian = PointJacobian::zeros();
+    for_each_jacobian_column(model, &rot, pid, |c, col| jacobian.set_column(c, &col));
+    jacobian
 }
 
-/// The point Jacobian `[I, -R [p]x] B` column by column (`point_kinematics`), its body's
-/// rotation `rot` given.
-#[inline]
-fn jacobian_at(model: &Model, rot: &Rotation3<f64>, pid: PointId) -> PointJacobian {
+/// Calls `f(c, column)` for each column `c` of the point Jacobian `[I, -R [p]x] B`
+/// (`point_kinematics`), its body's rotation `rot` given.
+#[inline(always)]
+fn for_each_jacobian_column(
+    model: &Model,
+    rot: &Rotation3<f64>,
+    pid: PointId,
+    mut f: impl FnMut(usize, Vector3<f64>),
+) {
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];
-    let mut jacobian = PointJacobian::zeros();
     for c in 0..body.dof_count {
         let b = body.basis.column(c);
         let mut col = Vector3::new(b[0], b[1], b[2]);
@@ -71,9 +79,8 @@ fn jacobian_at(model: &Model, rot: &Rotation3<f64>, pid: PointId) -> PointJacobi
         if b_r != Vector3::zeros() {
             col += rot * b_r.cross(&point.local);
         }
-        jacobian.set_column(c, &col);
+        f(c, col);
     }
-    jacobian
 }
 
 /// `d(J^T f)/dq_b` for point `pid` at a fixed world force `f` (N): the point's share of the

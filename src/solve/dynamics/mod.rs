@@ -363,17 +363,29 @@ impl Dynamics {
     /// `out = M x` with the block-diagonal mass matrix and the members' consistent-mass
     /// corrections, if any (no `n x n` product).
     fn mass_times(&self, model: &Model, x: &DVector<f64>, out: &mut DVector<f64>) {
-        for (b, body) in model.bodies.iter().enumerate() {
+        for (body, m) in model.bodies.iter().zip(&self.mass) {
             let (o, k) = (body.dof_offset, body.dof_count);
-            for r in 0..k {
-                let mut sum = 0.0;
-                for c in 0..k {
-                    sum += self.mass[b][(r, c)] * x[o + c];
-                }
-                out[o + r] = sum;
+            if k == 0 {
+                continue;
+            }
+            // a fixed-size product on the zero-padded slice (the block past k is zero): 3 x 3
+            // for nodes and planar bodies, 6 x 6 otherwise
+            let (xs, outs) = (&x.as_slice()[o..o + k], &mut out.as_mut_slice()[o..o + k]);
+            if k <= 3 {
+                let mut xb = Vector3::zeros();
+                xb.iter_mut().zip(xs).for_each(|(d, s)| *d = *s);
+                let yb = m.fixed_view::<3, 3>(0, 0) * xb;
+                outs.iter_mut().zip(yb.iter()).for_each(|(d, s)| *d = *s);
+            } else {
+                let mut xb = Vector6::zeros();
+                xb.iter_mut().zip(xs).for_each(|(d, s)| *d = *s);
+                let yb = m * xb;
+                outs.iter_mut().zip(yb.iter()).for_each(|(d, s)| *d = *s);
             }
         }
-        model.add_mass_coupling_times(x.as_slice(), 1.0, out.as_mut_slice());
+        if !model.mass_couplings.is_empty() {
+            add_coupled_mass_times(model, x, out);
+        }
     }
 
     /// True when the explicit integrators solve `[M, Phi_q^T; Phi_q, 0]` through the joints'
@@ -465,6 +477,14 @@ impl Dynamics {
             }
         }
     }
+}
+
+/// `out += dM x`, the members' consistent-mass corrections (`Model::add_mass_coupling_times`),
+/// kept out of line: `Dynamics::mass_times` of a scene with lumped mass only never runs it.
+#[cold]
+#[inline(never)]
+fn add_coupled_mass_times(model: &Model, x: &DVector<f64>, out: &mut DVector<f64>) {
+    model.add_mass_coupling_times(x.as_slice(), 1.0, out.as_mut_slice());
 }
 
 /// Per body: the largest distance of its points from its origin, at least 1 mm (m).
