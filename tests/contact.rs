@@ -451,10 +451,11 @@ fn error_controlled_generalized_alpha_resolves_the_impacts_a_long_fixed_step_mis
     // every 10 ms: against a 1e-7 s reference (3.4e-8 m from a 1e-6 s run, 4.9e-10 m from a 1e-8 s
     // one), the fixed 10 ms step is 0.13 m off; under error control (sub-steps retried to end
     // close to each touchdown and lift-off, sim::CONTACT_EVENT_DEPTH) the impacts are resolved
-    // within the tolerance from 1e-3 to 1e-8 m (measured 0.42, 0.81, 0.81, 0.13, 0.07 and 0.06
-    // times the tolerance). At 1e-9 m the smallest sub-step error control takes
-    // (sim::MIN_CONTROLLED_STEP of the 10 ms output interval, 1e-7 s) binds through the contact
-    // (357 times); with 1 ms outputs it lands at 0.26 times.
+    // within the tolerance from 1e-3 to 1e-9 m (measured 0.42, 0.81, 0.81, 0.13, 0.07, 0.06 and
+    // 0.22 times the tolerance; 0.20 at 1e-9 m with 1 ms outputs). At 1e-9 m the smallest
+    // sub-step error control takes used to be 1e-7 s (sim::MIN_CONTROLLED_STEP of the 10 ms
+    // interval), which bound through each impact (357 times the tolerance); it now shrinks with
+    // tolerances below 1e-8 m (sim::smallest_controlled_step).
     let model = block_on_incline(0.1, 0.0, 0.2, "stiffness = 1e5\ndissipation = 0.5\nmu = 0.0");
     let heights = |dt: f64, tolerance: Option<f64>, every: usize, integrator: Integrator| {
         let settings = SimSettings { dt, tolerance, integrator, ..Default::default() };
@@ -475,9 +476,16 @@ fn error_controlled_generalized_alpha_resolves_the_impacts_a_long_fixed_step_mis
     let error = |z: Vec<f64>| z.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
     let fixed = error(heights(1e-2, None, 1, ga));
     assert!(fixed > 0.05, "the fixed 10 ms step is only {fixed} m off: the test shows nothing");
-    for (tol, interval) in
-        [(1e-3, 1e-2), (1e-4, 1e-2), (1e-5, 1e-2), (1e-6, 1e-2), (1e-7, 1e-2), (1e-8, 1e-2), (1e-9, 1e-3)]
-    {
+    for (tol, interval) in [
+        (1e-3, 1e-2),
+        (1e-4, 1e-2),
+        (1e-5, 1e-2),
+        (1e-6, 1e-2),
+        (1e-7, 1e-2),
+        (1e-8, 1e-2),
+        (1e-9, 1e-2),
+        (1e-9, 1e-3),
+    ] {
         let every = (1e-2_f64 / interval).round() as usize;
         let e = error(heights(interval, Some(tol), every, ga));
         println!("impacts under error control: tolerance {tol:e} m, outputs every {interval} s, error {e:.2e} m ({:.2} x; fixed 10 ms step: {fixed:.2e} m)", e / tol);
