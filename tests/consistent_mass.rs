@@ -27,31 +27,10 @@ use tensegrity::solve::linear::LinearBackend;
 use tensegrity::solve::modes::natural_modes;
 use tensegrity::{Model, State};
 
-/// A chain along x of `n` members between `n + 1` nodes (planar), total mass `mass`, length
-/// `length`; the nodes take their mass from the members only.
-fn chain(n: usize, mass: f64, length: f64, ea: f64, kind: &str) -> Model {
-    let h = length / n as f64;
-    let mut text = String::from("planar = true\n");
-    for k in 0..=n {
-        text += &format!(
-            "[[bodies]]\nname = \"n{k}\"\nkind = \"node\"\nposition = [{}, 0.0, 0.0]\n",
-            k as f64 * h
-        );
-    }
-    for k in 0..n {
-        text += &format!(
-            "[[members]]\nname = \"m{k}\"\nends = [\"n{k}\", \"n{}\"]\nea = {ea:e}\nmass = {:e}\nmass_matrix = \"{kind}\"\n",
-            k + 1,
-            mass / n as f64
-        );
-    }
-    model_from_toml(&text)
-}
-
 #[test]
 fn the_mass_matrix_is_the_sum_of_the_element_matrices_and_weighs_the_kinetic_energy() {
     let (n, mass) = (3, 1.2);
-    let model = chain(n, mass, 1.5, 1e4, "consistent");
+    let model = member_chain(n, mass, 1.5, 1e4, "consistent");
     let m = mass_matrix(&model);
     // planar nodes: two coordinates each
     let mut expected = DMatrix::zeros(2 * (n + 1), 2 * (n + 1));
@@ -73,7 +52,7 @@ fn the_mass_matrix_is_the_sum_of_the_element_matrices_and_weighs_the_kinetic_ene
     let exact = 0.5 * v.dot(&(&m * &v));
     assert!((kinetic_energy(&model, &v) - exact).abs() < 1e-14 * exact);
     // lumped: diagonal, and the same matrix without a coupling
-    let lumped = mass_matrix(&chain(n, mass, 1.5, 1e4, "lumped"));
+    let lumped = mass_matrix(&member_chain(n, mass, 1.5, 1e4, "lumped"));
     assert_eq!(lumped, DMatrix::from_diagonal(&lumped.diagonal()));
 }
 
@@ -83,7 +62,7 @@ fn the_first_axial_mode_of_a_consistent_chain_converges_at_order_two_from_above(
     let continuum = (1.0 / (2.0 * length)) * (ea / (mass / length)).sqrt();
     let mut errors = Vec::new();
     for n in [8usize, 16, 32, 64, 128] {
-        let model = chain(n, mass, length, ea, "consistent");
+        let model = member_chain(n, mass, length, ea, "consistent");
         let modes = natural_modes(&model, &State::initial(&model)).expect("modes");
         let first = modes.iter().find(|m| !m.zero).expect("an axial mode");
         let (k, m_e, t) = (ea / (length / n as f64), mass / n as f64, std::f64::consts::PI / n as f64);

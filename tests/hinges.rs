@@ -18,13 +18,12 @@
 mod common;
 
 use common::*;
-use nalgebra::{DMatrix, DVector, Vector3};
-use tensegrity::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
+use nalgebra::Vector3;
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::Integrator;
 use tensegrity::solve::linear::LinearBackend;
 use tensegrity::solve::statics::StaticSolver;
-use tensegrity::state::retract;
 use tensegrity::{Model, State};
 
 /// A bar hinged to a skewed rigid box (axis oblique), the box on a tilted planar support, and a
@@ -68,22 +67,6 @@ axis = [0.0, 0.6, 0.8]
     )
 }
 
-/// The state `state` moved along `dq` by `scale` (local increments; velocities kept).
-fn moved(model: &Model, state: &State, dq: &DVector<f64>, scale: f64) -> State {
-    let mut s = state.clone();
-    retract(model, &mut s.poses, dq, scale);
-    s
-}
-
-/// A fixed pseudo-random vector of length `n` (entries in [-1, 1]).
-fn wiggle(n: usize, seed: u64) -> DVector<f64> {
-    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-    DVector::from_fn(n, |_, _| {
-        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    })
-}
-
 /// A state of `mixed()` off its constraints (the joints' rows no longer zero) with velocities.
 fn off_manifold(model: &Model) -> State {
     let start = State::initial(model);
@@ -105,52 +88,7 @@ fn axis_rows_match_finite_differences() {
     let state = off_manifold(&model);
     evaluate(&model, &state, &mut ws, Tangents::None);
     assert!(ws.constraint.amax() > 1e-3, "the test state is off the manifold");
-    let phi_q = ws.constraint_jacobian.clone();
-    let h = 1e-6;
-    let n = model.dof_count;
-    let lambda = wiggle(model.constraint_count, 3) * 10.0;
-    // Phi_q^T lambda at a state (reactions as generalized forces)
-    let reactions = |s: &State| {
-        let mut w = Workspace::new(&model);
-        evaluate_forces(&model, s, &mut w);
-        let mut out = DVector::zeros(n);
-        tensegrity::constraints::add_reaction_force(&model, &s.poses, &w.points, &lambda, 1.0, &mut out);
-        out
-    };
-    let mut hessian = DMatrix::zeros(n, n);
-    tensegrity::constraints::add_multiplier_hessian(&model, &state.poses, &lambda, &mut hessian);
-    let base = reactions(&state);
-    assert!((&base - phi_q.transpose() * &lambda).amax() < 1e-12, "reactions are Phi_q^T lambda");
-    for j in 0..n {
-        let e = DVector::from_fn(n, |i, _| if i == j { 1.0 } else { 0.0 });
-        let (sp, sm) = (moved(&model, &state, &e, h), moved(&model, &state, &e, -h));
-        let (mut wp, mut wm) = (Workspace::new(&model), Workspace::new(&model));
-        evaluate(&model, &sp, &mut wp, Tangents::None);
-        evaluate(&model, &sm, &mut wm, Tangents::None);
-        let fd = (&wp.constraint - &wm.constraint) / (2.0 * h);
-        assert!(
-            (&fd - phi_q.column(j)).amax() < 1e-8,
-            "Phi_q column {j}: {}",
-            (&fd - phi_q.column(j)).amax()
-        );
-        let fd = (reactions(&sp) - reactions(&sm)) / (2.0 * h);
-        let err = (&fd - hessian.column(j)).amax();
-        assert!(err < 1e-6 * (1.0 + fd.amax()), "d(Phi_q^T lambda)/dq column {j}: {err}");
-    }
-    // the rates are Phi_q v, and their derivative along the motion is Phi_q vdot + bias
-    let mut rates = DVector::zeros(model.constraint_count);
-    tensegrity::constraints::evaluate_rates(&model, &state.poses, &state.velocities, &ws.points, &mut rates);
-    assert!((&rates - &phi_q * &state.velocities).amax() < 1e-12);
-    let rates_at = |s: &State| {
-        let mut w = Workspace::new(&model);
-        evaluate_forces(&model, s, &mut w);
-        let mut r = DVector::zeros(model.constraint_count);
-        tensegrity::constraints::evaluate_rates(&model, &s.poses, &s.velocities, &w.points, &mut r);
-        r
-    };
-    let fd = (rates_at(&moved(&model, &state, &state.velocities, h))
-        - rates_at(&moved(&model, &state, &state.velocities, -h)))
-        / (2.0 * h);
+    let fd = check_joint_rows_by_finite_differences(&model, &state);
     for joint in model.joints.iter().filter(|j| j.alignment.is_some()) {
         let al = joint.alignment.unwrap();
         let bias =

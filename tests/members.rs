@@ -215,33 +215,13 @@ tension_only = {tension_only}
     }
 }
 
-/// A free-free chain along x of `n` members (planar), total mass `mass`, length `length`.
-fn free_chain(n: usize, mass: f64, length: f64, ea: f64) -> Model {
-    let h = length / n as f64;
-    let mut text = String::from("planar = true\n");
-    for k in 0..=n {
-        text += &format!(
-            "[[bodies]]\nname = \"n{k}\"\nkind = \"node\"\nposition = [{}, 0.0, 0.0]\n",
-            k as f64 * h
-        );
-    }
-    for k in 0..n {
-        text += &format!(
-            "[[members]]\nname = \"m{k}\"\nends = [\"n{k}\", \"n{}\"]\nea = {ea:e}\nmass = {:e}\n",
-            k + 1,
-            mass / n as f64
-        );
-    }
-    model_from_toml(&text)
-}
-
 #[test]
 fn the_first_axial_mode_of_a_free_free_member_converges_at_order_two() {
     let (mass, length, ea): (f64, f64, f64) = (3.0, 2.0, 2e5);
     let continuum = (1.0 / (2.0 * length)) * (ea / (mass / length)).sqrt();
     let mut errors = Vec::new();
     for n in [8usize, 16, 32, 64, 128] {
-        let model = free_chain(n, mass, length, ea);
+        let model = member_chain(n, mass, length, ea, "lumped");
         let state = State::initial(&model);
         let modes = natural_modes(&model, &state).expect("modes");
         let first = modes.iter().find(|m| !m.zero).expect("an axial mode");

@@ -14,13 +14,12 @@
 mod common;
 
 use common::*;
-use nalgebra::{DMatrix, DVector, UnitQuaternion, Vector3};
-use tensegrity::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
+use nalgebra::{UnitQuaternion, Vector3};
+use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::Integrator;
 use tensegrity::solve::linear::LinearBackend;
 use tensegrity::solve::statics::StaticSolver;
-use tensegrity::state::retract;
 use tensegrity::{Model, State};
 
 /// A skewed rigid deck, free; a rigid sled and a bar on planar joints to it (oblique normals),
@@ -91,21 +90,6 @@ normal = {n2}
     ))
 }
 
-fn moved(model: &Model, state: &State, dq: &DVector<f64>, scale: f64) -> State {
-    let mut s = state.clone();
-    retract(model, &mut s.poses, dq, scale);
-    s
-}
-
-/// A fixed pseudo-random vector of length `n` (entries in [-1, 1]).
-fn wiggle(n: usize, seed: u64) -> DVector<f64> {
-    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-    DVector::from_fn(n, |_, _| {
-        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-    })
-}
-
 #[test]
 fn the_point_row_matches_finite_differences() {
     let model = tumbling(-9.81, "bar");
@@ -118,44 +102,7 @@ fn the_point_row_matches_finite_differences() {
     let mut ws = Workspace::new(&model);
     evaluate(&model, &state, &mut ws, Tangents::None);
     assert!(ws.constraint.amax() > 1e-3, "the test state is off the manifold");
-    let phi_q = ws.constraint_jacobian.clone();
-    let (n, h) = (model.dof_count, 1e-6);
-    let lambda = wiggle(model.constraint_count, 3) * 10.0;
-    let reactions = |s: &State| {
-        let mut w = Workspace::new(&model);
-        evaluate_forces(&model, s, &mut w);
-        let mut out = DVector::zeros(n);
-        tensegrity::constraints::add_reaction_force(&model, &s.poses, &w.points, &lambda, 1.0, &mut out);
-        out
-    };
-    let mut hessian = DMatrix::zeros(n, n);
-    tensegrity::constraints::add_multiplier_hessian(&model, &state.poses, &lambda, &mut hessian);
-    assert!((reactions(&state) - phi_q.transpose() * &lambda).amax() < 1e-12, "reactions are Phi_q^T lambda");
-    for j in 0..n {
-        let e = DVector::from_fn(n, |i, _| if i == j { 1.0 } else { 0.0 });
-        let (sp, sm) = (moved(&model, &state, &e, h), moved(&model, &state, &e, -h));
-        let (mut wp, mut wm) = (Workspace::new(&model), Workspace::new(&model));
-        evaluate(&model, &sp, &mut wp, Tangents::None);
-        evaluate(&model, &sm, &mut wm, Tangents::None);
-        let fd = (&wp.constraint - &wm.constraint) / (2.0 * h);
-        let err = (&fd - phi_q.column(j)).amax();
-        assert!(err < 1e-8, "Phi_q column {j}: {err}");
-        let fd = (reactions(&sp) - reactions(&sm)) / (2.0 * h);
-        let err = (&fd - hessian.column(j)).amax();
-        assert!(err < 1e-6 * (1.0 + fd.amax()), "d(Phi_q^T lambda)/dq column {j}: {err}");
-    }
-    // the rates are Phi_q v; their derivative along the motion at fixed v is the bias
-    let rates_at = |s: &State| {
-        let mut w = Workspace::new(&model);
-        evaluate_forces(&model, s, &mut w);
-        let mut r = DVector::zeros(model.constraint_count);
-        tensegrity::constraints::evaluate_rates(&model, &s.poses, &s.velocities, &w.points, &mut r);
-        r
-    };
-    assert!((rates_at(&state) - &phi_q * &state.velocities).amax() < 1e-12);
-    let fd = (rates_at(&moved(&model, &state, &state.velocities, h))
-        - rates_at(&moved(&model, &state, &state.velocities, -h)))
-        / (2.0 * h);
+    let fd = check_joint_rows_by_finite_differences(&model, &state);
     for joint in model.joints.iter().filter(|j| j.plane_normal.is_some()) {
         let u = joint.plane_normal.unwrap();
         let bias = tensegrity::constraints::plane_bias(&model, &state.poses, &state.velocities, joint, &u);

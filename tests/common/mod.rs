@@ -16,7 +16,7 @@ pub mod roles;
 pub mod running_node;
 
 use nalgebra::{DMatrix, DVector};
-use tensegrity::evaluate::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
 use tensegrity::model::Model;
 use tensegrity::scene::{build_model, SceneSpec};
 use tensegrity::state::{retract, State};
@@ -189,4 +189,89 @@ pub fn free_prism_spec() -> SceneSpec {
 /// The bundled prism without its pins and with a bottom ring: held by nothing.
 pub fn free_prism() -> Model {
     build_model(&free_prism_spec(), "<free prism>", None).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// `state` moved along the local increments `dq` by `scale` (velocities kept).
+pub fn moved(model: &Model, state: &State, dq: &DVector<f64>, scale: f64) -> State {
+    let mut s = state.clone();
+    retract(model, &mut s.poses, dq, scale);
+    s
+}
+
+/// A fixed pseudo-random vector of length `n` (entries in [-1, 1]).
+pub fn wiggle(n: usize, seed: u64) -> DVector<f64> {
+    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    DVector::from_fn(n, |_, _| {
+        x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((x >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    })
+}
+
+/// Checks the joints' rows at `state` against central differences (step 1e-6): `Phi_q` against
+/// `Phi` (1e-8), the reactions `Phi_q^T lambda` of pseudo-random multipliers against `Phi_q`
+/// itself, and their derivative `d(Phi_q^T lambda)/dq` (1e-6 relative); and that the rates are
+/// `Phi_q v`. Returns the central difference of the rates along the velocities at fixed `v`
+/// (the acceleration bias each joint kind's own function should give).
+pub fn check_joint_rows_by_finite_differences(model: &Model, state: &State) -> DVector<f64> {
+    let mut ws = Workspace::new(model);
+    evaluate(model, state, &mut ws, Tangents::None);
+    let phi_q = ws.constraint_jacobian.clone();
+    let (n, h) = (model.dof_count, 1e-6);
+    let lambda = wiggle(model.constraint_count, 3) * 10.0;
+    let reactions = |s: &State| {
+        let mut w = Workspace::new(model);
+        evaluate_forces(model, s, &mut w);
+        let mut out = DVector::zeros(n);
+        tensegrity::constraints::add_reaction_force(model, &s.poses, &w.points, &lambda, 1.0, &mut out);
+        out
+    };
+    let mut hessian = DMatrix::zeros(n, n);
+    tensegrity::constraints::add_multiplier_hessian(model, &state.poses, &lambda, &mut hessian);
+    assert!((reactions(state) - phi_q.transpose() * &lambda).amax() < 1e-12, "reactions are Phi_q^T lambda");
+    for j in 0..n {
+        let e = DVector::from_fn(n, |i, _| if i == j { 1.0 } else { 0.0 });
+        let (sp, sm) = (moved(model, state, &e, h), moved(model, state, &e, -h));
+        let (mut wp, mut wm) = (Workspace::new(model), Workspace::new(model));
+        evaluate(model, &sp, &mut wp, Tangents::None);
+        evaluate(model, &sm, &mut wm, Tangents::None);
+        let fd = (&wp.constraint - &wm.constraint) / (2.0 * h);
+        let err = (&fd - phi_q.column(j)).amax();
+        assert!(err < 1e-8, "Phi_q column {j}: {err}");
+        let fd = (reactions(&sp) - reactions(&sm)) / (2.0 * h);
+        let err = (&fd - hessian.column(j)).amax();
+        assert!(err < 1e-6 * (1.0 + fd.amax()), "d(Phi_q^T lambda)/dq column {j}: {err}");
+    }
+    let rates_at = |s: &State| {
+        let mut w = Workspace::new(model);
+        evaluate_forces(model, s, &mut w);
+        let mut r = DVector::zeros(model.constraint_count);
+        tensegrity::constraints::evaluate_rates(model, &s.poses, &s.velocities, &w.points, &mut r);
+        r
+    };
+    assert!((rates_at(state) - &phi_q * &state.velocities).amax() < 1e-12, "the rates are Phi_q v");
+    (rates_at(&moved(model, state, &state.velocities, h))
+        - rates_at(&moved(model, state, &state.velocities, -h)))
+        / (2.0 * h)
+}
+
+/// A free chain along x of `n` members between `n + 1` nodes (planar), total mass `mass` (kg)
+/// carried as `mass_matrix` says (`"lumped"` or `"consistent"`), length `length` (m), member
+/// stiffness `ea` (N); the nodes take their mass from the members only.
+pub fn member_chain(n: usize, mass: f64, length: f64, ea: f64, mass_matrix: &str) -> Model {
+    let h = length / n as f64;
+    let mut text = String::from("planar = true\n");
+    for k in 0..=n {
+        text += &format!(
+            "[[bodies]]\nname = \"n{k}\"\nkind = \"node\"\nposition = [{}, 0.0, 0.0]\n",
+            k as f64 * h
+        );
+    }
+    for k in 0..n {
+        text += &format!(
+            "[[members]]\nname = \"m{k}\"\nends = [\"n{k}\", \"n{}\"]\nea = {ea:e}\nmass = {:e}\nmass_matrix = \"{mass_matrix}\"\n",
+            k + 1,
+            mass / n as f64
+        );
+    }
+    model_from_toml(&text)
 }
