@@ -28,7 +28,10 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3};
 
 use crate::assembly::{add_vector, DenseTangents, TangentSink};
-use crate::kinematics::{force_jacobian_derivative, point_jacobian, PointJacobian, PointKinematics};
+use crate::kinematics::{
+    centripetal, force_jacobian_derivative, point_jacobian, point_kinematics, world_spin, PointJacobian,
+    PointKinematics,
+};
 use crate::model::{skew, Alignment, BodyId, JointModel, JointTarget, Model, PointId, Pose};
 
 /// Fills `phi` (rows, m; an alignment's rows are dimensionless) for all joints.
@@ -228,11 +231,7 @@ pub fn alignment_bias(
 ) -> Vector3<f64> {
     let (e, w) = alignment_vectors(model, poses, joint, al);
     // world angular velocity R (B v)_spin
-    let omega = |p: PointId| {
-        let body = model.points[p.0].body;
-        let local = model.bodies[body.0].local_increment(v.as_slice(), 1.0);
-        poses[body.0].rotation * Vector3::new(local[3], local[4], local[5])
-    };
+    let omega = |p: PointId| world_spin(model, poses, v, model.points[p.0].body);
     let wa = omega(joint.point);
     let wb = match joint.target {
         JointTarget::Point(b) => omega(b),
@@ -259,19 +258,12 @@ pub fn plane_bias(
 ) -> f64 {
     let JointTarget::Point(pb) = joint.target else { return 0.0 };
     let (n, d) = plane_vectors(model, poses, joint, u);
-    // world velocity and centripetal acceleration of a point, and its body's world spin
-    let motion = |p: PointId| {
-        let point = &model.points[p.0];
-        let local = model.bodies[point.body.0].local_increment(v.as_slice(), 1.0);
-        let w = Vector3::new(local[3], local[4], local[5]);
-        let rot = poses[point.body.0].rotation;
-        let velocity = Vector3::new(local[0], local[1], local[2]) + rot * w.cross(&point.local);
-        (velocity, rot * w.cross(&w.cross(&point.local)), rot * w)
-    };
-    let (va, ca, _) = motion(joint.point);
-    let (vb, cb, omega) = motion(pb);
+    let velocity = |p: PointId| point_kinematics(model, poses, v, p).velocity;
+    let relative = velocity(joint.point) - velocity(pb);
+    let centripetal_gap = centripetal(model, poses, v, joint.point) - centripetal(model, poses, v, pb);
+    let omega = world_spin(model, poses, v, model.points[pb.0].body);
     let turning = omega.cross(&n);
-    omega.cross(&turning).dot(&d) + 2.0 * turning.dot(&(va - vb)) + n.dot(&(ca - cb))
+    omega.cross(&turning).dot(&d) + 2.0 * turning.dot(&relative) + n.dot(&centripetal_gap)
 }
 
 /// The points a joint ties, with the sign of their position in `Phi`: `(a, +1)` and, for a

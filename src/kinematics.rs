@@ -83,6 +83,27 @@ fn for_each_jacobian_column(
     }
 }
 
+/// `Jdot v` of point `pid`: the centripetal acceleration `R (w x (w x p))` of a point `p` on a
+/// rotating body (body-frame angular velocity `w` from the local velocities `v`), m/s^2.
+#[inline]
+pub fn centripetal(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: PointId) -> Vector3<f64> {
+    let point = &model.points[pid.0];
+    let body = &model.bodies[point.body.0];
+    if body.dof_count == 0 {
+        return Vector3::zeros();
+    }
+    let local = body.local_increment(v.as_slice(), 1.0);
+    let w = Vector3::new(local[3], local[4], local[5]);
+    poses[point.body.0].rotation * w.cross(&w.cross(&point.local))
+}
+
+/// World angular velocity `R w` of `body` (`w` its body-frame rate from the local velocities
+/// `v`), rad/s; zero for a fixed body.
+pub fn world_spin(model: &Model, poses: &[Pose], v: &DVector<f64>, body: BodyId) -> Vector3<f64> {
+    let local = model.bodies[body.0].local_increment(v.as_slice(), 1.0);
+    poses[body.0].rotation * Vector3::new(local[3], local[4], local[5])
+}
+
 /// `d(J^T f)/dq_b` for point `pid` at a fixed world force `f` (N): the point's share of the
 /// geometric stiffness (k x k block of the returned 6 x 6, N m).
 pub fn force_jacobian_derivative(

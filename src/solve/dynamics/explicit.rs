@@ -240,7 +240,7 @@ impl Dynamics {
                 }
                 let mut bias = Vector3::zeros();
                 for (p, sign) in crate::constraints::joint_points(joint) {
-                    bias += centripetal(model, &state.poses, &state.velocities, p) * sign;
+                    bias += crate::kinematics::centripetal(model, &state.poses, &state.velocities, p) * sign;
                 }
                 let bias = joint.project(&bias);
                 for r in 0..joint.rows {
@@ -469,18 +469,4 @@ fn alignment_biases(model: &Model, state: &State, n: usize, work: &mut DVector<f
             }
         }
     }
-}
-
-/// `Jdot v` of point `pid`: the centripetal acceleration `R (w x (w x p))` of a point `p` on a
-/// rotating body (body-frame angular velocity `w` from the local velocities), m/s^2.
-#[inline]
-fn centripetal(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: crate::model::PointId) -> Vector3<f64> {
-    let point = &model.points[pid.0];
-    let body = &model.bodies[point.body.0];
-    if body.dof_count == 0 {
-        return Vector3::zeros();
-    }
-    let local = body.local_increment(v.as_slice(), 1.0);
-    let w = Vector3::new(local[3], local[4], local[5]);
-    poses[point.body.0].rotation * w.cross(&w.cross(&point.local))
 }
