@@ -33,6 +33,14 @@ fn bundled_scenes_match_their_generators() {
             }),
         ),
         ("tbar.toml", generate::tbar(&Default::default())),
+        (
+            "tbar_nodal.toml",
+            generate::tbar(&generate::TbarParams {
+                nodal_strut_ea: Some(1e7),
+                nodal_mass_matrix: tensegrity::scene::MassMatrixSpec::Consistent,
+                ..Default::default()
+            }),
+        ),
         ("tower.toml", generate::tower(&Default::default())),
         ("atwood.toml", generate::atwood(&Default::default())),
         ("sixbar.toml", generate::sixbar(&Default::default())),

@@ -121,30 +121,75 @@ pub fn prism(p: &PrismParams) -> SceneSpec {
     spec
 }
 
+/// Writes each cable's `damping_ratio` of `spec` as the damping coefficient `c` (N s/m) it gives
+/// there, Rayleigh's `beta` part left out: a ratio's `c = 2 zeta sqrt((EA / L0) m_eff)` depends on
+/// the masses of the bodies on the route, which the nodal form moves onto nodes, and the nodal
+/// form must keep the rigid scene's dashpots to converge to it. A spec that does not build is
+/// left as it is (building the nodal form then says why).
+fn keep_dashpots(spec: &mut SceneSpec) {
+    let Ok(model) = super::build_model(spec, "<generated>", None) else { return };
+    for cable in spec.cables.iter_mut().filter(|c| c.damping_ratio.is_some()) {
+        let Some(c) = model.cable_names.iter().position(|n| *n == cable.name) else { continue };
+        let material = model.cables[c].axial_stiffness / model.initial_rest_lengths[c];
+        cable.damping_ratio = None;
+        cable.damping = Some(model.cables[c].damping - model.rayleigh.beta * material);
+    }
+}
+
 /// Turns `spec` into its nodal (finite-element) form: every bar `B` becomes the nodes `B_a` and
 /// `B_b` at its ends and an elastic member `B` between them of axial stiffness `strut_ea` (N),
 /// the bar's mass on the two nodes as `mass_matrix` says, its axial force whatever makes the
 /// initial geometry an equilibrium (`form_find`); references to `B.a` and `B.b` (routes,
-/// joints, ramps) move to the nodes. A bar with other points keeps them nowhere: only its ends
-/// are carried over. Lumped mass gives a strut the transverse inertia of its two end masses,
+/// joints, ramps) move to the nodes, and cables given a damping ratio keep the dashpot it gives
+/// in `spec` (`keep_dashpots`). Bar ends that a ball joint ties together (`a` and `b` both
+/// bar ends) become one node, named after the joint's `b` end, and the joint goes: the members meet there as pin-jointed bars do in a finite-element model. A bar
+/// with other points keeps them nowhere: only its ends are carried over. Lumped mass gives a strut the transverse inertia of its two end masses,
 /// `m l^2 / 4` about its middle, where the uniform rigid bar has `m l^2 / 12`; the consistent
 /// mass matrix gives it exactly `m l^2 / 12`.
 pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64, mass_matrix: MassMatrixSpec) {
-    let mut bodies = Vec::new();
+    keep_dashpots(spec);
+    let bar_ends: std::collections::BTreeSet<String> = spec
+        .bodies
+        .iter()
+        .filter(|b| b.kind == BodyKindSpec::Bar)
+        .flat_map(|b| [format!("{}.a", b.name), format!("{}.b", b.name)])
+        .collect();
+    // bar ends that ball joints tie together become one node, named after the first end met
     let mut renamed = std::collections::BTreeMap::new();
+    for b in &spec.bodies {
+        if b.kind == BodyKindSpec::Bar {
+            for end in ["a", "b"] {
+                renamed.insert(format!("{}.{end}", b.name), format!("{}_{end}", b.name));
+            }
+        }
+    }
+    let tied = |j: &JointSpec| match (&j.kind, &j.b) {
+        (JointKindSpec::Ball, Some(b)) if bar_ends.contains(&j.a) && bar_ends.contains(b) => Some(b.clone()),
+        _ => None,
+    };
+    for j in &spec.joints {
+        if let Some(b) = tied(j) {
+            let (keep, gone) = (renamed[&b].clone(), renamed[&j.a].clone());
+            renamed.values_mut().filter(|n| **n == gone).for_each(|n| *n = keep.clone());
+        }
+    }
+    spec.joints.retain(|j| tied(j).is_none());
+    let mut bodies = Vec::new();
+    let mut placed = std::collections::BTreeSet::new();
     for b in std::mem::take(&mut spec.bodies) {
         let (BodyKindSpec::Bar, Some([a, e])) = (b.kind, b.ends) else {
             bodies.push(b);
             continue;
         };
         for (end, at) in [("a", a), ("b", e)] {
-            let node = format!("{}_{end}", b.name);
-            renamed.insert(format!("{}.{end}", b.name), node.clone());
-            bodies.push(BodySpec { position: Some(at), ..BodySpec::new(&node, BodyKindSpec::Node) });
+            let node = renamed[&format!("{}.{end}", b.name)].clone();
+            if placed.insert(node.clone()) {
+                bodies.push(BodySpec { position: Some(at), ..BodySpec::new(&node, BodyKindSpec::Node) });
+            }
         }
         spec.members.push(super::MemberSpec {
             name: b.name.clone(),
-            ends: [format!("{}_a", b.name), format!("{}_b", b.name)],
+            ends: [renamed[&format!("{}.a", b.name)].clone(), renamed[&format!("{}.b", b.name)].clone()],
             ea: strut_ea,
             damping: None,
             damping_ratio: None,
@@ -391,11 +436,12 @@ pub struct TbarParams {
     pub half_width: f64,
     /// Horizontal distance of the guy anchors from the mast foot, m.
     pub anchor_distance: f64,
-    /// Bar masses, kg.
+    /// Bar masses, kg (of the whole mast and the whole cross bar).
     pub bar_mass: f64,
     /// Axial stiffness of every cable, N.
     pub ea: f64,
-    /// Target tension of the sliding upper cable, N.
+    /// Target tension of the sliding upper cable, N (the rigid hub only: with `hinged_hub` the
+    /// two upper strings carry what the other targets leave them).
     pub prestress: f64,
     /// Target tension of the two lower strings, N.
     pub lower_prestress: f64,
@@ -405,6 +451,17 @@ pub struct TbarParams {
     pub damping_ratio: f64,
     /// Fraction by which the schedule shortens the left lower string.
     pub deploy_shortening: f64,
+    /// Skelton's pin-jointed T-bar: the mast and the cross bar each as two half-bars, all four
+    /// joined at the hub by ball joints, and the two upper strings separate (a sliding upper
+    /// cable leaves a hinged hub a mechanism: the lower triangle turns about the foot, kinking
+    /// the mast, and changes no string's length to first order). The rigid twin of the nodal
+    /// form.
+    pub hinged_hub: bool,
+    /// The nodal (finite-element) form of the hinged T-bar (implies `hinged_hub`): the four
+    /// half-bars as elastic members of this EA (N) between five point masses (`nodal_struts`).
+    pub nodal_strut_ea: Option<f64>,
+    /// How the nodal form's members carry their mass (lumped or consistent).
+    pub nodal_mass_matrix: MassMatrixSpec,
 }
 
 impl Default for TbarParams {
@@ -420,7 +477,23 @@ impl Default for TbarParams {
             guy_prestress: 80.0,
             damping_ratio: 0.05,
             deploy_shortening: 0.1,
+            hinged_hub: false,
+            nodal_strut_ea: None,
+            nodal_mass_matrix: MassMatrixSpec::Lumped,
         }
+    }
+}
+
+fn joint(a: &str, b: Option<&str>, kind: JointKindSpec) -> JointSpec {
+    JointSpec {
+        kind,
+        a: a.into(),
+        b: b.map(Into::into),
+        at: None,
+        direction: None,
+        normal: None,
+        axis: None,
+        damping: None,
     }
 }
 
@@ -431,55 +504,81 @@ impl Default for TbarParams {
 /// the mast top. An actuator hauls in the left lower string, tilting the cross bar so that the upper
 /// cable slides over the mast top. The scene's symmetric tensions are independent self-stress
 /// states, so every cable gets a prestress target.
+///
+/// With `hinged_hub` (or `nodal_strut_ea`) the mast and the cross bar are two half-bars each
+/// (`mast_lower`, `mast_upper`, `cross_left`, `cross_right`, each from the hub outwards but the
+/// lower mast, which runs foot to hub), ball-jointed at the hub, and the upper strings are two
+/// (`upper_left`, `upper_right`) whose tensions equilibrium fixes from the lower strings' and the
+/// guys' targets. The nodal form makes the hub one node (`mast_lower_b`).
 pub fn tbar(p: &TbarParams) -> SceneSpec {
     let h = p.half_height;
-    let mut mast = bar("mast".into(), p.bar_mass, [0.0, 0.0, 0.0], [0.0, 2.0 * h, 0.0]);
-    mast.points.insert("mid".into(), PointSpec::Along(0.5));
-    let cross = bar("cross".into(), p.bar_mass, [-p.half_width, h, 0.0], [p.half_width, h, 0.0]);
+    let w = p.half_width;
     let mut ground = BodySpec::new("ground", BodyKindSpec::Fixed);
     ground.points.insert("left".into(), PointSpec::Local([-p.anchor_distance, 0.0, 0.0]));
     ground.points.insert("right".into(), PointSpec::Local([p.anchor_distance, 0.0, 0.0]));
-    let string = |name: &str, route: &[&str], t: f64| {
+    let string = |name: &str, route: &[&str], t: Option<f64>| {
         let mut c = cable(name.into(), route.iter().map(|s| s.to_string()).collect(), p.ea, p.damping_ratio);
-        c.prestress = Some(t);
+        c.prestress = t;
         c
     };
+    let hinged = p.hinged_hub || p.nodal_strut_ea.is_some();
+    let (bodies, joints, upper, [left, right, foot, top]) = if hinged {
+        let half = 0.5 * p.bar_mass;
+        let hub = [0.0, h, 0.0];
+        (
+            vec![
+                ground,
+                bar("mast_lower".into(), half, [0.0, 0.0, 0.0], hub),
+                bar("mast_upper".into(), half, hub, [0.0, 2.0 * h, 0.0]),
+                bar("cross_left".into(), half, hub, [-w, h, 0.0]),
+                bar("cross_right".into(), half, hub, [w, h, 0.0]),
+            ],
+            vec![
+                joint("mast_lower.a", None, JointKindSpec::Pin),
+                joint("mast_upper.a", Some("mast_lower.b"), JointKindSpec::Ball),
+                joint("cross_left.a", Some("mast_lower.b"), JointKindSpec::Ball),
+                joint("cross_right.a", Some("mast_lower.b"), JointKindSpec::Ball),
+            ],
+            vec![
+                string("upper_left", &["cross_left.b", "mast_upper.b"], None),
+                string("upper_right", &["mast_upper.b", "cross_right.b"], None),
+            ],
+            ["cross_left.b", "cross_right.b", "mast_lower.a", "mast_upper.b"],
+        )
+    } else {
+        let mut mast = bar("mast".into(), p.bar_mass, [0.0, 0.0, 0.0], [0.0, 2.0 * h, 0.0]);
+        mast.points.insert("mid".into(), PointSpec::Along(0.5));
+        let cross = bar("cross".into(), p.bar_mass, [-w, h, 0.0], [w, h, 0.0]);
+        (
+            vec![ground, mast, cross],
+            vec![
+                joint("mast.a", None, JointKindSpec::Pin),
+                joint("cross", Some("mast.mid"), JointKindSpec::Ball),
+            ],
+            vec![string("upper", &["cross.a", "mast.b", "cross.b"], Some(p.prestress))],
+            ["cross.a", "cross.b", "mast.a", "mast.b"],
+        )
+    };
+    let (name, description) = if hinged {
+        ("tbar_hinged", "Planar T-bar, pin-jointed at the hub: four half-bars and six strings")
+    } else {
+        ("tbar", "Planar clustered T-bar: the two upper strings are one sliding cable over the mast top")
+    };
+    let mut cables = upper;
+    cables.extend([
+        string("lower_left", &[left, foot], Some(p.lower_prestress)),
+        string("lower_right", &[right, foot], Some(p.lower_prestress)),
+        string("guy_left", &[top, "ground.left"], Some(p.guy_prestress)),
+        string("guy_right", &[top, "ground.right"], Some(p.guy_prestress)),
+    ]);
     let mut spec = SceneSpec {
-        name: "tbar".into(),
-        description: "Planar clustered T-bar: the two upper strings are one sliding cable over the mast top"
-            .into(),
+        name: name.into(),
+        description: description.into(),
         gravity: [0.0, -9.81, 0.0],
         planar: true,
-        bodies: vec![ground, mast, cross],
-        joints: vec![
-            JointSpec {
-                kind: JointKindSpec::Pin,
-                a: "mast.a".into(),
-                b: None,
-                at: None,
-                direction: None,
-                normal: None,
-                axis: None,
-                damping: None,
-            },
-            JointSpec {
-                kind: JointKindSpec::Ball,
-                a: "cross".into(),
-                b: Some("mast.mid".into()),
-                at: None,
-                direction: None,
-                normal: None,
-                axis: None,
-                damping: None,
-            },
-        ],
-        cables: vec![
-            string("upper", &["cross.a", "mast.b", "cross.b"], p.prestress),
-            string("lower_left", &["cross.a", "mast.a"], p.lower_prestress),
-            string("lower_right", &["cross.b", "mast.a"], p.lower_prestress),
-            string("guy_left", &["mast.b", "ground.left"], p.guy_prestress),
-            string("guy_right", &["mast.b", "ground.right"], p.guy_prestress),
-        ],
+        bodies,
+        joints,
+        cables,
         ..Default::default()
     };
     // the winch hauls in the left lower string: the cross bar tilts and the upper cable slides
@@ -488,7 +587,8 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
     let built =
         if p.deploy_shortening > 0.0 { super::build_model(&spec, "<generated>", None).ok() } else { None };
     if let Some(model) = built {
-        let l0 = model.initial_rest_lengths[1];
+        let lower = model.cable_names.iter().position(|n| n == "lower_left").expect("the lower string");
+        let l0 = model.initial_rest_lengths[lower];
         spec.actuators.push(ActuatorSpec {
             name: "lower_winch".into(),
             cable: "lower_left".into(),
@@ -507,6 +607,13 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
                 rest_length: round6(l0 * (1.0 - p.deploy_shortening)),
             }],
         });
+    }
+    if let Some(ea) = p.nodal_strut_ea {
+        nodal_struts(&mut spec, ea, p.nodal_mass_matrix);
+        spec.name = "tbar_nodal".into();
+        spec.description = format!(
+            "Planar T-bar in nodal form: four half-bars as elastic members of EA {ea} N meeting at a hub node, six strings"
+        );
     }
     spec
 }

@@ -751,6 +751,7 @@ pub const BUNDLED: &[(&str, &str)] = &[
     ("prism3", include_str!("../../config/scenes/prism3.toml")),
     ("prism3_nodal", include_str!("../../config/scenes/prism3_nodal.toml")),
     ("tbar", include_str!("../../config/scenes/tbar.toml")),
+    ("tbar_nodal", include_str!("../../config/scenes/tbar_nodal.toml")),
     ("tower", include_str!("../../config/scenes/tower.toml")),
     ("sixbar", include_str!("../../config/scenes/sixbar.toml")),
     ("sixbar_rover", include_str!("../../config/scenes/sixbar_rover.toml")),

@@ -41,7 +41,20 @@ pub enum GenerateKind {
         stages: usize,
     },
     /// Planar clustered T-bar.
-    Tbar,
+    Tbar {
+        /// Skelton's pin-jointed T-bar: mast and cross bar as two half-bars each, ball-jointed at
+        /// the hub, and the two upper strings separate (the rigid twin of the nodal form).
+        #[arg(long)]
+        hinged_hub: bool,
+        /// The nodal (finite-element) form of the hinged T-bar: the four half-bars as elastic
+        /// members of this EA (N) meeting at one hub node.
+        #[arg(long, allow_hyphen_values = true)]
+        nodal_strut_ea: Option<f64>,
+        /// With --nodal-strut-ea: each half-bar's consistent mass matrix (a uniform bar's
+        /// inertia) instead of half its mass lumped on each end.
+        #[arg(long, requires = "nodal_strut_ea")]
+        consistent_mass: bool,
+    },
     /// Elastic Atwood machine.
     Atwood {
         /// First mass, kg.
@@ -62,6 +75,15 @@ pub enum GenerateKind {
     },
 }
 
+/// The members' mass matrix `--consistent-mass` asks for.
+fn mass_matrix(consistent: bool) -> scene::MassMatrixSpec {
+    if consistent {
+        scene::MassMatrixSpec::Consistent
+    } else {
+        scene::MassMatrixSpec::Lumped
+    }
+}
+
 /// Runs `generate`, to `out` or standard output.
 pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
     let spec = match kind {
@@ -75,11 +97,7 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
                 side_prestress: prestress,
                 deploy_shortening: if cluster { 0.1 } else { 0.0 },
                 nodal_strut_ea,
-                nodal_mass_matrix: if consistent_mass {
-                    scene::MassMatrixSpec::Consistent
-                } else {
-                    scene::MassMatrixSpec::Lumped
-                },
+                nodal_mass_matrix: mass_matrix(consistent_mass),
                 ..Default::default()
             })
         }
@@ -89,7 +107,14 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
             }
             generate::tower(&generate::TowerParams { n, stages, ..Default::default() })
         }
-        GenerateKind::Tbar => generate::tbar(&Default::default()),
+        GenerateKind::Tbar { hinged_hub, nodal_strut_ea, consistent_mass } => {
+            generate::tbar(&generate::TbarParams {
+                hinged_hub,
+                nodal_strut_ea,
+                nodal_mass_matrix: mass_matrix(consistent_mass),
+                ..Default::default()
+            })
+        }
         GenerateKind::Atwood { m1, m2 } => {
             generate::atwood(&generate::AtwoodParams { m1, m2, ..Default::default() })
         }
