@@ -8,8 +8,9 @@
 //! `Phi_q = D J`, and its multipliers push along `D^T lambda`.
 //!
 //! The axis rows of a hinge or planar joint (`JointModel::alignment`, `crate::model::Alignment`)
-//! hold orientations: `Phi_k = e_k . w` with `e_k = R_a n_k` and the axis `w` (`R_b u`, or the
-//! world's `u`). Their rows have the same shape as a point joint's, `D G` per side, with
+//! hold orientations: `Phi_k = e_k . w - offset` with `e_k = R_a n_k` and the axis `w` (`R_b u`,
+//! or the world's `u`); two rows, or one (the bar's angle to the axis) when a bar is on one side
+//! and the axis is not along it (`crate::model::Alignment`). Their rows have the same shape as a point joint's, `D G` per side, with
 //! `D = [a_1; a_2]`, `a_k = e_k x w` (world, changing with the poses) and `G = [0 | R] B` the
 //! body's spin Jacobian (`spin_jacobian`); their multipliers carry the moment `D^T lambda` (N m).
 //! With the body-frame retraction `R <- R exp([d]x)`, `w'_a = R_a^T w`, `e'_k = R_b^T e_k`, the
@@ -44,8 +45,8 @@ pub fn evaluate_values(model: &Model, poses: &[Pose], kin: &[PointKinematics], p
         }
         if let Some(al) = &joint.alignment {
             let (e, w) = alignment_vectors(model, poses, joint, al);
-            for (r, e) in e.iter().enumerate() {
-                phi[joint.row_offset + r] = e.dot(&w);
+            for (r, e) in e.iter().take(joint.rows).enumerate() {
+                phi[joint.row_offset + r] = e.dot(&w) - al.offset;
             }
             continue;
         }
@@ -188,7 +189,7 @@ pub fn alignment_vectors(
     (al.normals.map(|n| ra * n), rb * al.axis)
 }
 
-/// An alignment's `D` at `poses`: rows `a_k = e_k x w` (world; the third row zero).
+/// An alignment's `D` at `poses`: rows `a_k = e_k x w` (world; the rows past `joint.rows` zero).
 pub fn alignment_directions(
     model: &Model,
     poses: &[Pose],
@@ -197,7 +198,7 @@ pub fn alignment_directions(
 ) -> Matrix3<f64> {
     let (e, w) = alignment_vectors(model, poses, joint, al);
     let mut d = Matrix3::zeros();
-    for (r, e) in e.iter().enumerate() {
+    for (r, e) in e.iter().take(joint.rows).enumerate() {
         d.set_row(r, &e.cross(&w).transpose());
     }
     d
@@ -238,7 +239,7 @@ pub fn alignment_bias(
         JointTarget::World(_) => Vector3::zeros(),
     };
     let mut out = Vector3::zeros();
-    for (r, e) in e.iter().enumerate() {
+    for (r, e) in e.iter().take(joint.rows).enumerate() {
         let rate = wa.cross(e).cross(&w) + e.cross(&wb.cross(&w));
         out[r] = rate.dot(&(wa - wb));
     }
@@ -432,7 +433,7 @@ fn add_alignment_hessian<S: TangentSink + ?Sized>(
     let u = skew(&al.axis);
     let (mut aa, mut ab, mut bb, mut ba) =
         (Matrix3::zeros(), Matrix3::zeros(), Matrix3::zeros(), Matrix3::zeros());
-    for (k, n) in al.normals.iter().enumerate() {
+    for (k, n) in al.normals.iter().take(joint.rows).enumerate() {
         let l = lambda[joint.row_offset + k];
         let nx = skew(n);
         aa += l * nx * skew(&w_a);

@@ -13,7 +13,11 @@
 //!   complement, or the sparse joint system, and the axis rows' bias), its axis held to 1e-9.
 //! - A rigid body on a tilted planar support slides at `g sin(theta)` and keeps spinning about the
 //!   normal at its initial rate.
-//! - Careless hinges are refused naming the field; a second hinge on the same axis is redundant.
+//! - A bar turns freely about its own axis: hinged across it, it keeps one axis row (its angle to
+//!   the axis) and swings as the compound pendulum, `omega^2 = 3 g / (2 L)`, in one plane.
+//! - Careless hinges are refused naming the field; a second hinge on the same axis is redundant;
+//!   a hinge between two bars, and a plane turning with a bar that is not normal to it, are
+//!   refused (a bar's free spin leaves them nothing to hold).
 
 mod common;
 
@@ -23,11 +27,14 @@ use tensegrity::evaluate::{evaluate, Tangents, Workspace};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::Integrator;
 use tensegrity::solve::linear::LinearBackend;
+use tensegrity::solve::modes::natural_modes;
 use tensegrity::solve::statics::StaticSolver;
 use tensegrity::{Model, State};
 
-/// A bar hinged to a skewed rigid box (axis oblique), the box on a tilted planar support, and a
-/// second bar hinged to the ground: every kind of axis row, turned away from the coordinate axes.
+/// A bar hinged to a skewed rigid box (axis oblique), the box on a tilted planar support, a
+/// second bar hinged to the ground and a third hinged to the box with the bar as body `b`: every
+/// kind of axis row (two rows; one, a bar's angle to the axis, on either side), turned away from
+/// the coordinate axes.
 fn mixed() -> Model {
     model_from_toml(
         r#"
@@ -63,6 +70,16 @@ normal = [0.3, -0.2, 1.0]
 kind = "hinge"
 a = "arm.a"
 axis = [0.0, 0.6, 0.8]
+[[bodies]]
+name = "rod"
+kind = "bar"
+mass = 0.4
+ends = [[1.1, 0.7, 0.9], [1.5, 1.2, 0.4]]
+[[joints]]
+kind = "hinge"
+a = "box.knuckle"
+b = "rod.a"
+axis = [0.5, -0.3, 0.8]
 "#,
     )
 }
@@ -78,8 +95,10 @@ fn off_manifold(model: &Model) -> State {
 #[test]
 fn axis_rows_match_finite_differences() {
     let model = mixed();
-    // 3 + 2 (hinge), 1 + 2 (planar), 3 + 2 (hinge to the ground)
-    assert_eq!(model.constraint_count, 13);
+    // 3 + 1 (hinge, a bar across its axis: its angle to it), 1 + 2 (planar), 3 + 1 (hinge to the
+    // ground, a bar), 3 + 1 (hinge, the bar on side b)
+    assert_eq!(model.constraint_count, 15);
+    assert_eq!(model.joints.iter().filter(|j| j.alignment.is_some() && j.rows == 1).count(), 3);
     let start = State::initial(&model);
     let mut ws = Workspace::new(&model);
     evaluate(&model, &start, &mut ws, Tangents::None);
@@ -93,7 +112,7 @@ fn axis_rows_match_finite_differences() {
         let al = joint.alignment.unwrap();
         let bias =
             tensegrity::constraints::alignment_bias(&model, &state.poses, &state.velocities, joint, &al);
-        for r in 0..2 {
+        for r in 0..joint.rows {
             let want = fd[joint.row_offset + r];
             assert!(
                 (bias[r] - want).abs() < 1e-7 * (1.0 + want.abs()),
@@ -313,21 +332,24 @@ normal = [{}, {}, {}]
 
 #[test]
 fn careless_hinges_are_refused_naming_the_field() {
+    // "bar" is a rigid body here: a bar's own axis rows are tested below
     let scene = |joint: &str| {
         format!(
             r#"
 [[bodies]]
 name = "bar"
-kind = "bar"
+kind = "rigid"
 mass = 1.0
-ends = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]]
+position = [1.0, 0.0, 0.0]
+inertia = [0.01, 0.3, 0.3]
+points = {{ b = [1.0, 0.0, 0.0], c = [1.0, 0.0, 1.0] }}
 [[bodies]]
 name = "box"
 kind = "rigid"
 mass = 1.0
 position = [2.0, 0.0, 0.0]
 inertia = [0.1, 0.1, 0.1]
-points = {{ p = [0.0, 0.0, 0.0], q = [1.0, 0.0, 0.0] }}
+points = {{ p = [0.0, 0.0, 0.0], q = [1.0, 0.0, 0.0], r = [0.0, 0.0, 1.0] }}
 [[bodies]]
 name = "n"
 kind = "node"
@@ -346,7 +368,7 @@ axis = [0.0, 0.0, 1.0]
     let cases = [
         // the same axis again, at another point of it: everything it holds is held already
         (
-            "kind = \"hinge\"\na = \"box.q\"\naxis = [0.0, 0.0, 1.0]\nat = [3.0, 0.0, 0.0]",
+            "kind = \"hinge\"\na = \"box.r\"\nb = \"bar.c\"\naxis = [0.0, 0.0, 1.0]",
             "joints[1].a",
             "redundant",
         ),
@@ -393,4 +415,77 @@ axis = [1.0, 0.0, 0.0]
     let err =
         tensegrity::scene::from_toml(planar, "p.toml").expect_err("axis x in a planar scene").to_string();
     assert!(err.contains("joints[0].axis") && err.contains("about z only"), "{err}");
+}
+
+#[test]
+fn a_bar_hinged_across_its_axis_swings_as_the_compound_pendulum_and_keeps_no_spin_row() {
+    // a 2 m, 1.5 kg bar hinged at one end about a horizontal axis normal to it: one axis row (its
+    // angle to the axis); it hangs straight down and swings in one plane only, at the compound
+    // pendulum's omega^2 = 3 g / (2 L) (a ball joint would give two such modes)
+    let (length, g) = (2.0, 9.81);
+    let model = model_from_toml(&format!(
+        "gravity = [0.0, 0.0, -{g}]\n[[bodies]]\nname = \"bar\"\nkind = \"bar\"\nmass = 1.5\nends = [[0.0, 0.0, 0.0], [{length}, 0.0, 0.0]]\n[[joints]]\nkind = \"hinge\"\na = \"bar.a\"\naxis = [0.0, 1.0, 0.0]\n"
+    ));
+    assert_eq!(model.constraint_count, 4, "3 point rows and the bar's angle to the axis");
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let report = StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).unwrap();
+    assert!(report.stable, "{}", report.stability_words());
+    evaluate(&model, &state, &mut ws, Tangents::None);
+    let tip = ws.points[model.point_id("bar.b").unwrap().0].position;
+    assert!((tip - Vector3::new(0.0, 0.0, -length)).norm() < 1e-9, "hangs straight down: {tip}");
+    let modes = natural_modes(&model, &state).expect("modes");
+    let swinging: Vec<f64> = modes.iter().filter(|m| !m.zero).map(|m| m.omega_squared).collect();
+    let want = 3.0 * g / (2.0 * length);
+    assert_eq!(swinging.len(), 1, "one swinging mode: {swinging:?}");
+    assert!((swinging[0] - want).abs() < 1e-9 * want, "omega^2 {} against {want}", swinging[0]);
+}
+
+#[test]
+fn turning_joints_a_bar_cannot_hold_are_refused_naming_the_field() {
+    let two_bars = r#"
+[[bodies]]
+name = "left"
+kind = "bar"
+mass = 1.0
+ends = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
+[[bodies]]
+name = "right"
+kind = "bar"
+mass = 1.0
+ends = [[1.0, 0.0, 0.0], [2.0, 0.0, 1.0]]
+[[joints]]
+kind = "hinge"
+a = "left.b"
+b = "right.a"
+axis = [0.0, 1.0, 0.0]
+"#;
+    let err = tensegrity::scene::from_toml(two_bars, "bars.toml").expect_err("two bars hinged").to_string();
+    assert!(err.contains("bars.toml") && err.contains("joints[0].b") && err.contains("ball joint"), "{err}");
+    // a plane through a bar's point turns with the bar's (free) spin unless it is normal to it
+    let plane_on_bar = r#"
+[[bodies]]
+name = "bar"
+kind = "bar"
+mass = 1.0
+ends = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
+[[bodies]]
+name = "box"
+kind = "rigid"
+mass = 1.0
+position = [0.5, 0.0, 0.3]
+inertia = [0.1, 0.1, 0.1]
+points = { foot = [0.0, 0.0, -0.3] }
+[[joints]]
+kind = "planar"
+a = "box.foot"
+b = "bar"
+normal = [0.0, 0.0, 1.0]
+"#;
+    let err =
+        tensegrity::scene::from_toml(plane_on_bar, "plane.toml").expect_err("plane on a bar").to_string();
+    assert!(err.contains("joints[0].normal") && err.contains("normal to the bar"), "{err}");
+    // a plane normal to the bar is held: it is the bar's own direction
+    let along = plane_on_bar.replace("normal = [0.0, 0.0, 1.0]", "normal = [1.0, 0.0, 0.0]");
+    tensegrity::scene::from_toml(&along, "plane.toml").expect("a plane normal to the bar");
 }

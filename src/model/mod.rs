@@ -332,16 +332,27 @@ pub struct JointModel {
 /// The axis rows of a hinge or planar joint: body `a` (the joint point's body) keeps two
 /// body-fixed unit vectors `e_k = R_a n_k` normal to an axis `w`, which is body `b`'s
 /// `w = R_b u` (a joint between two bodies) or the world's `w = u` (to the ground):
-/// `Phi_k = e_k . w = 0`, `k = 1, 2`, so the bodies turn relative to each other about `w` only.
-/// With `a_k = e_k x w`, `Phi_q v = a_k . (omega_a - omega_b)` (world angular velocities): the
-/// rows are `a_k^T G` with `G = [0 | R] B` the body's spin Jacobian, and the multipliers carry
-/// the moment `sum_k lambda_k a_k` (N m) on body `a` (its opposite on `b`).
+/// `Phi_k = e_k . w - offset = 0`, `k = 1, 2` (`offset = 0`), so the bodies turn relative to
+/// each other about `w` only. With `a_k = e_k x w`, `Phi_q v = a_k . (omega_a - omega_b)`
+/// (world angular velocities): the rows are `a_k^T G` with `G = [0 | R] B` the body's spin
+/// Jacobian, and the multipliers carry the moment `sum_k lambda_k a_k` (N m) on body `a` (its
+/// opposite on `b`).
+///
+/// A bar turns freely about its own axis (no inertia about it, no coordinate for it), so a joint
+/// with a bar on one side holds only its direction `d`: with the axis along the bar the two rows
+/// above (their moments are normal to the bar); otherwise one row (`JointModel::rows` = 1),
+/// `Phi_1 = e_1 . w - cos(theta_0)`, the bar's angle `theta_0` to the axis, with `e_1` the bar's
+/// axis (bar `a`: `n_1` = body z) or `w` the bar's axis (bar `b`: `u` = body z, `n_1` the joint's
+/// axis in `a`'s frame). Its moment `lambda_1 (d x w)` is normal to the bar.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Alignment {
-    /// `n_1`, `n_2`: unit, orthogonal to each other and to the axis, in body `a`'s frame.
+    /// `n_1`, `n_2`: unit, in body `a`'s frame (two rows: orthogonal to each other and to the
+    /// axis; one row: `n_2` unused).
     pub normals: [Vector3<f64>; 2],
     /// `u`: the unit axis in body `b`'s frame (`JointTarget::Point`) or the world (`World`).
     pub axis: Vector3<f64>,
+    /// `e_1 . w` at the initial pose (one row: `cos(theta_0)`; two rows: 0).
+    pub offset: f64,
 }
 
 impl JointModel {

@@ -779,6 +779,13 @@ fn build_joints(
                 if kind == crate::model::JointKind::Planar && bodies[points[b.0].body.0].dof_count > 0 =>
             {
                 let body_b = &bodies[points[b.0].body.0];
+                let bar_axis = body_b.initial_pose.rotation * Vector3::z();
+                if body_b.kind == BodyKind::Bar && bar_axis.cross(&n).norm() > 1e-6 {
+                    return Err(e(
+                        "normal",
+                        "a plane through a bar's point turns with the bar, which turns freely about its own axis: only a plane normal to the bar is held (normal along the bar); make the body kind = \"rigid\" (with an inertia)".into(),
+                    ));
+                }
                 (None, Some(body_b.initial_pose.rotation.inverse() * n))
             }
             _ => (directions, None),
@@ -823,7 +830,7 @@ fn build_joints(
                         ),
                     ));
                 }
-                Some(axis_alignment(&axis, bodies, body_a, other_body))
+                Some(axis_alignment(&axis, bodies, body_a, other_body).map_err(|r| e("b", r))?)
             }
         };
         let base = JointModel {
@@ -840,17 +847,17 @@ fn build_joints(
         };
         joints.push(base);
         row_offset += joint_rows;
-        if alignment.is_some() {
+        if let Some((alignment, rows)) = alignment {
             joints.push(JointModel {
                 row_offset,
-                rows: 2,
+                rows,
                 directions: None,
                 damping: 0.0,
-                alignment,
+                alignment: Some(alignment),
                 plane_normal: None,
                 ..base
             });
-            row_offset += 2;
+            row_offset += rows;
         }
     }
 
@@ -858,25 +865,53 @@ fn build_joints(
 }
 
 /// The alignment that keeps world axis `axis` (unit, at the initial poses) common to body `a`
-/// and body `b` (or the ground): two unit normals to it in `a`'s frame, the axis in `b`'s.
+/// and body `b` (or the ground), and its row count (`crate::model::Alignment`): two unit normals
+/// to it in `a`'s frame and the axis in `b`'s (2 rows); with a bar on one side and the axis not
+/// along it (`|d x axis| > 1e-6`), the bar's angle to the axis (1 row). Two bars are refused:
+/// each turns freely about its own axis, so together they hold no axis a ball joint does not.
 fn axis_alignment(
     axis: &Vector3<f64>,
     bodies: &[BodyModel],
     a: crate::model::BodyId,
     b: Option<crate::model::BodyId>,
-) -> crate::model::Alignment {
+) -> Result<(crate::model::Alignment, usize), String> {
+    let to_body =
+        |body: crate::model::BodyId, v: &Vector3<f64>| bodies[body.0].initial_pose.rotation.inverse() * v;
+    let in_b = |v: &Vector3<f64>| match b {
+        Some(b) => to_body(b, v),
+        None => *v,
+    };
+    let is_bar = |body: crate::model::BodyId| bodies[body.0].kind == BodyKind::Bar;
+    // a bar's axis is its body z; one along the joint's axis keeps both rows, whose moments are
+    // normal to it
+    let across = |body: crate::model::BodyId| {
+        let d = bodies[body.0].initial_pose.rotation * Vector3::z();
+        is_bar(body) && d.cross(axis).norm() > 1e-6
+    };
+    if is_bar(a) && b.is_some_and(is_bar) {
+        return Err("a bar turns freely about its own axis, so between two bars this joint holds no axis (it would be a ball joint); make one of them kind = \"rigid\" (with an inertia), or use kind = \"ball\"".into());
+    }
+    if across(a) {
+        let d = bodies[a.0].initial_pose.rotation * Vector3::z();
+        let normals = [Vector3::z(), Vector3::zeros()];
+        return Ok((crate::model::Alignment { normals, axis: in_b(axis), offset: d.dot(axis) }, 1));
+    }
+    if let Some(b) = b.filter(|&b| across(b)) {
+        let d = bodies[b.0].initial_pose.rotation * Vector3::z();
+        let normals = [to_body(a, axis), Vector3::zeros()];
+        return Ok((crate::model::Alignment { normals, axis: Vector3::z(), offset: d.dot(axis) }, 1));
+    }
     let helper = if axis.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
     let n1 = axis.cross(&helper).normalize();
     let n2 = axis.cross(&n1);
-    let to_body =
-        |body: crate::model::BodyId, v: &Vector3<f64>| bodies[body.0].initial_pose.rotation.inverse() * v;
-    crate::model::Alignment {
-        normals: [to_body(a, &n1), to_body(a, &n2)],
-        axis: match b {
-            Some(b) => to_body(b, axis),
-            None => *axis,
+    Ok((
+        crate::model::Alignment {
+            normals: [to_body(a, &n1), to_body(a, &n2)],
+            axis: in_b(axis),
+            offset: 0.0,
         },
-    }
+        2,
+    ))
 }
 
 /// The contact spheres the bodies declare (`contact_radius`, `contact_points`), in body order.
