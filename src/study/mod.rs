@@ -19,7 +19,10 @@
 //!   cable's route at the end: where a deployment stalls.
 
 //!
-//! Files: `deployment` (the study), `friction`, `work_precision`, `scaling` (step time against size); this
+//! - `globally_controlled`: global error control, for runs through instabilities that amplify
+//!   what a local estimate keeps small: reruns at a tenth of the tolerance until two runs agree.
+//!
+//! Files: `deployment` (the study), `friction`, `work_precision`, `global`, `scaling` (step time against size); this
 //! module holds what they share (dynamic runs, their CSV rows and totals, schedule scaling).
 
 use std::fmt::Write as _;
@@ -34,11 +37,13 @@ use crate::sim::{SimSettings, Simulator, StepStats};
 
 mod deployment;
 mod friction;
+mod global;
 mod scaling;
 mod work_precision;
 
 pub use deployment::*;
 pub use friction::*;
+pub use global::*;
 pub use scaling::*;
 pub use work_precision::*;
 
@@ -117,6 +122,16 @@ impl RunTotals {
         self.substeps += stats.substeps;
         self.pass_throughs += stats.pass_throughs;
         self.wall_time += stats.wall_time;
+    }
+
+    /// Counts every step of another run's `totals`.
+    pub fn add_totals(&mut self, totals: &RunTotals) {
+        self.steps += totals.steps;
+        self.newton_iterations += totals.newton_iterations;
+        self.rejected += totals.rejected;
+        self.substeps += totals.substeps;
+        self.pass_throughs += totals.pass_throughs;
+        self.wall_time += totals.wall_time;
     }
 }
 

@@ -14,28 +14,35 @@ use crate::sim::SimSettings;
 use crate::solve::dynamics::Integrator;
 use crate::state::State;
 
-use super::{create, parallel_map, rigidly_aligned, run_dynamic, RunTotals};
+use super::{create, parallel_map, run_dynamic, RunTotals};
 
 /// One run of the work-precision benchmark: an integrator at a fixed step, or under error
-/// control with a tolerance (then it steps between samples as its estimate decides).
+/// control with a tolerance (then it steps between samples as its estimate decides), local or
+/// global (`globally_controlled`: reruns at a tenth of the tolerance until two runs agree).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RunConfig {
     /// Integrator.
     pub integrator: Integrator,
     /// Fixed step, s (`None`: error-controlled).
     pub dt: Option<f64>,
-    /// Local error tolerance, m (error-controlled runs).
+    /// Error tolerance, m (error-controlled runs): local, or global with `global`.
     pub tolerance: Option<f64>,
+    /// Global error control (`globally_controlled`); its cost counts every run it makes.
+    pub global: bool,
 }
 
 impl RunConfig {
     /// A fixed-step run.
     pub fn fixed(integrator: Integrator, dt: f64) -> Self {
-        Self { integrator, dt: Some(dt), tolerance: None }
+        Self { integrator, dt: Some(dt), tolerance: None, global: false }
     }
     /// An error-controlled run.
     pub fn controlled(integrator: Integrator, tolerance: f64) -> Self {
-        Self { integrator, dt: None, tolerance: Some(tolerance) }
+        Self { integrator, dt: None, tolerance: Some(tolerance), global: false }
+    }
+    /// A run under global error control.
+    pub fn globally_controlled(integrator: Integrator, tolerance: f64) -> Self {
+        Self { global: true, ..Self::controlled(integrator, tolerance) }
     }
     /// Simulator settings with `sample` (s) the output interval of an error-controlled run.
     fn settings(&self, sample: f64) -> SimSettings {
@@ -154,24 +161,25 @@ pub fn work_precision(
             None => true,
         })
         .collect();
+    // a structure held by nothing drifts differently under each integrator: compare shapes,
+    // after the optimal rigid alignment onto the reference
     let free = model.is_free_floating();
-    let error_of = |samples: &[PointSample]| {
-        samples
-            .iter()
-            .zip(&reference)
-            .flat_map(|(a, b)| {
-                // a structure held by nothing drifts differently under each integrator: compare
-                // shapes, after the optimal rigid alignment onto the reference
-                let a = if free { rigidly_aligned(a, b) } else { a.clone() };
-                a.iter().zip(b).map(|(p, q)| (p - q).norm()).collect::<Vec<_>>()
-            })
-            .fold(0.0, f64::max)
+    let run = |c: &RunConfig| match (c.global, c.tolerance) {
+        (true, Some(tolerance)) => super::globally_controlled(tolerance, free, |t| {
+            sampled_positions(
+                model,
+                RunConfig { tolerance: Some(t), ..*c }.settings(sample),
+                duration,
+                sample,
+            )
+        })
+        .map(|g| (g.samples, g.totals)),
+        _ => sampled_positions(model, c.settings(sample), duration, sample),
     };
     // errors on all cores
     let accuracy = parallel_map(&runs, jobs, |c| {
-        let (samples, totals) = sampled_positions(model, c.settings(sample), duration, sample)
-            .map_err(|e| format!("{}: {e}", c.integrator.name()))?;
-        Ok((error_of(&samples), totals))
+        let (samples, totals) = run(c).map_err(|e| format!("{}: {e}", c.integrator.name()))?;
+        Ok((super::largest_distance(&samples, &reference, free), totals))
     })?;
     // timings one at a time
     let mut rows = Vec::new();
@@ -179,14 +187,15 @@ pub fn work_precision(
         let mut walls = Vec::new();
         for _ in 0..repeats.max(1) {
             let begin = Instant::now();
-            sampled_positions(model, c.settings(sample), duration, sample)?;
+            run(c)?;
             walls.push(begin.elapsed().as_secs_f64());
         }
         walls.sort_by(f64::total_cmp);
         rows.push(WorkPrecisionRow {
-            integrator: match c.tolerance {
-                Some(_) => format!("{} (tol)", c.integrator.name()),
-                None => c.integrator.name(),
+            integrator: match (c.tolerance, c.global) {
+                (Some(_), true) => format!("{} (global)", c.integrator.name()),
+                (Some(_), false) => format!("{} (tol)", c.integrator.name()),
+                (None, _) => c.integrator.name(),
             },
             config: *c,
             dt: c.dt.unwrap_or(0.0),

@@ -77,6 +77,14 @@ pub enum BenchKind {
         /// Threads for the error runs (default: one per core); the timed runs go one at a time.
         #[arg(long, default_value_t = 0)]
         jobs: usize,
+        /// Tolerances of the error-controlled runs, m.
+        #[arg(long, value_delimiter = ',', default_values_t = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9])]
+        tolerances: Vec<f64>,
+        /// Also run generalized-alpha under global error control at each tolerance (rows
+        /// "(global)": reruns at a tenth of the tolerance until two runs agree; for runs through
+        /// instabilities, which amplify what a local estimate keeps small).
+        #[arg(long)]
+        global: bool,
         /// Output directory.
         #[arg(long)]
         out: PathBuf,
@@ -97,10 +105,13 @@ pub fn run(kind: BenchKind) -> Result<(), String> {
             duration,
             sample,
             jobs,
+            tolerances,
+            global,
             out,
         } => {
             let reference = reference_integrator.integrator(0.8);
-            work_precision(&scene, (reference, reference_dt), repeats, duration, sample, jobs, &out)
+            let runs = RunChoice { tolerances, global, repeats, jobs };
+            work_precision(&scene, (reference, reference_dt), runs, duration, sample, &out)
         }
     }
 }
@@ -194,16 +205,30 @@ fn scaling(stages: &[usize], steps: usize, out: &Path) -> Result<(), String> {
     Ok(())
 }
 
+/// Which runs `bench work-precision` makes and how.
+struct RunChoice {
+    /// Tolerances of the error-controlled runs, m.
+    tolerances: Vec<f64>,
+    /// Generalized-alpha under global error control too.
+    global: bool,
+    /// Timed repeats per run.
+    repeats: usize,
+    /// Threads for the error runs (0: one per core).
+    jobs: usize,
+}
+
 /// `bench work-precision`.
 fn work_precision(
     scene: &Path,
     (reference_integrator, reference_dt): (Integrator, f64),
-    repeats: usize,
+    RunChoice { tolerances, global, repeats, jobs }: RunChoice,
     duration: Option<f64>,
     sample: f64,
-    jobs: usize,
     out: &Path,
 ) -> Result<(), String> {
+    if let Some(t) = tolerances.iter().find(|t| !(t.is_finite() && **t > 0.0)) {
+        return Err(format!("--tolerances must be positive, got {t}"));
+    }
     let model = load(scene)?;
     let duration = duration.unwrap_or(model.schedule.end_time() + 0.5);
     let steps = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4];
@@ -218,13 +243,15 @@ fn work_precision(
     configs.extend(fixed(Integrator::DormandPrince, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
     if model.contact_pairs() == 0 {
         // (explicit integrators are refused a tolerance in a scene with contacts)
-        configs.extend(
-            [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9]
-                .map(|t| study::RunConfig::controlled(Integrator::DormandPrince, t)),
-        );
+        configs
+            .extend(tolerances.iter().map(|&t| study::RunConfig::controlled(Integrator::DormandPrince, t)));
     }
-    // requested against delivered from 1e-3 down to 1e-9 m, for both error-controlled integrators
-    configs.extend([1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9].map(|t| study::RunConfig::controlled(ga, t)));
+    // requested against delivered (by default from 1e-3 down to 1e-9 m), for both error-controlled
+    // integrators, and generalized-alpha's global control
+    configs.extend(tolerances.iter().map(|&t| study::RunConfig::controlled(ga, t)));
+    if global {
+        configs.extend(tolerances.iter().map(|&t| study::RunConfig::globally_controlled(ga, t)));
+    }
     let settings =
         study::WorkPrecisionSettings { reference_dt, reference_integrator, duration, sample, repeats, jobs };
     let rows = study::work_precision(&model, &configs, settings, out)?;

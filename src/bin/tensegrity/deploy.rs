@@ -43,6 +43,13 @@ pub struct DeployArgs {
     /// rest, and first swings toward the equilibrium.
     #[arg(long, conflicts_with = "quasi_static")]
     from_equilibrium: bool,
+    /// Dynamic, with --tol: global error control. Runs again at a tenth of the tolerance until
+    /// two runs agree to within ten times --tol, then writes the run at the last local
+    /// tolerance, whose error (a tenth of the disagreement) is at most --tol: for runs through
+    /// instabilities (a robot tipping over an edge), which amplify what a local estimate keeps
+    /// small. Costs 3 to 5 runs.
+    #[arg(long, requires = "dynamic")]
+    global_error: bool,
     /// Output CSV file (`-`: standard output).
     #[arg(long, required_unless_present = "record")]
     out: Option<PathBuf>,
@@ -63,21 +70,19 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
         dynamics,
         duration,
         from_equilibrium,
+        global_error,
         out,
         record: bag_dir,
     } = args;
     let mut model = load(&scene)?;
     let out = out.unwrap_or_default();
     if dynamic {
-        return deploy_dynamic(
-            &model,
-            &scene,
-            dynamics.settings(&model)?,
-            duration,
-            from_equilibrium,
-            &out,
-            bag_dir.as_deref(),
-        );
+        let settings = dynamics.settings(&model)?;
+        if global_error && settings.tolerance.is_none() {
+            return Err("--global-error needs --tol (the global tolerance, m)".into());
+        }
+        let run = DynamicRun { duration, from_equilibrium, global_error };
+        return deploy_dynamic(&model, &scene, settings, run, &out, bag_dir.as_deref());
     }
     if let Some(note) = report::unheld_bodies_note(&model) {
         return Err(format!("{}: {note}", scene.display()));
@@ -190,12 +195,50 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
 
 /// `deploy --dynamic`: the node's core driven offline (`record::offline::OfflineRun`), one CSV
 /// row per step.
+/// How `deploy --dynamic` runs besides the simulator settings.
+struct DynamicRun {
+    /// Simulated time, s (`None`: the schedule's end + 1 s).
+    duration: Option<f64>,
+    /// Start at rest in the static equilibrium.
+    from_equilibrium: bool,
+    /// Global error control (`--global-error`).
+    global_error: bool,
+}
+
+/// The local tolerance at which a run of `steps` steps meets `settings.tolerance` as a global
+/// tolerance (`study::globally_controlled` over runs of the node's core), and what was found.
+fn global_tolerance(
+    model: &Model,
+    label: &str,
+    settings: SimSettings,
+    from_equilibrium: bool,
+    steps: u64,
+) -> Result<study::GlobalRun, String> {
+    let requested = settings.tolerance.expect("--global-error needs --tol");
+    let bar = progress(steps * 3, "steps (global error control)");
+    let found = study::globally_controlled(requested, model.is_free_floating(), |tolerance| {
+        let settings = SimSettings { tolerance: Some(tolerance), ..settings };
+        let mut run = record::offline::OfflineRun::start(model, label, settings, from_equilibrium, None)?;
+        let (mut samples, mut totals) = (Vec::new(), study::RunTotals::default());
+        for _ in 0..steps {
+            totals.add(
+                &run.step()
+                    .map_err(|fault| format!("{label}: at local tolerance {tolerance:e} m: {fault}"))?,
+            );
+            samples.push(run.simulator().workspace().points.iter().map(|p| p.position).collect());
+            bar.inc(1);
+        }
+        Ok((samples, totals))
+    });
+    bar.finish_and_clear();
+    found.map_err(|e| format!("{label}: {e}"))
+}
+
 fn deploy_dynamic(
     model: &Model,
     scene: &Path,
-    settings: SimSettings,
-    duration: Option<f64>,
-    from_equilibrium: bool,
+    mut settings: SimSettings,
+    DynamicRun { duration, from_equilibrium, global_error }: DynamicRun,
     out: &Path,
     record: Option<&Path>,
 ) -> Result<(), String> {
@@ -204,6 +247,16 @@ fn deploy_dynamic(
         return Err(format!("--duration must be positive, got {}", readable_number(duration)));
     }
     let label = scene.display().to_string();
+    let steps = (duration / settings.dt).round().max(1.0) as u64;
+    // global error control first finds the local tolerance; the run written is the one made at
+    // it (the same numbers: runs are deterministic)
+    let global = match global_error {
+        true => Some(global_tolerance(model, &label, settings, from_equilibrium, steps)?),
+        false => None,
+    };
+    if let Some(g) = &global {
+        settings.tolerance = Some(g.tolerance);
+    }
     let mut run = record::offline::OfflineRun::start(model, &label, settings, from_equilibrium, record)?;
     let mut file = csv_output(out)?;
     // the scene's sensors, where it declares them, add what they report after the columns of
@@ -226,7 +279,6 @@ fn deploy_dynamic(
     writeln!(file, "{header}").map_err(|e| e.to_string())?;
     // the row of t = 0: the start, before any step
     writeln!(file, "{}", row(&run, &Default::default())).map_err(|e| e.to_string())?;
-    let steps = (duration / settings.dt).round().max(1.0) as u64;
     let bar = progress(steps, "steps");
     let mut totals = study::RunTotals::default();
     // strut pairs ([collisions]) that touched at some step, by index
@@ -268,10 +320,17 @@ fn deploy_dynamic(
             totals.pass_throughs
         )
     };
+    let global = match global {
+        Some(g) => format!(
+            "; global error control: local tolerance {:.3e} m, estimated error {:.3e} m of the {:e} m asked ({} runs, {} sub-steps in all)",
+            g.tolerance, g.estimate, g.requested, g.runs, g.totals.substeps
+        ),
+        None => String::new(),
+    };
     say_closing(
         out,
         format!(
-            "{}: {} steps of {} s with {} from {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){collisions}{bag}",
+            "{}: {} steps of {} s with {} from {}{} ({} Newton iterations, {} rejected attempts, {:.3} s wall){collisions}{global}{bag}",
             model.name,
             totals.steps,
             settings.dt,
