@@ -31,20 +31,9 @@ kind = "pin"
 a = "bar.a"
 "#;
 
-/// Every point of `model` every 0.01 s for `duration` s, with `settings` (its `dt` the step or
-/// the output interval).
+/// Every point of `model` every 0.01 s for `duration` s, with `settings`.
 fn samples(model: &Model, settings: SimSettings, duration: f64) -> Result<(PointSamples, RunTotals), String> {
-    let every = (0.01 / settings.dt).round() as usize;
-    let mut out = Vec::new();
-    let mut k = 0;
-    let totals = study::run_dynamic(model, settings, duration, |sim, _| {
-        k += 1;
-        if k % every == 0 {
-            out.push(sim.workspace().points.iter().map(|p| p.position).collect());
-        }
-        Ok(())
-    })?;
-    Ok((out, totals))
+    study::sampled_positions(model, settings, duration, 0.01)
 }
 
 fn controlled(tolerance: f64) -> SimSettings {

@@ -6,8 +6,6 @@ use std::io::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
-use nalgebra::Vector3;
-
 use crate::model::Model;
 use crate::plot::{self, Chart, Series};
 use crate::sim::SimSettings;
@@ -76,16 +74,15 @@ pub struct WorkPrecisionRow {
     pub rejected: usize,
 }
 
-/// Positions of every point at one sample time, m.
-type PointSample = Vec<Vector3<f64>>;
-
-/// Point positions every `sample` seconds (from `run_dynamic`), flattened.
-fn sampled_positions(
+/// Every point's position every `sample` seconds of a run of `duration` s with `settings`
+/// (`run_dynamic`; `sample` a whole number of `settings.dt`, the output interval of an
+/// error-controlled run), and the run's totals.
+pub fn sampled_positions(
     model: &Model,
     settings: SimSettings,
     duration: f64,
     sample: f64,
-) -> Result<(Vec<PointSample>, RunTotals), String> {
+) -> Result<(super::PointSamples, RunTotals), String> {
     let every = (sample / settings.dt).round().max(1.0) as usize;
     let mut out = Vec::new();
     let mut k = 0;
