@@ -1,7 +1,8 @@
 //! Parametric scene generators: take a few numbers, give a `SceneSpec` (which `tensegrity generate`
 //! writes as TOML): the regular n-strut prism, an N-stage tower of stacked prisms with clustered
-//! side cables, a planar clustered T-bar, the elastic Atwood machine, and the six-bar robot on the
-//! ground.
+//! side cables, a planar clustered T-bar (and its pin-jointed form), the elastic Atwood machine,
+//! and the six-bar robot on the ground; the prism and the T-bar also in nodal (finite-element)
+//! form (`nodal_struts`).
 //!
 //! Prism geometry (docs/architecture.md, "What the tests stand on"): bottom node i at angle `2 pi i / n` and height 0, top node i at
 //! `2 pi i / n + alpha` and height `h`, twist `alpha = pi/2 + pi/n`; bars bottom i to top i, side
@@ -141,11 +142,12 @@ fn keep_dashpots(spec: &mut SceneSpec) {
 /// the bar's mass on the two nodes as `mass_matrix` says, its axial force whatever makes the
 /// initial geometry an equilibrium (`form_find`); references to `B.a` and `B.b` (routes,
 /// joints, ramps) move to the nodes, and cables given a damping ratio keep the dashpot it gives
-/// in `spec` (`keep_dashpots`). Bar ends that a ball joint ties together (`a` and `b` both
-/// bar ends) become one node, named after the joint's `b` end, and the joint goes: the members meet there as pin-jointed bars do in a finite-element model. A bar
-/// with other points keeps them nowhere: only its ends are carried over. Lumped mass gives a strut the transverse inertia of its two end masses,
-/// `m l^2 / 4` about its middle, where the uniform rigid bar has `m l^2 / 12`; the consistent
-/// mass matrix gives it exactly `m l^2 / 12`.
+/// in `spec` (`keep_dashpots`). Bar ends that a ball joint ties together (`a` and `b` both bar
+/// ends) become one node, named after the joint's `b` end, and the joint goes: the members meet
+/// there as pin-jointed bars do in a finite-element model. A bar with other points keeps them
+/// nowhere: only its ends are carried over. Lumped mass gives a strut the transverse inertia of
+/// its two end masses, `m l^2 / 4` about its middle, where the uniform rigid bar has
+/// `m l^2 / 12`; the consistent mass matrix gives it exactly `m l^2 / 12`.
 pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64, mass_matrix: MassMatrixSpec) {
     keep_dashpots(spec);
     let bar_ends: std::collections::BTreeSet<String> = spec
@@ -154,7 +156,7 @@ pub fn nodal_struts(spec: &mut SceneSpec, strut_ea: f64, mass_matrix: MassMatrix
         .filter(|b| b.kind == BodyKindSpec::Bar)
         .flat_map(|b| [format!("{}.a", b.name), format!("{}.b", b.name)])
         .collect();
-    // bar ends that ball joints tie together become one node, named after the first end met
+    // bar ends that ball joints tie together become one node, the one of the joint's `b` end
     let mut renamed = std::collections::BTreeMap::new();
     for b in &spec.bodies {
         if b.kind == BodyKindSpec::Bar {
