@@ -280,7 +280,11 @@ def test_the_in_process_simulator_steps_and_records_like_a_node(tmp_path):
 def test_a_huge_in_process_request_stops_at_ctrl_c():
     # 10^12 steps asked for by mistake: Ctrl-C stops it (KeyboardInterrupt) within a piece of
     # steps, and the simulator is usable at the step it reached
+    # (Python keeps SIGINT ignored when it starts ignored, as under `nohup cmd &`: the child
+    # installs the KeyboardInterrupt handler itself, so the test does not depend on its launcher)
     code = (
+        "import signal\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "from tensegrity_testing.inprocess import InProcessSimulator\n"
         "sim = InProcessSimulator()\n"
         "print('ready', flush=True)\n"
