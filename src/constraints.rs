@@ -10,9 +10,10 @@
 //! The axis rows of a hinge or planar joint (`JointModel::alignment`, `crate::model::Alignment`)
 //! hold orientations: `Phi_k = e_k . w - offset` with `e_k = R_a n_k` and the axis `w` (`R_b u`,
 //! or the world's `u`); two rows, or one (the bar's angle to the axis) when a bar is on one side
-//! and the axis is not along it (`crate::model::Alignment`). Their rows have the same shape as a point joint's, `D G` per side, with
-//! `D = [a_1; a_2]`, `a_k = e_k x w` (world, changing with the poses) and `G = [0 | R] B` the
-//! body's spin Jacobian (`spin_jacobian`); their multipliers carry the moment `D^T lambda` (N m).
+//! and the axis is not along it (`crate::model::Alignment`). Their rows have the same shape as a
+//! point joint's, `D G` per side, with `D = [a_1; a_2]`, `a_k = e_k x w` (world, changing with
+//! the poses) and `G = [0 | R] B` the body's spin Jacobian (`spin_jacobian`); their multipliers
+//! carry the moment `D^T lambda` (N m).
 //! With the body-frame retraction `R <- R exp([d]x)`, `w'_a = R_a^T w`, `e'_k = R_b^T e_k`, the
 //! rotation blocks of `d(Phi_q^T lambda)/dq` are
 //! `sum_k lambda_k [n_k]x [w'_a]x` (a, a), `-sum_k lambda_k [n_k]x R_a^T R_b [u]x` (a, b),

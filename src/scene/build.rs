@@ -779,8 +779,7 @@ fn build_joints(
                 if kind == crate::model::JointKind::Planar && bodies[points[b.0].body.0].dof_count > 0 =>
             {
                 let body_b = &bodies[points[b.0].body.0];
-                let bar_axis = body_b.initial_pose.rotation * Vector3::z();
-                if body_b.kind == BodyKind::Bar && bar_axis.cross(&n).norm() > 1e-6 {
+                if bar_across(bodies, points[b.0].body, &n).is_some() {
                     return Err(e(
                         "normal",
                         "a plane through a bar's point turns with the bar, which turns freely about its own axis: only a plane normal to the bar is held (normal along the bar); make the body kind = \"rigid\" (with an inertia)".into(),
@@ -864,6 +863,15 @@ fn build_joints(
     Ok(joints)
 }
 
+/// The initial direction `d` of `body`'s axis (its body z) when it is a bar not along `axis`
+/// (`|d x axis| > 1e-6`): a bar turns freely about its own axis, so a joint turning about `axis`
+/// can hold only its angle to it (and a plane that turns with it only when normal to it).
+fn bar_across(bodies: &[BodyModel], body: crate::model::BodyId, axis: &Vector3<f64>) -> Option<Vector3<f64>> {
+    let b = &bodies[body.0];
+    let d = b.initial_pose.rotation * Vector3::z();
+    (b.kind == BodyKind::Bar && d.cross(axis).norm() > 1e-6).then_some(d)
+}
+
 /// The alignment that keeps world axis `axis` (unit, at the initial poses) common to body `a`
 /// and body `b` (or the ground), and its row count (`crate::model::Alignment`): two unit normals
 /// to it in `a`'s frame and the axis in `b`'s (2 rows); with a bar on one side and the axis not
@@ -882,22 +890,15 @@ fn axis_alignment(
         None => *v,
     };
     let is_bar = |body: crate::model::BodyId| bodies[body.0].kind == BodyKind::Bar;
-    // a bar's axis is its body z; one along the joint's axis keeps both rows, whose moments are
-    // normal to it
-    let across = |body: crate::model::BodyId| {
-        let d = bodies[body.0].initial_pose.rotation * Vector3::z();
-        is_bar(body) && d.cross(axis).norm() > 1e-6
-    };
     if is_bar(a) && b.is_some_and(is_bar) {
         return Err("a bar turns freely about its own axis, so between two bars this joint holds no axis (it would be a ball joint); make one of them kind = \"rigid\" (with an inertia), or use kind = \"ball\"".into());
     }
-    if across(a) {
-        let d = bodies[a.0].initial_pose.rotation * Vector3::z();
+    // a bar along the joint's axis keeps both rows, whose moments are normal to it
+    if let Some(d) = bar_across(bodies, a, axis) {
         let normals = [Vector3::z(), Vector3::zeros()];
         return Ok((crate::model::Alignment { normals, axis: in_b(axis), offset: d.dot(axis) }, 1));
     }
-    if let Some(b) = b.filter(|&b| across(b)) {
-        let d = bodies[b.0].initial_pose.rotation * Vector3::z();
+    if let Some(d) = b.and_then(|b| bar_across(bodies, b, axis)) {
         let normals = [to_body(a, axis), Vector3::zeros()];
         return Ok((crate::model::Alignment { normals, axis: Vector3::z(), offset: d.dot(axis) }, 1));
     }

@@ -70,6 +70,20 @@ fn bar(name: String, mass: f64, a: [f64; 3], b: [f64; 3]) -> BodySpec {
     BodySpec { mass: Some(mass), ends: Some([a, b]), ..BodySpec::new(&name, BodyKindSpec::Bar) }
 }
 
+/// A joint of `kind` holding point `a` on point `b` (or, without `b`, where `a` starts).
+fn joint(kind: JointKindSpec, a: &str, b: Option<&str>) -> JointSpec {
+    JointSpec {
+        kind,
+        a: a.into(),
+        b: b.map(Into::into),
+        at: None,
+        direction: None,
+        normal: None,
+        axis: None,
+        damping: None,
+    }
+}
+
 fn cable(name: String, route: Vec<String>, ea: f64, zeta: f64) -> CableSpec {
     CableSpec {
         name,
@@ -317,29 +331,11 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
         }
     }
     for i in 0..n {
-        spec.joints.push(JointSpec {
-            kind: JointKindSpec::Pin,
-            a: point(0, i),
-            b: None,
-            at: None,
-            direction: None,
-            normal: None,
-            axis: None,
-            damping: None,
-        });
+        spec.joints.push(joint(JointKindSpec::Pin, &point(0, i), None));
     }
     for l in 1..s {
         for i in 0..n {
-            spec.joints.push(JointSpec {
-                kind: JointKindSpec::Ball,
-                a: format!("bar{}_{i}.b", l - 1),
-                b: Some(point(l, i)),
-                at: None,
-                direction: None,
-                normal: None,
-                axis: None,
-                damping: None,
-            });
+            spec.joints.push(joint(JointKindSpec::Ball, &format!("bar{}_{i}.b", l - 1), Some(&point(l, i))));
         }
     }
     let mut actuated = Vec::new();
@@ -486,19 +482,6 @@ impl Default for TbarParams {
     }
 }
 
-fn joint(a: &str, b: Option<&str>, kind: JointKindSpec) -> JointSpec {
-    JointSpec {
-        kind,
-        a: a.into(),
-        b: b.map(Into::into),
-        at: None,
-        direction: None,
-        normal: None,
-        axis: None,
-        damping: None,
-    }
-}
-
 /// Planar T-bar (Skelton's unit) in the xy plane, y up, gravity -y: a vertical mast pinned at its
 /// foot and held by two guys from its top to ground anchors, a horizontal bar joined at its centre
 /// to the mast's centre, and a diamond of strings: the two lower strings (bar end to mast foot) and
@@ -536,10 +519,10 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
                 bar("cross_right".into(), half, hub, [w, h, 0.0]),
             ],
             vec![
-                joint("mast_lower.a", None, JointKindSpec::Pin),
-                joint("mast_upper.a", Some("mast_lower.b"), JointKindSpec::Ball),
-                joint("cross_left.a", Some("mast_lower.b"), JointKindSpec::Ball),
-                joint("cross_right.a", Some("mast_lower.b"), JointKindSpec::Ball),
+                joint(JointKindSpec::Pin, "mast_lower.a", None),
+                joint(JointKindSpec::Ball, "mast_upper.a", Some("mast_lower.b")),
+                joint(JointKindSpec::Ball, "cross_left.a", Some("mast_lower.b")),
+                joint(JointKindSpec::Ball, "cross_right.a", Some("mast_lower.b")),
             ],
             vec![
                 string("upper_left", &["cross_left.b", "mast_upper.b"], None),
@@ -554,8 +537,8 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
         (
             vec![ground, mast, cross],
             vec![
-                joint("mast.a", None, JointKindSpec::Pin),
-                joint("cross", Some("mast.mid"), JointKindSpec::Ball),
+                joint(JointKindSpec::Pin, "mast.a", None),
+                joint(JointKindSpec::Ball, "cross", Some("mast.mid")),
             ],
             vec![string("upper", &["cross.a", "mast.b", "cross.b"], Some(p.prestress))],
             ["cross.a", "cross.b", "mast.a", "mast.b"],

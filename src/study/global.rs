@@ -28,11 +28,9 @@ pub struct GlobalRun {
     pub requested: f64,
     /// The local tolerance of the run taken, m.
     pub tolerance: f64,
-    /// Its estimated global error, m: the previous run's measured error times `REFINEMENT`.
+    /// Its estimated global error, m: `REFINEMENT` times the previous run's error, measured
+    /// against the run taken (largest point distance over the samples).
     pub estimate: f64,
-    /// The previous run's error, measured against the run taken (largest point distance over
-    /// the samples), m.
-    pub previous_error: f64,
     /// Runs made (at least 2).
     pub runs: usize,
     /// The samples of the run taken.
@@ -70,15 +68,16 @@ pub fn globally_controlled(
     }
     let mut tolerance = requested;
     let (mut samples, mut totals) = run_at(tolerance)?;
-    for runs in 2..=MAX_GLOBAL_RUNS {
+    let mut runs = 1;
+    loop {
         let finer = tolerance * REFINEMENT;
         let (next, more) = run_at(finer)?;
+        runs += 1;
         totals.add_totals(&more);
-        let previous_error = largest_distance(&samples, &next, free);
-        let estimate = REFINEMENT * previous_error;
+        let estimate = REFINEMENT * largest_distance(&samples, &next, free);
         (tolerance, samples) = (finer, next);
         if estimate <= requested {
-            return Ok(GlobalRun { requested, tolerance, estimate, previous_error, runs, samples, totals });
+            return Ok(GlobalRun { requested, tolerance, estimate, runs, samples, totals });
         }
         if runs == MAX_GLOBAL_RUNS {
             return Err(format!(
@@ -86,5 +85,4 @@ pub fn globally_controlled(
             ));
         }
     }
-    unreachable!("the loop returns")
 }

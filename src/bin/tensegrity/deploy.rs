@@ -193,8 +193,6 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
     Ok(())
 }
 
-/// `deploy --dynamic`: the node's core driven offline (`record::offline::OfflineRun`), one CSV
-/// row per step.
 /// How `deploy --dynamic` runs besides the simulator settings.
 struct DynamicRun {
     /// Simulated time, s (`None`: the schedule's end + 1 s).
@@ -234,6 +232,8 @@ fn global_tolerance(
     found.map_err(|e| format!("{label}: {e}"))
 }
 
+/// `deploy --dynamic`: the node's core driven offline (`record::offline::OfflineRun`), one CSV
+/// row per step; under global error control, at the local tolerance `global_tolerance` found.
 fn deploy_dynamic(
     model: &Model,
     scene: &Path,
