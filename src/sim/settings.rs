@@ -1,0 +1,163 @@
+//! What the simulator is told and what it tells: `SimSettings` (step, integrator, Newton,
+//! tolerance), `StepStats` (what one step cost) and `StepError` (why a step could not be taken).
+
+use std::time::Duration;
+
+use crate::solve::dynamics::{Integrator, NewtonSettings};
+use crate::solve::linear::LinearBackend;
+
+/// How the simulator steps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimSettings {
+    /// Physics step, s.
+    pub dt: f64,
+    /// Integrator.
+    pub integrator: Integrator,
+    /// Newton settings of the implicit integrator.
+    pub newton: NewtonSettings,
+    /// Smallest sub-step a rejected step may be cut to, s.
+    pub min_dt: f64,
+    /// Factorization of the Newton systems.
+    pub linear: LinearBackend,
+    /// Local error tolerance, m (`None`: fixed steps). With a tolerance, `dt` is the output
+    /// interval: each `step` reaches `t + dt` exactly in sub-steps whose size the integrator's
+    /// local error estimate chooses (generalized-alpha and Dormand-Prince only).
+    pub tolerance: Option<f64>,
+}
+
+impl Default for SimSettings {
+    fn default() -> Self {
+        Self {
+            dt: 1e-3,
+            integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
+            newton: NewtonSettings::default(),
+            min_dt: 1e-9,
+            linear: LinearBackend::Auto,
+            tolerance: None,
+        }
+    }
+}
+
+/// What one call to `Simulator::step` cost.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct StepStats {
+    /// Newton iterations over all accepted sub-steps.
+    pub newton_iterations: usize,
+    /// Newton-matrix factorizations over all accepted sub-steps (fewer than the iterations when
+    /// `NewtonSettings::reuse_factorization` reuses older factors).
+    pub factorizations: usize,
+    /// Largest final Newton residual of the accepted sub-steps, N.
+    pub residual: f64,
+    /// Rejected attempts (each followed by a halved retry).
+    pub rejected: usize,
+    /// Accepted sub-steps (1 when nothing was rejected and the step is fixed).
+    pub substeps: usize,
+    /// Force evaluations over all attempts.
+    pub evaluations: usize,
+    /// Largest local error estimate of the accepted sub-steps, m (0 without an estimate).
+    pub error: f64,
+    /// Sub-steps accepted at the smallest error-controlled step (`MIN_CONTROLLED_STEP` of the
+    /// interval) without meeting the tolerance: where the motion jumps (a cable goes slack).
+    pub forced: usize,
+    /// Sub-steps undone and retried in halves because one bar passed through another
+    /// (`[collisions]`: the side one axis passes the other on flipped within the sub-step).
+    pub pass_throughs: usize,
+    /// Wall-clock time spent in the step.
+    pub wall_time: Duration,
+}
+
+/// Why a step could not be taken. The state is left at the last accepted step.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum StepError {
+    /// Even the smallest allowed sub-step failed.
+    #[error(
+        "step failed at t = {time} s: sub-step cut to {dt:.3e} s (minimum {min_dt:.3e} s) without convergence; last residual {residual:.3e} N"
+    )]
+    StepTooSmall {
+        /// Time of the last accepted state, s.
+        time: f64,
+        /// The sub-step that failed, s.
+        dt: f64,
+        /// The minimum sub-step, s.
+        min_dt: f64,
+        /// Residual of the last attempt (NaN if it diverged).
+        residual: f64,
+    },
+    /// A bar passed through another within even the smallest allowed sub-step.
+    #[error(
+        "bar '{first}' passed through bar '{second}' at t = {time} s within a sub-step of {dt:.3e} s (the smallest allowed): stiffen [collisions] or give the bars larger contact_radius"
+    )]
+    PassThrough {
+        /// The first bar of the pair.
+        first: String,
+        /// The second bar.
+        second: String,
+        /// Time of the last accepted state, s.
+        time: f64,
+        /// The sub-step that let it through, s.
+        dt: f64,
+    },
+    /// Consistent initial accelerations could not be computed (singular mass/constraint system).
+    #[error("cannot start the dynamics: the mass and constraint matrix is singular or not finite")]
+    Initialization,
+    /// The step size is not positive and finite.
+    #[error("invalid step size {0} s")]
+    InvalidStep(f64),
+    /// The explicit integrator would be unstable at this step size.
+    #[error(
+        "{integrator} is unstable at dt = {dt:.3e} s: its stability limit here is {limit:.3e} s; use a smaller step, an error tolerance (dormand-prince) or generalized-alpha"
+    )]
+    UnstableExplicitStep {
+        /// The integrator's name.
+        integrator: String,
+        /// Requested step, s.
+        dt: f64,
+        /// Stability limit at the initial state, s.
+        limit: f64,
+    },
+    /// An explicit integrator's run diverged although its step was below the stability limit at
+    /// the start (the structure stiffened since): the energy it made up is far above any the
+    /// run was given. The state is left as it was before the step.
+    #[error(
+        "{integrator} diverged at t = {time} s: the step made up {gain:.3e} J of energy, against {scale:.3e} J the run holds; use a smaller step, an error tolerance (dormand-prince) or generalized-alpha"
+    )]
+    Diverged {
+        /// The integrator's name.
+        integrator: String,
+        /// Time of the last good state, s.
+        time: f64,
+        /// Energy the run has made up (`-EnergyAccount::numerical_loss`), J.
+        gain: f64,
+        /// The run's energy scale (`divergence_scale`), J.
+        scale: f64,
+    },
+    /// A run asked to start from the static equilibrium (`Simulator::at_equilibrium`), and
+    /// statics found none from the scene's pose.
+    #[error(
+        "no static equilibrium to start from: the residual is {residual:.3e} N after {iterations} Newton iterations from the scene's pose (start from the scene's pose instead, or see `tensegrity statics`)"
+    )]
+    NoEquilibrium {
+        /// Newton iterations taken.
+        iterations: usize,
+        /// Residual at the end, N.
+        residual: f64,
+    },
+    /// An error tolerance was given to an explicit integrator in a scene with contacts: its error
+    /// estimate measures positions, and through an impact (milliseconds in which the velocity
+    /// turns over while the position hardly moves) it lets the rebound velocity go wrong
+    /// (Dormand-Prince at 1 mm came off a bouncing ball's reference by 43 mm, `tests/contact.rs`).
+    #[error("{integrator} cannot take a tolerance in a scene with ground contact (its error estimate does not see the velocity jumps of impacts); use generalized-alpha, whose error control resolves impacts, or a fixed step")]
+    ToleranceWithContact {
+        /// The integrator's name.
+        integrator: String,
+    },
+    /// An error tolerance was given to an integrator that cannot estimate its error.
+    #[error("{integrator} has no error estimate, so it cannot take a tolerance; use generalized-alpha or dormand-prince, or a fixed step")]
+    ToleranceNotSupported {
+        /// The integrator's name.
+        integrator: String,
+    },
+    /// The tolerance is not positive and finite.
+    #[error("invalid error tolerance {0} m")]
+    InvalidTolerance(f64),
+}
