@@ -22,7 +22,7 @@
 //!
 //! with `A` the statics KKT matrix (`StaticSolver::assemble_kkt`), `r_t = dr/dt`
 //! (`statics::load_rate`), `a` the arc condition's residual, and `R` the structure's free
-//! rigid-body motions (`statics::rigid_body_motions`, none when anything holds it), whose
+//! rigid-body motions (`stability::rigid_body_motions`, none when anything holds it), whose
 //! mass-weighted amplitude is held at zero. The bordered matrix stays regular at a simple limit
 //! point, where `A` is singular; that is what lets the path turn. The tangent at a new point
 //! solves the same matrix with right-hand side `(0, 1, 0)` and the previous tangent in the arc
@@ -39,7 +39,8 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::evaluate::{evaluate, Tangents, Workspace};
 use crate::model::Model;
-use crate::solve::statics::{load_rate, residual_of, rigid_body_motions, EquilibriumReport, StaticSolver};
+use crate::solve::stability::rigid_body_motions;
+use crate::solve::statics::{load_rate, residual_of, EquilibriumReport, StaticSolver};
 use crate::state::{retract, State};
 
 /// Largest number of points one continuation traces before it gives up.

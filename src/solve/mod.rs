@@ -8,4 +8,5 @@ pub mod dynamics;
 pub mod formfind;
 pub mod linear;
 pub mod modes;
+pub mod stability;
 pub mod statics;

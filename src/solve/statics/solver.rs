@@ -1,0 +1,463 @@
+//! The static solver: takes a model and a state (rest lengths set), gives the equilibrium by
+//! Newton's method in the displacement form (`StaticSolver::equilibrate`), or in the mixed form
+//! for stiff cables (`crate::solve::statics::mixed`), and its report.
+
+use nalgebra::{DMatrix, DVector};
+
+use crate::constraints::add_multiplier_hessian;
+use crate::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
+use crate::model::{Model, Pose, SolverSettings};
+use crate::solve::linear::{KktSystem, LinearBackend};
+use crate::solve::stability::{dense_stability, sparse_stability};
+use crate::solve::statics::kkt::{
+    assemble_sparse, commit_friction, convexity_correction, least_squares_multipliers, project_onto_joints,
+    solve_regularized, solve_sparse, sparse_least_squares_multipliers, MAX_CONVEXITY_CHECK,
+    SPARSE_STATICS_MIN,
+};
+use crate::solve::statics::line_search::{line_search, LineSearch};
+use crate::solve::statics::residual::{
+    body_size, load_rate, residual_of, EquilibriumReport, Residual, StopReason, CAP_EXTENSION,
+};
+use crate::solve::statics::stiff::stiff_sets;
+use crate::state::{retract, State};
+
+/// What `StaticSolver::start_iteration` found.
+pub(crate) enum Start {
+    /// Go on with this residual.
+    Go(Residual),
+    /// Converged: the report.
+    Converged(EquilibriumReport),
+    /// Stop without an equilibrium (`StaticSolver::stop_reason` says why).
+    Stop,
+}
+
+/// Buffers for the Newton iteration, sized once per model.
+#[derive(Debug, Clone)]
+pub struct StaticSolver {
+    /// The dense KKT matrix (`assemble_kkt`), sized on first use.
+    pub(crate) kkt: DMatrix<f64>,
+    /// The sparse KKT system of a model of at least `SPARSE_STATICS_MIN` coordinates: its
+    /// stability test (`sparse_stability`), and its Newton steps when `sparse_newton`.
+    pub(crate) sparse: Option<KktSystem>,
+    /// Newton steps on `sparse` (a model without stiff cables, solved in the displacement form).
+    pub(crate) sparse_newton: bool,
+    pub(crate) rhs: DVector<f64>,
+    pub(crate) dq: DVector<f64>,
+    pub(crate) trial_poses: Vec<Pose>,
+    pub(crate) best_poses: Vec<Pose>,
+    /// Mass matrix in local coordinates (constant), the metric of the convexity shift.
+    pub(crate) mass: DMatrix<f64>,
+    /// `body_size(model)`, m.
+    pub(crate) size: f64,
+    /// The force residual at the start of each iteration of the last solve, N.
+    pub(crate) history: Vec<f64>,
+    /// Why the last solve stopped.
+    pub(crate) stop: StopReason,
+    /// The model's stiff cables (`stiff_cables`), whose tensions `equilibrate` solves for.
+    pub(crate) stiff: Vec<usize>,
+    /// The stiff cables of a structure held by prestress (`prestressed_stiff_cables`), which
+    /// `equilibrate` first solves for as if they could push.
+    pub(crate) prestressed: Vec<usize>,
+}
+
+impl StaticSolver {
+    /// Buffers for `model`. A model of at least `SPARSE_STATICS_MIN` coordinates is solved on
+    /// the sparse KKT system (`KktSystem`, its symbolic analysis done here): its stability test,
+    /// and its Newton steps when it has no stiff cables, so that its cost grows with the
+    /// structure, not with its square or cube.
+    pub fn new(model: &Model) -> Self {
+        let size = model.dof_count + model.constraint_count;
+        let poses: Vec<Pose> = model.bodies.iter().map(|b| b.initial_pose).collect();
+        let (stiff, prestressed) = stiff_sets(model, &mut Workspace::for_forces(model), body_size(model));
+        let large = model.dof_count >= SPARSE_STATICS_MIN;
+        let mut solver = Self {
+            kkt: DMatrix::zeros(0, 0),
+            sparse: None,
+            sparse_newton: false,
+            rhs: DVector::zeros(size),
+            dq: DVector::zeros(model.dof_count),
+            trial_poses: poses.clone(),
+            best_poses: poses,
+            mass: if model.dof_count > MAX_CONVEXITY_CHECK {
+                DMatrix::zeros(0, 0)
+            } else {
+                crate::solve::dynamics::mass_matrix(model)
+            },
+            size: body_size(model),
+            history: Vec::new(),
+            stop: StopReason::Converged,
+            stiff,
+            prestressed,
+        };
+        if large {
+            solver = solver.with_sparse_kkt(model, true);
+        }
+        solver
+    }
+
+    /// The same solver with its Newton steps and stability test on the sparse KKT system
+    /// (`sparse = true`) or on dense matrices, whatever the model's size: for comparing the two
+    /// (`tests/large_statics.rs`). A model without sparse structure stays dense; one with stiff
+    /// cables (`stiff_cables`, the mixed form) takes dense Newton steps either way.
+    pub fn with_sparse_kkt(mut self, model: &Model, sparse: bool) -> Self {
+        self.sparse = None;
+        self.sparse_newton = false;
+        if sparse {
+            let kkt = KktSystem::new(model, LinearBackend::Sparse);
+            if kkt.backend() == LinearBackend::Sparse {
+                self.sparse = Some(kkt);
+                self.sparse_newton = self.stiff.is_empty();
+            }
+        }
+        self
+    }
+
+    /// True when this solver's Newton steps are made on the sparse KKT system (`new`).
+    pub fn is_sparse(&self) -> bool {
+        self.sparse_newton
+    }
+
+    /// Fills the KKT matrix `[[K + H_lambda, Phi_q^T], [Phi_q, 0]]` at `state` from the tangents
+    /// last evaluated into `ws` (`Tangents::Stiffness`).
+    pub(crate) fn assemble_kkt(&mut self, model: &Model, state: &State, ws: &Workspace) {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        if self.kkt.nrows() != n + nc {
+            self.kkt = DMatrix::zeros(n + nc, n + nc);
+        }
+        self.kkt.fill(0.0);
+        self.kkt.view_mut((0, 0), (n, n)).copy_from(&ws.stiffness);
+        if nc > 0 {
+            let mut h = DMatrix::zeros(n, n);
+            add_multiplier_hessian(model, &state.poses, &state.multipliers, &mut h);
+            let mut top = self.kkt.view_mut((0, 0), (n, n));
+            top += &h;
+            self.kkt.view_mut((0, n), (n, nc)).copy_from(&ws.constraint_jacobian.transpose());
+            self.kkt.view_mut((n, 0), (nc, n)).copy_from(&ws.constraint_jacobian);
+        }
+    }
+
+    /// The start of every Newton iteration of `equilibrate` (both forms): evaluates `state`
+    /// with its stiffness, records the displacement form's force residual, and tells whether the
+    /// solve converged (the residual test below `settings.tolerance`, or its round-off floor but
+    /// never above `ROUND_OFF_CEILING`: ill-conditioned input gets no claim), diverged (a
+    /// non-finite residual) or stops at its cap (`StopReason::at_cap`; a solve still converging
+    /// goes on to `CAP_EXTENSION` times the cap). `best` keeps the smallest residual seen.
+    pub(crate) fn start_iteration(
+        &mut self,
+        model: &Model,
+        state: &State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+        iterations: usize,
+        best: &mut f64,
+    ) -> Start {
+        if self.sparse_newton {
+            evaluate_forces(model, state, ws);
+        } else {
+            evaluate(model, state, ws, Tangents::Stiffness);
+        }
+        let res = residual_of(model, state, ws, &mut self.rhs, self.size);
+        self.history.push(res.force);
+        if !res.force.is_finite() || !res.constraint.is_finite() {
+            self.stop = StopReason::Diverged;
+            return Start::Stop;
+        }
+        *best = best.min(res.force);
+        if res.converged(settings) {
+            self.stop = StopReason::Converged;
+            return Start::Converged(self.report(model, state, ws, &res, iterations));
+        }
+        if iterations >= settings.max_iterations {
+            self.stop = StopReason::at_cap(&self.history);
+            if self.stop != StopReason::IterationLimit
+                || iterations >= CAP_EXTENSION * settings.max_iterations
+            {
+                return Start::Stop;
+            }
+        }
+        Start::Go(res)
+    }
+
+    /// Why the last `equilibrate` stopped.
+    pub fn stop_reason(&self) -> StopReason {
+        self.stop
+    }
+
+    /// The force residual `|Q - Phi_q^T lambda|_inf` (N) at the start of each Newton iteration of
+    /// the last `equilibrate`, and at its end: `iterations + 1` values for a converged solve.
+    pub fn residual_history(&self) -> &[f64] {
+        &self.history
+    }
+
+    /// The KKT matrix last assembled by `assemble_kkt`.
+    pub(crate) fn kkt(&self) -> &DMatrix<f64> {
+        &self.kkt
+    }
+
+    /// The body size used for the length scale (`body_size`), m.
+    pub(crate) fn size(&self) -> f64 {
+        self.size
+    }
+
+    /// The constant mass matrix in local coordinates (formed on first use for a large model).
+    pub(crate) fn mass(&mut self, model: &Model) -> &DMatrix<f64> {
+        if self.mass.nrows() != model.dof_count {
+            self.mass = crate::solve::dynamics::mass_matrix(model);
+        }
+        &self.mass
+    }
+
+    /// Tangent of the equilibrium path at the equilibrium `state`: `(dq/dt, dlambda/dt)` from
+    /// `A z = dr/dt` (see `load_rate`), with the regularized solve of the Newton steps (a free
+    /// rigid-body motion gets no component). `None` when the KKT matrix cannot be solved (a
+    /// limit point). Leaves `ws` evaluated at `state` with its stiffness.
+    pub fn path_tangent(&mut self, model: &Model, state: &State, ws: &mut Workspace) -> Option<DVector<f64>> {
+        if self.sparse_newton {
+            evaluate_forces(model, state, ws);
+        } else {
+            evaluate(model, state, ws, Tangents::Stiffness);
+        }
+        let mut rates = vec![0.0; model.cables.len()];
+        model.scheduled_rest_rates(state.time, &mut rates);
+        let mut r_t = DVector::zeros(model.dof_count + model.constraint_count);
+        load_rate(model, state, ws, &rates, &mut r_t);
+        if r_t.amax() == 0.0 {
+            return Some(r_t);
+        }
+        if let Some(kkt) = self.sparse.as_mut().filter(|_| self.sparse_newton) {
+            assemble_sparse(kkt, model, state, ws);
+            return solve_sparse(kkt, &r_t);
+        }
+        self.assemble_kkt(model, state, ws);
+        solve_regularized(&self.kkt, &r_t, model.dof_count)
+    }
+
+    /// Solves for equilibrium from `state` (its rest lengths fixed), updating its poses and
+    /// multipliers; velocities are set to zero. On failure the state is restored.
+    pub fn equilibrate(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        self.history.clear();
+        self.stop = StopReason::Converged;
+        if !self.stiff.is_empty() {
+            return self.equilibrate_mixed(model, state, ws, settings, self.stiff.clone(), false);
+        }
+        // a prestressed structure with stiff cables: the mixed form with its cables as if they
+        // could push, which keeps its self-stress; an equilibrium in which they all pull is the
+        // structure's (the residual test below is the displacement form's, with the cables'
+        // own law). Otherwise the displacement form from the same start.
+        let mut tried = 0;
+        if !self.prestressed.is_empty() {
+            let start = (state.poses.clone(), state.multipliers.clone());
+            match self.equilibrate_mixed(model, state, ws, settings, self.prestressed.clone(), true) {
+                Ok(report) => {
+                    evaluate(model, state, ws, Tangents::None);
+                    if self.prestressed.iter().all(|&c| !ws.cables[c].slack) {
+                        return Ok(report);
+                    }
+                    tried = report.iterations;
+                    state.poses.copy_from_slice(&start.0);
+                    state.multipliers.copy_from(&start.1);
+                }
+                Err((iterations, _)) => tried = iterations,
+            }
+            self.history.clear();
+            self.stop = StopReason::Converged;
+        }
+        self.displacement_form(model, state, ws, settings)
+            .map(|mut r| {
+                r.iterations += tried;
+                r
+            })
+            .map_err(|(iterations, residual)| (iterations + tried, residual))
+    }
+
+    /// `equilibrate` in the displacement form (no tension unknowns).
+    fn displacement_form(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        let n = model.dof_count;
+        let nc = model.constraint_count;
+        state.velocities.fill(0.0);
+        let start_poses = state.poses.clone();
+        let start_multipliers = state.multipliers.clone();
+        // a fresh start has no reactions yet; a continuation (deployment) keeps the last ones
+        let fresh = state.multipliers.iter().all(|l| *l == 0.0);
+        if fresh {
+            match self.sparse.as_mut().filter(|_| self.sparse_newton) {
+                Some(kkt) => sparse_least_squares_multipliers(kkt, model, state, ws),
+                None => least_squares_multipliers(model, state, ws),
+            }
+        }
+        let mut best = f64::INFINITY;
+        let mut iterations = 0;
+        // the definiteness check costs a dense eigenproblem: made on the first iteration of a fresh
+        // start (a continuation starts at an equilibrium) and after any iteration whose Newton
+        // step had to be cut or did not halve the residual
+        let mut check_convexity = fresh || model.constraint_count == 0;
+        let mut previous_merit = f64::INFINITY;
+        loop {
+            let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
+                Start::Go(res) => res,
+                Start::Converged(report) => {
+                    commit_friction(model, state, ws);
+                    return Ok(report);
+                }
+                Start::Stop => break,
+            };
+            iterations += 1;
+
+            let mut energy_mode = false;
+            let merit_now = res.merit(res.force_scale, res.length_scale);
+            check_convexity |= merit_now > 0.25 * previous_merit;
+            previous_merit = merit_now;
+            // the sparse path takes plain Newton steps; up to `MAX_CONVEXITY_CHECK` coordinates an
+            // iteration that wants the convexity check (a fresh start, a step that had to be cut)
+            // takes the dense step with it
+            let dense_check = check_convexity && n <= MAX_CONVEXITY_CHECK;
+            let step = match self.sparse.as_mut().filter(|_| self.sparse_newton && !dense_check) {
+                Some(kkt) => {
+                    assemble_sparse(kkt, model, state, ws);
+                    solve_sparse(kkt, &self.rhs)
+                }
+                None => {
+                    if self.sparse_newton {
+                        evaluate(model, state, ws, Tangents::Stiffness);
+                    }
+                    self.dense_newton_step(model, state, ws, &res, &mut check_convexity, &mut energy_mode)
+                }
+            };
+            let Some(step) = step else {
+                self.stop = StopReason::Singular;
+                break;
+            };
+            self.dq.copy_from(&step.rows(0, n));
+            let limit = self.step_limit(model, res.length_scale);
+            let dlambda = step.rows(n, nc).into_owned();
+
+            // backtracking line search: a Newton step is accepted when it lowers the residual norm
+            // or the potential energy (plus a joint-violation penalty); a modified (descent) step
+            // only when it lowers the energy on the joints' manifold
+            let penalty = 10.0 * ((&state.multipliers + &dlambda).amax() + res.force_scale);
+            let energy_merit = |ws: &Workspace| {
+                ws.energies.elastic + ws.energies.gravitational + penalty * ws.constraint.amax()
+            };
+            let search = LineSearch {
+                limit,
+                merit0: res.merit(res.force_scale, res.length_scale),
+                energy0: energy_merit(ws),
+                energy_mode,
+            };
+            let base_multipliers = state.multipliers.clone();
+            self.best_poses.copy_from_slice(&state.poses);
+            let searched = line_search(&search, |alpha| {
+                self.trial_poses.copy_from_slice(&self.best_poses);
+                retract(model, &mut self.trial_poses, &self.dq, alpha);
+                std::mem::swap(&mut state.poses, &mut self.trial_poses);
+                state.multipliers = &base_multipliers + &dlambda * alpha;
+                if energy_mode {
+                    // compare energies on the joints' manifold: the shifted step is a descent
+                    // direction of the energy there, and a joint violation of second order in a
+                    // large rotation would otherwise hide a first-order energy decrease
+                    project_onto_joints(model, state, ws, res.length_scale);
+                }
+                evaluate_forces(model, state, ws);
+                let residual_merit = residual_of(model, state, ws, &mut self.rhs, self.size)
+                    .merit(res.force_scale, res.length_scale);
+                std::mem::swap(&mut state.poses, &mut self.trial_poses);
+                (residual_merit, energy_merit(ws))
+            });
+            let Some(alpha) = searched else {
+                self.stop = StopReason::Diverged;
+                break;
+            };
+            check_convexity |= alpha < limit.min(1.0);
+            retract(model, &mut state.poses, &self.dq, alpha);
+            state.multipliers = &base_multipliers + &dlambda * alpha;
+            if energy_mode {
+                // a descent step moves the poses, not towards the reactions: take them afresh
+                project_onto_joints(model, state, ws, res.length_scale);
+                least_squares_multipliers(model, state, ws);
+            }
+        }
+        state.poses.copy_from_slice(&start_poses);
+        state.multipliers.copy_from(&start_multipliers);
+        Err((iterations, best))
+    }
+
+    /// The Newton step of the dense displacement form at `state` (evaluated into `ws` with its
+    /// stiffness; `res` its residual, `self.rhs` its right-hand side): the KKT matrix, shifted
+    /// where the reduced tangent is not convex when `check_convexity` asks (then `energy_mode`
+    /// tells whether the step is a descent step of the energy), solved with regularization.
+    fn dense_newton_step(
+        &mut self,
+        model: &Model,
+        state: &State,
+        ws: &Workspace,
+        res: &Residual,
+        check_convexity: &mut bool,
+        energy_mode: &mut bool,
+    ) -> Option<DVector<f64>> {
+        let n = model.dof_count;
+        self.assemble_kkt(model, state, ws);
+        // where the reduced tangent is indefinite or singular (hanging masses, slack cables,
+        // a structure tilted past a maximum of its energy), shift it by mu M: the step then
+        // goes down the potential energy instead of towards the nearest stationary point
+        let correction = if *check_convexity {
+            let tangent = self.kkt.view((0, 0), (n, n)).into_owned();
+            let residual_force = self.rhs.rows(0, n).into_owned();
+            convexity_correction(model, &tangent, &ws.constraint_jacobian, &self.mass, res, &residual_force)
+        } else {
+            None
+        };
+        *check_convexity = false;
+        if let Some((correction, descent)) = correction {
+            *check_convexity = true;
+            let mut top = self.kkt.view_mut((0, 0), (n, n));
+            top += &correction;
+            *energy_mode = descent;
+        }
+        solve_regularized(&self.kkt, &self.rhs, n)
+    }
+
+    /// The report of a converged equilibrium: `res` its residual, stability from the tangents
+    /// last evaluated into `ws` (on a sparse solver, from `ws`'s kinematics and cable states).
+    pub(crate) fn report(
+        &mut self,
+        model: &Model,
+        state: &State,
+        ws: &mut Workspace,
+        res: &Residual,
+        iterations: usize,
+    ) -> EquilibriumReport {
+        let modes = match &mut self.sparse {
+            Some(kkt) => sparse_stability(kkt, model, state, ws),
+            None => {
+                let members: Vec<usize> =
+                    self.stiff.iter().copied().filter(|&c| !model.cables[c].tension_only).collect();
+                dense_stability(model, state, ws, &members)
+            }
+        };
+        EquilibriumReport {
+            iterations,
+            residual: res.force,
+            force_scale: res.force_scale,
+            constraint_residual: res.constraint,
+            min_stiffness_eigenvalue: modes.min_eigenvalue,
+            stable: modes.negative == 0 && modes.zero <= modes.rigid,
+            negative_modes: modes.negative,
+            zero_modes: modes.zero,
+            rigid_modes: modes.rigid,
+            potential_energy: ws.energies.elastic + ws.energies.gravitational,
+        }
+    }
+}
