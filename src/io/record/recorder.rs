@@ -5,8 +5,6 @@
 use std::path::Path;
 use std::time::{SystemTime, UNIX_EPOCH};
 
-use super::batch::{pack_points, BatchRecord, StepBatch, BATCH_RECORDS, DEFERRED};
-use super::{node_bag_options, node_topics, run_info, LogTime, KIND_NODE};
 use crate::control::ActuatorCommand;
 use crate::evaluate::Workspace;
 use crate::io::msg::{self, AppliedCommands};
@@ -14,6 +12,8 @@ use crate::io::node::params::NodeParams;
 use crate::io::node::runner::Transport;
 use crate::io::node::NodeCore;
 use crate::io::record::bag::{BagError, BagOptions, BagSummary, BagTopic, BagWriter, RunInfo};
+use crate::io::record::batch::{pack_points, BatchRecord, StepBatch, BATCH_RECORDS, DEFERRED};
+use crate::io::record::run::{node_bag_options, node_topics, run_info, LogTime, KIND_NODE};
 use crate::io::sink::TopicMessage;
 use crate::io::sink::{ConstantsId, NodeSink, NodeStats, NodeView, PublishError};
 use crate::io::topics::Topic;

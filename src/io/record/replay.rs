@@ -6,17 +6,16 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use super::recorder::droppable;
-use super::{
-    node_topics, record_err, run_info, settings_of, BagRecorder, LogTime, PathPublisher, KEY_KIND,
-    KIND_QUASI_STATIC,
-};
 use crate::control::ActuatorCommand;
 use crate::evaluate::Workspace;
 use crate::io::commands;
 use crate::io::msg::{self, AppliedCommands};
 use crate::io::node::NodeCore;
 use crate::io::record::bag::{BagError, BagOptions, BagReader};
+use crate::io::record::recorder::{droppable, BagRecorder, PathPublisher};
+use crate::io::record::run::{
+    node_topics, record_err, run_info, settings_of, LogTime, KEY_KIND, KIND_QUASI_STATIC,
+};
 use crate::io::sink::TopicMessage;
 use crate::io::sink::{NodeSink, NodeView, PublishError};
 use crate::io::topics::Topic;

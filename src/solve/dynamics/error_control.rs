@@ -8,7 +8,7 @@ use crate::evaluate::{kinetic_energy, Workspace};
 use crate::forces::cable::{length_gradient_dot, route_geometry};
 use crate::model::{CableId, Model};
 
-use super::TOLERANCE_TIME;
+use crate::solve::dynamics::system::TOLERANCE_TIME;
 
 /// The envelope of a jerk from three accelerations, m/s^3 (or rad/s^3), at the middle sample:
 /// `sqrt(j^2 + max(0, -a s - |a| s_noise))`, with

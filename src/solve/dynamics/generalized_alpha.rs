@@ -33,37 +33,15 @@ use crate::model::Model;
 use crate::solve::linear::{FactorKind, KktSystem};
 use crate::state::{retract, State};
 
-use super::error_control::{damped_mode_relief, jerk_decay_rate, jerk_envelope, ENVELOPE_HOLD};
-use super::{
+use crate::solve::dynamics::error_control::{
+    damped_mode_relief, jerk_decay_rate, jerk_envelope, ENVELOPE_HOLD,
+};
+use crate::solve::dynamics::integrator::AlphaCoefficients;
+use crate::solve::dynamics::system::{
     add_gyroscopic, add_gyroscopic_damping, all_finite, assemble_mass_and_joints, force_floor, force_scale,
     AttemptFailure, AttemptStats, Dynamics, NewtonSettings, MAX_STALE_ITERATIONS, REFACTOR_CONTRACTION,
     SLOW_STEP_ITERATIONS,
 };
-
-/// Generalized-alpha coefficients for a spectral radius.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct AlphaCoefficients {
-    /// `alpha_m`.
-    pub alpha_m: f64,
-    /// `alpha_f`.
-    pub alpha_f: f64,
-    /// `gamma`.
-    pub gamma: f64,
-    /// `beta`.
-    pub beta: f64,
-}
-
-impl AlphaCoefficients {
-    /// Chung-Hulbert coefficients for `rho_inf` in [0, 1].
-    pub fn new(rho_inf: f64) -> Self {
-        let rho = rho_inf.clamp(0.0, 1.0);
-        let alpha_m = (2.0 * rho - 1.0) / (rho + 1.0);
-        let alpha_f = rho / (rho + 1.0);
-        let gamma = 0.5 + alpha_f - alpha_m;
-        let beta = 0.25 * (gamma + 0.5).powi(2);
-        Self { alpha_m, alpha_f, gamma, beta }
-    }
-}
 
 /// The fraction `alpha <= 1` of the Newton update `dd` at the iterate `state` (local coordinates,
 /// its velocity change `gamma' dd`) that leaves every contact (against a ground, or between two

@@ -13,7 +13,7 @@ use crate::evaluate::evaluate_forces;
 use crate::model::Model;
 use crate::state::{retract, State};
 
-use super::{add_gyroscopic, AttemptStats, Dynamics};
+use crate::solve::dynamics::system::{add_gyroscopic, AttemptStats, Dynamics};
 
 impl Dynamics {
     pub(super) fn symplectic_euler(
