@@ -34,18 +34,9 @@ use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::node::runner::{Transport, TransportSinks};
 use tensegrity::io::node::NodeCore;
 use tensegrity::io::record::{self, BagRecorder, LogTime};
-use tensegrity::io::sink::{NodeSink, NodeView, PublishError};
+use tensegrity::io::sink::{DiscardSink, NodeSink, NodeView, PublishError};
 use tensegrity::io::topics::Topic;
 use tensegrity::sim::{SimSettings, Simulator};
-
-struct Nowhere;
-
-impl NodeSink for Nowhere {
-    fn publish(&mut self, _topic: Topic, _view: &NodeView<'_>) -> Result<(), PublishError> {
-        Ok(())
-    }
-    fn step_request_done(&mut self, _ticket: u64, _result: SimResult, _view: &NodeView<'_>) {}
-}
 
 /// Process CPU time (user + system) from /proc, s (10 ms ticks).
 fn cpu_seconds() -> f64 {
@@ -156,7 +147,7 @@ fn setup(scene: &str, serving: Serving, domain_id: u16, bag: Option<&Path>) -> S
 fn run(scene: &str, steps: u64, bag: Option<PathBuf>, serving: Serving, paced: bool) -> RunFigures {
     let Setup { sim, params, mut transports } = setup(scene, serving, 90, bag.as_deref());
     let mut core = NodeCore::with_simulator(sim, params);
-    let mut nowhere = Nowhere;
+    let mut nowhere = DiscardSink;
     let mut all = TransportSinks::all(&mut transports);
     let sink: &mut dyn NodeSink =
         if bag.is_some() || serving != Serving::Nothing { &mut all } else { &mut nowhere };
@@ -236,7 +227,7 @@ fn run_interleaved(
         } else if served > 0 {
             core.tick(Duration::from_millis(k), &mut TransportSinks::all(&mut transports[..served]));
         } else {
-            core.tick(Duration::from_millis(k), &mut Nowhere);
+            core.tick(Duration::from_millis(k), &mut DiscardSink);
         }
         let us = t0.elapsed().as_secs_f64() * 1e6;
         if k % block >= settle {

@@ -116,7 +116,7 @@ pub enum ActuatorMode {
 pub struct Control {
     modes: Vec<ActuatorMode>,
     /// Accepted commands waiting for their step: `(steps left, actuator, mode)`, oldest first.
-    pending: std::collections::VecDeque<(usize, ActuatorId, ActuatorMode)>,
+    delayed: std::collections::VecDeque<(usize, ActuatorId, ActuatorMode)>,
 }
 
 impl Control {
@@ -124,7 +124,7 @@ impl Control {
     pub fn new(model: &Model) -> Self {
         Self {
             modes: vec![ActuatorMode::Schedule; model.actuators.len()],
-            pending: std::collections::VecDeque::new(),
+            delayed: std::collections::VecDeque::new(),
         }
     }
 
@@ -185,7 +185,7 @@ impl Control {
         let mode = Self::validate(model, id, cmd)?;
         match model.actuators[id.0].command_delay {
             0 => self.modes[id.0] = mode,
-            k => self.pending.push_back((k, id, mode)),
+            k => self.delayed.push_back((k, id, mode)),
         }
         Ok(())
     }
@@ -193,18 +193,18 @@ impl Control {
     /// Called once at the start of every `Simulator::step`: commands whose delay has run out
     /// become their actuators' modes, in the order they arrived.
     pub fn tick(&mut self) {
-        while let Some(&(0, id, mode)) = self.pending.front() {
+        while let Some(&(0, id, mode)) = self.delayed.front() {
             self.modes[id.0] = mode;
-            self.pending.pop_front();
+            self.delayed.pop_front();
         }
-        for (left, _, _) in self.pending.iter_mut() {
+        for (left, _, _) in self.delayed.iter_mut() {
             *left -= 1;
         }
     }
 
     /// Commands accepted and still delayed.
     pub fn pending_commands(&self) -> usize {
-        self.pending.len()
+        self.delayed.len()
     }
 
     /// Like `command`, by actuator name.

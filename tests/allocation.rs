@@ -16,13 +16,11 @@ use std::path::PathBuf;
 
 use std::time::Duration;
 
-use tensegrity::io::msg::SimResult;
 use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::node::NodeCore;
 use tensegrity::io::record::bag::BagOptions;
 use tensegrity::io::record::{self, BagRecorder, LogTime};
-use tensegrity::io::sink::{NodeSink, NodeView, PublishError};
-use tensegrity::io::topics::Topic;
+use tensegrity::io::sink::{DiscardSink, NodeSink};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::Integrator;
 use tensegrity::solve::linear::LinearBackend;
@@ -138,15 +136,6 @@ fn stepping_allocates_nothing() {
     }
 }
 
-struct Nowhere;
-
-impl NodeSink for Nowhere {
-    fn publish(&mut self, _topic: Topic, _view: &NodeView<'_>) -> Result<(), PublishError> {
-        Ok(())
-    }
-    fn step_request_done(&mut self, _ticket: u64, _result: SimResult, _view: &NodeView<'_>) {}
-}
-
 /// Allocations on this thread while `core` ticks 96 more times into `sink`, one tick a
 /// millisecond as a real-time node at 1 kHz (about 19 of the recorder's batches: hand-overs,
 /// batches the writer gave back, and the markers' points included).
@@ -183,7 +172,7 @@ fn recording_a_step_allocates_nothing_on_the_node_thread() {
         let mut core = NodeCore::with_simulator(sim, params);
         core.start(&mut recorder);
         let mut next = 0;
-        let baseline = allocations_per_ticks(&mut core, &mut next, &mut Nowhere);
+        let baseline = allocations_per_ticks(&mut core, &mut next, &mut DiscardSink);
         // warm-up: the writer's first batches are new
         allocations_per_ticks(&mut core, &mut next, &mut recorder);
         let recording = allocations_per_ticks(&mut core, &mut next, &mut recorder);

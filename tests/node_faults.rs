@@ -29,8 +29,13 @@ use running_node::RunningNode;
 
 static ONE_AT_A_TIME: Mutex<()> = Mutex::new(());
 
-/// True inside the namespace; outside, re-runs `test` there (one test of this file at a time).
-fn isolated_or_rerun(test: &str) -> bool {
+/// Whether the DDS test `test` on `domain` goes on here: true inside the private namespace; false
+/// where this process plays a helper role of the test (`roles`), or ran the test again inside the
+/// namespace (one test of this file at a time), where the test returns.
+fn runs_here(test: &str, domain: u16) -> bool {
+    if roles::play_role_if_asked(domain) {
+        return false;
+    }
     if netns::interfaces().iter().all(|i| i == "lo") {
         return true;
     }
@@ -44,7 +49,7 @@ const SEC: Duration = Duration::from_secs(1);
 fn a_frozen_subscriber_neither_stops_nor_stalls_the_node() {
     const TEST: &str = "a_frozen_subscriber_neither_stops_nor_stalls_the_node";
     let domain = 65;
-    if roles::play_role_if_asked(domain) || !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let params = NodeParams { domain_id: domain, state_publish_rate: 0.0, ..Default::default() };
@@ -101,7 +106,7 @@ fn a_frozen_subscriber_neither_stops_nor_stalls_the_node() {
 fn a_trillion_step_request_leaves_reset_and_sigterm_working() {
     const TEST: &str = "a_trillion_step_request_leaves_reset_and_sigterm_working";
     let domain = 66;
-    if !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let node = NodeProcess::start(domain, &["start_paused:=true", "state_publish_rate:=10"]);
@@ -159,7 +164,7 @@ fn a_trillion_step_request_leaves_reset_and_sigterm_working() {
 fn a_paused_node_answers_a_burst_of_requests_and_stays_quiet() {
     const TEST: &str = "a_paused_node_answers_a_burst_of_requests_and_stays_quiet";
     let domain = 70;
-    if !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let node = NodeProcess::start(domain, &["start_paused:=true"]);
@@ -203,7 +208,7 @@ fn a_paused_node_answers_a_burst_of_requests_and_stays_quiet() {
 fn a_second_node_of_the_same_name_on_the_same_domain_is_warned_of() {
     const TEST: &str = "a_second_node_of_the_same_name_on_the_same_domain_is_warned_of";
     let domain = 71;
-    if !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     const WARNING: &str = "another node named /tensegrity_sim is on DDS domain 71";
@@ -227,7 +232,7 @@ fn a_second_node_of_the_same_name_on_the_same_domain_is_warned_of() {
 fn a_request_in_another_mappings_layout_is_refused_not_obeyed() {
     const TEST: &str = "a_request_in_another_mappings_layout_is_refused_not_obeyed";
     let domain = 67;
-    if !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let params = NodeParams { domain_id: domain, start_paused: true, ..Default::default() };
@@ -258,7 +263,7 @@ fn a_request_in_another_mappings_layout_is_refused_not_obeyed() {
 fn subscribers_resume_after_the_node_restarts() {
     const TEST: &str = "subscribers_resume_after_the_node_restarts";
     let domain = 68;
-    if !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let mut me = Peer::new(domain, "listener");
@@ -281,7 +286,7 @@ fn subscribers_resume_after_the_node_restarts() {
 fn a_controller_killed_while_flooding_leaves_the_node_running() {
     const TEST: &str = "a_controller_killed_while_flooding_leaves_the_node_running";
     let domain = 69;
-    if roles::play_role_if_asked(domain) || !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let mut node = NodeProcess::start(domain, &[]);
@@ -309,7 +314,7 @@ fn a_controller_killed_while_flooding_leaves_the_node_running() {
 fn subscribers_joining_and_leaving_hundreds_of_times_leave_the_node_unharmed() {
     const TEST: &str = "subscribers_joining_and_leaving_hundreds_of_times_leave_the_node_unharmed";
     let domain = 74;
-    if !isolated_or_rerun(TEST) {
+    if !runs_here(TEST, domain) {
         return;
     }
     let mut node = NodeProcess::start(domain, &[]);

@@ -437,8 +437,11 @@ fn a_full_writer_queue_drops_whole_states_never_commands_or_the_structure() {
     assert!(failures > 0, "a queue of one batch cannot hold a step every 20 us");
 
     let counts = our_counts(&dir);
-    let count =
-        |short: &str| counts.get(&tensegrity::io::topics::topic_name(short, &params)).map_or(0, |(_, n)| *n);
+    let count = |short: &str| {
+        counts
+            .get(&tensegrity::io::topics::topic_name(short, &params.private_namespace()))
+            .map_or(0, |(_, n)| *n)
+    };
     assert_eq!(count("~/structure"), 1);
     assert_eq!(count("/tf_static"), 1);
     assert_eq!(count("~/applied_commands"), 2, "{counts:?}");

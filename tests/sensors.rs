@@ -5,6 +5,7 @@
 mod common;
 
 use common::model_from_toml;
+use tensegrity::io::sink::DiscardSink;
 use tensegrity::model::Model;
 use tensegrity::sensors::{SensorKind, Sensors};
 use tensegrity::sim::{SimSettings, Simulator};
@@ -192,25 +193,6 @@ fn careless_sensors_are_refused_naming_the_field() {
     }
 }
 
-struct Nowhere;
-
-impl tensegrity::io::sink::NodeSink for Nowhere {
-    fn publish(
-        &mut self,
-        _topic: tensegrity::io::topics::Topic,
-        _view: &tensegrity::io::sink::NodeView<'_>,
-    ) -> Result<(), tensegrity::io::sink::PublishError> {
-        Ok(())
-    }
-    fn step_request_done(
-        &mut self,
-        _ticket: u64,
-        _result: tensegrity::io::msg::SimResult,
-        _view: &tensegrity::io::sink::NodeView<'_>,
-    ) {
-    }
-}
-
 #[test]
 fn the_nodes_sensor_seed_parameter_overrides_the_scenes_and_a_reset_starts_the_stream_over() {
     use tensegrity::io::node::{params::NodeParams, NodeCore};
@@ -220,14 +202,14 @@ fn the_nodes_sensor_seed_parameter_overrides_the_scenes_and_a_reset_starts_the_s
         let mut core = NodeCore::new(model.clone(), params).unwrap();
         let mut out = vec![tension(core.sensors())];
         for _ in 0..2 {
-            let ticket = core.request_steps(50, &mut Nowhere).unwrap();
+            let ticket = core.request_steps(50, &mut DiscardSink).unwrap();
             assert!(ticket > 0);
             for k in 0..200 {
-                core.tick(std::time::Duration::from_millis(k), &mut Nowhere);
+                core.tick(std::time::Duration::from_millis(k), &mut DiscardSink);
             }
             out.push(tension(core.sensors()));
             if reset {
-                core.reset(&mut Nowhere);
+                core.reset(&mut DiscardSink);
                 assert_eq!(tension(core.sensors()), out[0], "a reset measures the start again");
             }
         }

@@ -101,6 +101,18 @@ pub trait NodeSink {
     fn simulation_reset(&mut self, _time: f64, _step: u64, _seed: Option<u64>) {}
 }
 
+/// A sink that publishes nothing and answers no request: for driving a `NodeCore` where only its
+/// state matters (tests, benchmarks, the allocation check).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct DiscardSink;
+
+impl NodeSink for DiscardSink {
+    fn publish(&mut self, _topic: Topic, _view: &NodeView<'_>) -> Result<(), PublishError> {
+        Ok(())
+    }
+    fn step_request_done(&mut self, _ticket: u64, _result: SimResult, _view: &NodeView<'_>) {}
+}
+
 /// Counters reported in `/diagnostics`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct NodeStats {

@@ -4,8 +4,6 @@
 //! channels with it, and the Python kit's `msgs.TOPICS` is generated from it
 //! (`io::schemas::python_module`).
 
-use crate::io::node::params::NodeParams;
-
 /// Every topic the node publishes, for per-topic failure counts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Topic {
@@ -185,15 +183,18 @@ pub const INPUT_TOPICS: [(&str, &str, TopicQos); 3] = [
     ),
 ];
 
-/// The full name of `topic` for a node with `params` (`~/x` is `<ns>/<node>/x`).
-pub fn topic_name(topic_short: &str, params: &NodeParams) -> String {
+/// The full name of `topic_short` for a node whose private namespace is `private_namespace`
+/// (`NodeParams::private_namespace`, `<ns>/<node>`): `~/x` is `<ns>/<node>/x`, other names are
+/// kept.
+pub fn topic_name(topic_short: &str, private_namespace: &str) -> String {
     match topic_short.strip_prefix("~/") {
-        Some(rest) => format!("{}/{rest}", params.private_namespace()),
+        Some(rest) => format!("{private_namespace}/{rest}"),
         None => topic_short.to_string(),
     }
 }
 
-/// The name a bag gives the applied-commands topic of a node with `params`.
-pub fn applied_commands_topic(params: &NodeParams) -> String {
-    topic_name(&format!("~/{APPLIED_COMMANDS}"), params)
+/// The name a bag gives the applied-commands topic of a node whose private namespace is
+/// `private_namespace`.
+pub fn applied_commands_topic(private_namespace: &str) -> String {
+    topic_name(&format!("~/{APPLIED_COMMANDS}"), private_namespace)
 }

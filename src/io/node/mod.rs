@@ -76,7 +76,7 @@ pub struct NodeCore {
     /// Steps since the start or the last reset.
     steps_since_reset: u64,
     /// Accepted, not yet applied commands, keep-last per actuator.
-    pending: Vec<Option<ActuatorCommand>>,
+    unapplied: Vec<Option<ActuatorCommand>>,
     /// Scratch for checking one message.
     checked: Vec<(ActuatorId, ActuatorCommand)>,
     /// Scratch for the applied commands of one boundary.
@@ -144,7 +144,7 @@ impl NodeCore {
             quit: false,
             stats: NodeStats::default(),
             steps_since_reset: 0,
-            pending: vec![None; n_actuators],
+            unapplied: vec![None; n_actuators],
             checked: Vec::with_capacity(n_actuators),
             applied: Vec::with_capacity(n_actuators),
             step_request: None,
@@ -220,7 +220,7 @@ impl NodeCore {
     /// to apply or rejections to report. A runner that slept because the core was idle turns it
     /// at once when this becomes true after taking inputs.
     pub fn idle_turn_due(&self) -> bool {
-        !self.idle() || self.rejections_unreported > 0 || self.pending.iter().any(Option::is_some)
+        !self.idle() || self.rejections_unreported > 0 || self.unapplied.iter().any(Option::is_some)
     }
 
     /// The `SimulationState` code: PAUSED or PLAYING.
@@ -338,7 +338,7 @@ impl NodeCore {
             Ok(()) => {
                 self.stats.commands_accepted += 1;
                 for (id, cmd) in &self.checked {
-                    self.pending[id.0] = Some(*cmd);
+                    self.unapplied[id.0] = Some(*cmd);
                 }
             }
             Err(e) => {
@@ -455,7 +455,7 @@ impl NodeCore {
         if !self.params.follow_schedule {
             self.command_every_actuator(false);
         }
-        self.pending.fill(None);
+        self.unapplied.fill(None);
         self.previous_rest.copy_from_slice(&self.sim.state().rest_lengths);
         self.rates.fill(0.0);
         self.last_state_publish = None;
@@ -533,7 +533,7 @@ impl NodeCore {
     pub fn tick(&mut self, now: Duration, sink: &mut dyn NodeSink) -> Option<Duration> {
         self.commands_this_step = 0;
         self.window.get_or_insert((now, self.sim.state().time));
-        self.apply_pending(sink);
+        self.apply_commands(sink);
         let wake = if self.paused && self.step_request.is_none() {
             self.anchor = None;
             Some(now + IDLE_PERIOD)
@@ -579,9 +579,9 @@ impl NodeCore {
         }
     }
 
-    fn apply_pending(&mut self, sink: &mut dyn NodeSink) {
+    fn apply_commands(&mut self, sink: &mut dyn NodeSink) {
         self.applied.clear();
-        for (i, slot) in self.pending.iter_mut().enumerate() {
+        for (i, slot) in self.unapplied.iter_mut().enumerate() {
             if let Some(cmd) = slot.take() {
                 self.applied.push((ActuatorId(i), cmd));
             }

@@ -451,16 +451,6 @@ mod tests {
     use crate::io::node::params::NodeParams;
     use crate::io::node::NodeCore;
     use crate::io::record::BagRecorder;
-    use crate::io::sink::{NodeSink, PublishError};
-
-    struct Nowhere;
-
-    impl NodeSink for Nowhere {
-        fn publish(&mut self, _topic: Topic, _view: &NodeView<'_>) -> Result<(), PublishError> {
-            Ok(())
-        }
-        fn step_request_done(&mut self, _ticket: u64, _result: msg::SimResult, _view: &NodeView<'_>) {}
-    }
 
     /// The CDR of `topic`'s message from `view`; `None` where the view has none (`~/imu` of a
     /// scene without an IMU).
@@ -486,7 +476,7 @@ mod tests {
                 ..NodeParams::default()
             };
             let mut core = NodeCore::new(model.clone(), params).unwrap();
-            core.start(&mut Nowhere);
+            core.start(&mut crate::io::sink::DiscardSink);
             core
         };
         let (mut world, mut lab) = (core("world"), core("lab"));
@@ -520,7 +510,7 @@ mod tests {
         let model = crate::scene::load(&path).unwrap();
         let params = NodeParams { real_time_factor: 0.0, state_publish_rate: 0.0, ..NodeParams::default() };
         let mut core = NodeCore::new(model.clone(), params).unwrap();
-        core.start(&mut Nowhere);
+        core.start(&mut crate::io::sink::DiscardSink);
         core.offer_command(&msg::ActuatorCommand {
             name: vec!["ring_winch".into()],
             rest_length: vec![4.0],
@@ -528,7 +518,7 @@ mod tests {
             ..Default::default()
         });
         for k in 0..40 {
-            core.tick(Duration::from_millis(k), &mut Nowhere);
+            core.tick(Duration::from_millis(k), &mut crate::io::sink::DiscardSink);
         }
         let live = core.view();
         assert!(live.rates.iter().any(|r| *r != 0.0), "the winch moves");

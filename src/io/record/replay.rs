@@ -196,8 +196,8 @@ pub fn replay(
             names[t.index()] = Some(spec.name);
         }
     }
-    let applied_topic = applied_commands_topic(&params);
-    let diagnostics = topic_name(Topic::Diagnostics.name(), &params);
+    let applied_topic = applied_commands_topic(&params.private_namespace());
+    let diagnostics = topic_name(Topic::Diagnostics.name(), &params.private_namespace());
     let mut rerun;
     let mut sink;
     if kind == KIND_QUASI_STATIC {

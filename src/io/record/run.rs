@@ -155,12 +155,16 @@ pub fn node_topics(params: &NodeParams, model: &Model) -> Vec<(Option<Topic>, To
             continue;
         }
         if let Some((type_name, qos)) = topic_type(topic) {
-            let spec = TopicSpec { name: topic_name(topic.name(), params), type_name: type_name.into(), qos };
+            let spec = TopicSpec {
+                name: topic_name(topic.name(), &params.private_namespace()),
+                type_name: type_name.into(),
+                qos,
+            };
             out.push((Some(topic), spec));
         }
     }
     let applied = TopicSpec {
-        name: applied_commands_topic(params),
+        name: applied_commands_topic(&params.private_namespace()),
         type_name: "tensegrity_msgs/msg/AppliedCommands".into(),
         qos: TopicQos { depth: 100, transient_local: false },
     };
