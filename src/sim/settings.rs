@@ -128,7 +128,7 @@ pub enum StepError {
         time: f64,
         /// Energy the run has made up (`-EnergyAccount::numerical_loss`), J.
         gain: f64,
-        /// The run's energy scale (`divergence_scale`), J.
+        /// The run's energy scale (`Guards::arm`), J.
         scale: f64,
     },
     /// A run asked to start from the static equilibrium (`Simulator::at_equilibrium`), and
