@@ -50,6 +50,7 @@ pub mod sim;
 pub mod solve;
 pub mod state;
 pub mod study;
+pub mod task;
 pub mod testing;
 
 pub use error::{SceneError, SolveError};

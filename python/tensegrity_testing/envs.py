@@ -3,7 +3,7 @@ lockstep and turns it into a `gymnasium.Env`. The simulator is in this process
 (`backend="inprocess"`: the extension `tensegrity_native`, `pip install ./python/native`; no
 round trip between processes, the fastest) or a `tensegrity_node` process of its own, stepped over
 shared memory (`backend="node"`: no DDS, so no network; isolated from this process's crashes).
-`backend="auto"` (the default) takes the extension when it is installed. Both run the same node
+`backend="auto"` (the default) is the extension. Both run the same node
 core: the same seed and actions give the same episodes to the bit on either.
 
 - observations: chosen arrays of the state after each action (tensions, lengths, rest lengths,
@@ -28,7 +28,10 @@ Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring driv
 ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the six-bar robot on the
 ground rolled toward a goal by its 24 winches).
 
-Needs `gymnasium` and `numpy` (`pip install ./python[gym]`).
+The task itself (the action mapping, the observation layout, the default reward) is the
+library's (`tensegrity::task` in Rust), read from the extension for both backends, so they
+compute it with the same code. Needs `gymnasium` and `numpy` (`pip install ./python[gym]`) and
+the extension (`pip install ./python/native`).
 """
 
 import math
@@ -41,24 +44,20 @@ from gymnasium import spaces
 from . import inprocess
 from .node import TensegrityNode, command
 
-#: Arrays an observation may take from the state (`State` fields), per element.
-STATE_FIELDS = {
-    "cable_tension": "cable",
-    "cable_length": "cable",
-    "cable_rest_length": "cable",
-    "actuator_rest_length": "actuator",
-    "actuator_rate": "actuator",
-    "body_position": "body3",
-    "body_orientation": "body4",
-}
+try:
+    import tensegrity_native as _native
+except ImportError as e:  # pragma: no cover - the message is the point
+    raise ImportError(
+        "the Gymnasium environments take their task (action mapping, observation layout, reward) "
+        "from the extension tensegrity_native: pip install ./python/native (from a checkout of "
+        "the simulator)"
+    ) from e
+
+#: The library's observation fields (`tensegrity_native.observation_fields()`): name -> what
+#: it has one entry per (`cable`, `actuator`, `body`) and numbers per entry.
+STATE_FIELDS = {f["name"]: (f["element"], f["width"]) for f in _native.observation_fields()}
 #: What the sensors' channels fill instead, with `measured=True` (`State.measured` keys).
-MEASURED_FIELDS = {
-    "cable_tension": "tension",
-    "cable_length": "length",
-    "actuator_rest_length": "rest_length",
-    "body_position": "position",
-    "body_orientation": "orientation",
-}
+MEASURED_FIELDS = {f["name"]: f["sensor"] for f in _native.observation_fields() if f["sensor"]}
 #: Reward of an action after which the physics failed (the episode terminates).
 FAILURE_REWARD = -10.0
 
@@ -95,7 +94,7 @@ class TensegrityEnv(gym.Env):
         self.max_episode_steps, self.fields, self.measured = int(max_episode_steps), tuple(observation), measured
         self._reward, self._terminated = reward, terminated
         if backend == "auto":
-            backend = "inprocess" if inprocess.available() else "node"
+            backend = "inprocess"
         if backend == "inprocess":
             self.node = inprocess.InProcessSimulator(scene, params=params)
         elif backend == "node":
@@ -126,13 +125,6 @@ class TensegrityEnv(gym.Env):
             self.normalize = normalize
             self._cables = [names["actuator_cable"][i] for i in index]
             start = self.node.lockstep(0)
-            # where each observed array sits: (field, elements, numbers per element)
-            bodies = len(names["body_names"])
-            shapes = {"cable": (len(names["cable_names"]), 1), "actuator": (len(all_actuators), 1),
-                      "body3": (bodies, 3), "body4": (bodies, 4)}
-            self._layout = [(f, *shapes[STATE_FIELDS[f]]) for f in self.fields]
-            size = sum(n * width for _, n, width in self._layout)
-            self.observation_space = spaces.Box(low=-np.inf, high=np.inf, shape=(size,), dtype=np.float64)
             cable_names = names["cable_names"]
             if target_tension is None:
                 target_tension = {cable_names[c]: max(1.5 * start.cable_tension[c], 1.0) for c in self._cables}
@@ -143,6 +135,14 @@ class TensegrityEnv(gym.Env):
                 raise ValueError(f"target_tension must map cables of {cable_names} to tensions > 0 N, "
                                  f"got {self.target_tension}")
             self._targets = [(cable_names.index(c), float(t)) for c, t in self.target_tension.items()]
+            # the task: the library's action mapping, observation layout and reward
+            task = (index, action == "rate", self.limits[0].tolist(), self.limits[1].tolist(), normalize,
+                    list(self.fields), bool(measured), self._targets)
+            self._task = _native.Task(len(cable_names), len(all_actuators), len(names["body_names"]), *task)
+            # where each observed array sits: (field, elements, numbers per element)
+            self._layout = self._task.layout()
+            size = sum(n * width for _, n, width in self._layout)
+            self.observation_space = spaces.Box(low=-np.inf, high=np.inf, shape=(size,), dtype=np.float64)
         except BaseException:
             self.node.stop()
             raise
@@ -150,15 +150,13 @@ class TensegrityEnv(gym.Env):
         # the hot path, as plain Python over the shared-memory sample: one command entry per
         # actuator, made once (by index), and the limits as floats
         self._entries = [command(i, **{action: 0.0}) for i in index]
-        self._bounds = list(zip(self.limits[0].tolist(), self.limits[1].tolist()))
         # without callbacks or sensors a step reads the sample in place instead of a `State`;
         # in process, without callbacks, the whole step is one call into the extension
         self._fast = reward is None and terminated is None and not measured and backend == "node"
         self._native = None
         if backend == "inprocess" and reward is None and terminated is None:
             self._native = self.node.sim
-            self._native.configure(index, action == "rate", self.limits[0].tolist(), self.limits[1].tolist(),
-                                   normalize, list(self.fields), bool(measured), self._targets)
+            self._native.configure(*task)
         self._observation = self.observe(start)
         self._last_info = self._info(start)
 
@@ -193,8 +191,8 @@ class TensegrityEnv(gym.Env):
 
     def _tension_reward_of(self, tensions):
         """`tension_reward` of the cable tensions `tensions` (a `State`'s, or a sample's read in
-        place)."""
-        return -sum(abs(tensions[c] - t) / t for c, t in self._targets) / len(self._targets)
+        place): the library's (`tensegrity_native.Task.reward`)."""
+        return self._task.reward(tensions)
 
     def _info(self, state):
         """`info` after `state` (a `State`, or a state sample read in place)."""
@@ -215,22 +213,13 @@ class TensegrityEnv(gym.Env):
 
     def command_values(self, action):
         """The rates (m/s) or rest lengths (m) `action` asks for, a list: clipped to the action
-        space, mapped from [-1, 1] onto the limits when normalized. A NaN or infinite value, or
-        the wrong number of them, is refused (`ValueError`)."""
-        flat = action if isinstance(action, (list, tuple)) else np.ravel(action)
-        if len(flat) != len(self._bounds):
-            raise ValueError(f"the action has {len(flat)} values for {len(self._bounds)} actuators")
-        values = []
-        for x, (low, high) in zip(flat, self._bounds):
-            x = float(x)
-            if not math.isfinite(x):
-                raise ValueError(f"the action is not finite: {action}")
-            if self.normalize:
-                x = low + 0.5 * (min(max(x, -1.0), 1.0) + 1.0) * (high - low)
-            else:
-                x = min(max(x, low), high)
-            values.append(x)
-        return values
+        space, mapped from [-1, 1] onto the limits when normalized (the library's mapping,
+        `tensegrity_native.Task.values`). A NaN or infinite value, or the wrong number of them, is
+        refused (`ValueError`)."""
+        try:
+            return self._task.values(action)
+        except TypeError:  # not float64 numbers (ints, a list of numpy scalars): as floats
+            return self._task.values(np.ravel(np.asarray(action, dtype=np.float64)))
 
     def step(self, action):
         """Applies `action` (clipped to the action space) for `action_period` physics steps."""
@@ -348,7 +337,7 @@ class TensegrityVectorEnv(gym.vector.VectorEnv):
     """`n` `TensegrityEnv(**kwargs)` stepped from this process, in parallel on every core, with
     no pipes and no pickling (unlike `gymnasium.vector.AsyncVectorEnv`):
 
-    - in process (`backend="inprocess"`, or "auto" with `tensegrity_native` installed), one call
+    - in process (`backend="inprocess"` or "auto"), one call
       steps every simulator, each on a core of its own while Python waits
       (`tensegrity_native.act_all`); with reward or termination callbacks they step one after
       another;

@@ -31,13 +31,13 @@ use crate::io::node::params::NodeParams;
 use crate::io::node::NodeCore;
 use crate::io::record::BagRecorder;
 use crate::io::shm::{
-    check_capacity, check_command, fill_contacts, fill_measured, fill_state, ros_order, ros_quaternion,
-    zeroed, CommandSample, ContactsSample, MeasuredSample, StateSample, ZeroValid,
+    check_capacity, check_command, fill_contacts, fill_measured, fill_state, zeroed, CommandSample,
+    ContactsSample, MeasuredSample, StateSample, ZeroValid,
 };
 use crate::io::sink::{NodeSink, NodeView, PublishError};
 use crate::io::topics::Topic;
 use crate::model::{ActuatorId, Model};
-use crate::sensors::{reading, SensorKind};
+use crate::task::{LearningTask, ObservationField, TaskSizes};
 
 pyo3::create_exception!(
     tensegrity_native,
@@ -91,115 +91,6 @@ impl NodeSink for Outputs {
     }
 }
 
-/// An array of the state an observation may take, per element (`STATE_FIELDS` of envs.py).
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Field {
-    CableTension,
-    CableLength,
-    CableRestLength,
-    ActuatorRestLength,
-    ActuatorRate,
-    BodyPosition,
-    BodyOrientation,
-}
-
-impl Field {
-    fn parse(name: &str) -> Option<Self> {
-        Some(match name {
-            "cable_tension" => Self::CableTension,
-            "cable_length" => Self::CableLength,
-            "cable_rest_length" => Self::CableRestLength,
-            "actuator_rest_length" => Self::ActuatorRestLength,
-            "actuator_rate" => Self::ActuatorRate,
-            "body_position" => Self::BodyPosition,
-            "body_orientation" => Self::BodyOrientation,
-            _ => return None,
-        })
-    }
-
-    /// The sensor channel that reports this field instead, with `measured` (`MEASURED_FIELDS`).
-    fn sensor(self) -> Option<SensorKind> {
-        Some(match self {
-            Self::CableTension => SensorKind::Tension,
-            Self::CableLength => SensorKind::Length,
-            Self::ActuatorRestLength => SensorKind::RestLength,
-            Self::BodyPosition => SensorKind::Position,
-            Self::BodyOrientation => SensorKind::Orientation,
-            Self::CableRestLength | Self::ActuatorRate => return None,
-        })
-    }
-
-    /// Appends this field of `v` to `out` (orientations x, y, z, w as in the state sample; a
-    /// measured orientation arrives w, x, y, z and is reordered like `fill_measured` does).
-    fn append(self, v: &NodeView<'_>, measured: bool, out: &mut Vec<f64>) {
-        let (model, state, ws) = (v.model, v.state, v.workspace);
-        if let Some(values) = self.sensor().filter(|_| measured).and_then(|k| reading(model, v.measured, k)) {
-            if self == Self::BodyOrientation {
-                for q in values.chunks_exact(4) {
-                    out.extend_from_slice(&ros_order(q));
-                }
-            } else {
-                out.extend_from_slice(values);
-            }
-            return;
-        }
-        match self {
-            Self::CableTension => out.extend(ws.cables.iter().map(|c| c.tension)),
-            Self::CableLength => out.extend(ws.cables.iter().map(|c| c.length)),
-            Self::CableRestLength => out.extend(ws.cables.iter().map(|c| c.rest_length)),
-            Self::ActuatorRestLength => {
-                out.extend(model.actuators.iter().map(|a| state.rest_lengths[a.cable.0]))
-            }
-            Self::ActuatorRate => out.extend(model.actuators.iter().map(|a| v.rates[a.cable.0])),
-            Self::BodyPosition => {
-                for p in &state.poses {
-                    out.extend_from_slice(&[p.position.x, p.position.y, p.position.z]);
-                }
-            }
-            Self::BodyOrientation => {
-                for p in &state.poses {
-                    out.extend_from_slice(&ros_quaternion(p));
-                }
-            }
-        }
-    }
-}
-
-/// A learning task's constant description (`Simulator::configure`): which actuators an action
-/// drives and how, what is observed, and the default reward's targets.
-struct Task {
-    actuators: Vec<ActuatorId>,
-    /// True: each action value is a rate (m/s); false: a rest-length target (m).
-    rate: bool,
-    /// Each action value's limits in SI units (low, high).
-    bounds: Vec<(f64, f64)>,
-    /// Action values in [-1, 1], mapped linearly onto `bounds`; else clipped to them.
-    normalize: bool,
-    fields: Vec<Field>,
-    measured: bool,
-    /// (cable index, target tension N) of the default reward.
-    targets: Vec<(usize, f64)>,
-}
-
-impl Task {
-    /// The SI value of action value `x` for actuator slot `k` (`command_values` of envs.py,
-    /// the same operations in the same order, so both give the same bits).
-    fn value(&self, k: usize, x: f64) -> f64 {
-        let (low, high) = self.bounds[k];
-        if self.normalize {
-            low + 0.5 * (x.clamp(-1.0, 1.0) + 1.0) * (high - low)
-        } else {
-            x.max(low).min(high)
-        }
-    }
-
-    /// The default reward after `v`: minus the mean of `|T - T*| / T*` over the targets.
-    fn tension_reward(&self, v: &NodeView<'_>) -> f64 {
-        let sum: f64 = self.targets.iter().map(|&(c, t)| (v.workspace.cables[c].tension - t).abs() / t).sum();
-        -sum / self.targets.len() as f64
-    }
-}
-
 /// A boxed all-zero payload (large ones never pass through the stack).
 fn boxed_zeroed<T: ZeroValid>() -> Box<T> {
     let mut slot: Box<MaybeUninit<T>> = Box::new_uninit();
@@ -236,7 +127,7 @@ pub struct Simulator {
     out: Outputs,
     /// The core's wall clock (diagnostics only: lockstep is not paced).
     epoch: Instant,
-    task: Option<Task>,
+    task: Option<LearningTask>,
     /// Scratch of `act`: the action's values, then the commands.
     action: Vec<f64>,
     /// Scratch of `act`: the observation.
@@ -446,47 +337,11 @@ impl Simulator {
         measured: bool,
         targets: Vec<(usize, f64)>,
     ) -> PyResult<()> {
-        let m = self.core.simulator().model();
-        let bad = |why: String| Err(PyValueError::new_err(why));
-        if actuators.is_empty() || actuators.len() != low.len() || actuators.len() != high.len() {
-            return bad(format!(
-                "{} actuators, {} lows and {} highs: one each, at least one",
-                actuators.len(),
-                low.len(),
-                high.len()
-            ));
-        }
-        if let Some(a) = actuators.iter().find(|a| **a >= m.actuators.len()) {
-            return bad(format!("actuator index {a} of {}", m.actuators.len()));
-        }
-        if low.iter().zip(&high).any(|(l, h)| !(l.is_finite() && h.is_finite() && l <= h)) {
-            return bad("every bound finite and low <= high".into());
-        }
-        let mut parsed = Vec::with_capacity(fields.len());
-        for f in &fields {
-            parsed
-                .push(Field::parse(f).ok_or_else(|| PyValueError::new_err(format!("unknown field {f:?}")))?);
-        }
-        if parsed.is_empty() {
-            return bad("observe at least one field".into());
-        }
-        if let Some((c, t)) =
-            targets.iter().find(|(c, t)| *c >= m.cables.len() || !(t.is_finite() && *t > 0.0))
-        {
-            return bad(format!("target ({c}, {t}): a cable index of {} and a tension > 0", m.cables.len()));
-        }
-        if targets.is_empty() {
-            return bad("at least one target tension".into());
-        }
-        self.task = Some(Task {
-            actuators: actuators.into_iter().map(ActuatorId).collect(),
-            rate,
-            bounds: low.into_iter().zip(high).collect(),
-            normalize,
-            fields: parsed,
-            measured,
-            targets,
-        });
+        let sizes = TaskSizes::of(self.core.simulator().model());
+        let task =
+            LearningTask::new(&sizes, actuators, rate, &low, &high, normalize, &fields, measured, targets)
+                .map_err(PyValueError::new_err)?;
+        self.task = Some(task);
         Ok(())
     }
 
@@ -516,19 +371,11 @@ struct Outcome {
     step: u64,
 }
 
-/// The task, once `values` (an action's) are one per actuator and finite.
-fn checked_task<'a>(task: &'a Option<Task>, values: &[f64]) -> PyResult<&'a Task> {
+/// The task, once `values` (an action's) are one per actuator and finite: mapped in place onto
+/// the actuators' rates or rest lengths (`LearningTask::map_action`).
+fn mapped_action<'a>(task: &'a Option<LearningTask>, values: &mut [f64]) -> PyResult<&'a LearningTask> {
     let task = task.as_ref().ok_or_else(|| PyRuntimeError::new_err("configure the task before act"))?;
-    if values.len() != task.actuators.len() {
-        return Err(PyValueError::new_err(format!(
-            "the action has {} values for {} actuators",
-            values.len(),
-            task.actuators.len()
-        )));
-    }
-    if values.iter().any(|x| !x.is_finite()) {
-        return Err(PyValueError::new_err(format!("the action is not finite: {values:?}")));
-    }
+    task.map_action(values).map_err(PyValueError::new_err)?;
     Ok(task)
 }
 
@@ -547,19 +394,16 @@ fn read_action(action: &Bound<'_, PyAny>, out: &mut Vec<f64>) -> PyResult<()> {
 }
 
 impl Simulator {
-    /// Checks the action values in `self.action` (`checked_task`), maps them onto the
-    /// actuators' limits and offers them as one command message (applied at the next step).
+    /// Checks the action values in `self.action` and maps them onto the actuators' limits
+    /// (`mapped_action`), and offers them as one command message (applied at the next step).
     /// Takes no step.
     fn offer_action(&mut self) -> PyResult<()> {
         let Self { core, task, action, .. } = self;
-        let task = checked_task(task, action)?;
-        for (k, x) in action.iter_mut().enumerate() {
-            *x = task.value(k, *x);
-        }
+        let task = mapped_action(task, action)?;
         offer(core, |model, out| {
             for (&id, &x) in task.actuators.iter().zip(action.iter()) {
                 let c = if task.rate { ActuatorCommand::rate(x) } else { ActuatorCommand::target(x) };
-                commands::check_entry(model, id, c, out)?;
+                commands::check_entry(model, ActuatorId(id), c, out)?;
             }
             Ok(())
         })
@@ -572,11 +416,16 @@ impl Simulator {
         let task = self.task.as_ref().ok_or("configure the task before act")?;
         let view = self.core.view();
         self.observation.clear();
-        for f in &task.fields {
-            f.append(&view, task.measured, &mut self.observation);
-        }
+        task.observe(
+            view.model,
+            view.state,
+            view.workspace,
+            view.rates,
+            view.measured,
+            &mut self.observation,
+        );
         Ok(Outcome {
-            reward: task.tension_reward(&view),
+            reward: task.tension_reward(|c| view.workspace.cables[c].tension),
             faulted: view.faulted,
             time: view.state.time,
             step: view.step,
@@ -610,7 +459,9 @@ fn act_all<'py>(
     }
     for (sim, action) in sims.iter_mut().zip(&actions) {
         read_action(action, &mut sim.action)?;
-        checked_task(&sim.task, &sim.action)?;
+        let task =
+            sim.task.as_ref().ok_or_else(|| PyRuntimeError::new_err("configure the task before act"))?;
+        task.check_action(&sim.action).map_err(PyValueError::new_err)?;
     }
     let mut offered = Vec::with_capacity(sims.len());
     for sim in sims.iter_mut() {
@@ -649,10 +500,95 @@ fn act_all<'py>(
     Ok(out)
 }
 
+/// The learning task's observation fields (`crate::task::ObservationField`), as the Gymnasium
+/// environment reads them: one dict per field, in order, with `name` (the `State` attribute),
+/// `element` (`cable`, `actuator` or `body`: what it has one entry per), `width` (numbers per
+/// entry) and `sensor` (the `State.measured` key of the channel that reports it instead, or
+/// `None`).
+#[pyfunction]
+fn observation_fields<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    ObservationField::ALL
+        .iter()
+        .map(|f| {
+            let d = PyDict::new(py);
+            d.set_item("name", f.name())?;
+            d.set_item("element", f.element().name())?;
+            d.set_item("width", f.width())?;
+            d.set_item("sensor", f.sensor().map(|k| k.name()))?;
+            Ok(d)
+        })
+        .collect()
+}
+
+/// A learning task (`crate::task::LearningTask`) outside a `Simulator`: the action mapping, the
+/// observation layout and the default reward, for an environment whose simulator runs in a node
+/// (`TensegrityEnv(backend="node")`), so that both backends compute them with the same code.
+#[pyclass(name = "Task", module = "tensegrity_native")]
+pub struct PyTask {
+    task: LearningTask,
+    sizes: TaskSizes,
+    /// Scratch of `values`.
+    action: Vec<f64>,
+}
+
+#[pymethods]
+impl PyTask {
+    /// The task for a model of `cables`, `actuators` and `bodies`, with the arguments of
+    /// `Simulator.configure`. Raises `ValueError` naming what is wrong.
+    #[new]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        cables: usize,
+        actuators_count: usize,
+        bodies: usize,
+        actuators: Vec<usize>,
+        rate: bool,
+        low: Vec<f64>,
+        high: Vec<f64>,
+        normalize: bool,
+        fields: Vec<String>,
+        measured: bool,
+        targets: Vec<(usize, f64)>,
+    ) -> PyResult<Self> {
+        let sizes = TaskSizes { cables, actuators: actuators_count, bodies };
+        let task =
+            LearningTask::new(&sizes, actuators, rate, &low, &high, normalize, &fields, measured, targets)
+                .map_err(PyValueError::new_err)?;
+        Ok(Self { task, sizes, action: Vec::new() })
+    }
+
+    /// The rates (m/s) or rest lengths (m) `action` (a float64 array or a sequence, one value per
+    /// actuator) asks for, a list. A value that is not finite, or the wrong count of them, raises
+    /// `ValueError`.
+    fn values(&mut self, action: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
+        read_action(action, &mut self.action)?;
+        self.task.map_action(&mut self.action).map_err(PyValueError::new_err)?;
+        Ok(self.action.clone())
+    }
+
+    /// The default reward of `tensions` (indexable by cable, N): minus the mean of
+    /// `|T - T*| / T*` over the targets.
+    fn reward(&self, tensions: &Bound<'_, PyAny>) -> PyResult<f64> {
+        let mut read = Vec::with_capacity(self.task.targets.len());
+        for &(c, _) in &self.task.targets {
+            read.push((c, tensions.get_item(c)?.extract::<f64>()?));
+        }
+        Ok(self.task.tension_reward(|c| read.iter().find(|(k, _)| *k == c).map_or(f64::NAN, |(_, t)| *t)))
+    }
+
+    /// Where each observed field sits in an observation: (name, entries, numbers per entry), in
+    /// order.
+    fn layout(&self) -> Vec<(&'static str, usize, usize)> {
+        self.task.layout(&self.sizes).into_iter().map(|(f, n, w)| (f.name(), n, w)).collect()
+    }
+}
+
 /// The module `tensegrity_native`.
 #[pymodule]
 fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Simulator>()?;
+    m.add_class::<PyTask>()?;
+    m.add_function(pyo3::wrap_pyfunction!(observation_fields, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(act_all, m)?)?;
     m.add("PhysicsFailure", m.py().get_type::<PhysicsFailure>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;

@@ -24,19 +24,7 @@ use crate::model::{ActuatorId, Model};
 
 use super::payload::*;
 use super::service::*;
-
-/// A pose's orientation as the payloads carry it: ROS order (x, y, z, w).
-pub fn ros_quaternion(pose: &crate::model::Pose) -> [f64; 4] {
-    let q = pose.rotation.quaternion();
-    [q.i, q.j, q.k, q.w]
-}
-
-/// An orientation sensor's reading (w, x, y, z) in ROS order (x, y, z, w).
-///
-/// Precondition: `q.len() == 4`.
-pub fn ros_order(q: &[f64]) -> [f64; 4] {
-    [q[1], q[2], q[3], q[0]]
-}
+use crate::task::{quaternion_xyzw, xyzw_of_wxyz};
 
 /// Fills `out` (all zero on entry) from `view`; `commands_applied_ns` as in `StateSample`.
 pub fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: u64) {
@@ -55,7 +43,7 @@ pub fn fill_state(out: &mut StateSample, v: &NodeView<'_>, commands_applied_ns: 
     out.faulted = u8::from(v.faulted);
     for (i, p) in state.poses.iter().enumerate() {
         out.body_position[i] = [p.position.x, p.position.y, p.position.z];
-        out.body_orientation[i] = ros_quaternion(p);
+        out.body_orientation[i] = quaternion_xyzw(p);
     }
     for (i, c) in ws.cables.iter().enumerate() {
         out.cable_tension[i] = c.tension;
@@ -126,7 +114,7 @@ pub fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
         out.channels |= MEASURED_ORIENTATION;
         // the sensors' w, x, y, z into ROS order
         for (to, q) in out.body_orientation.iter_mut().zip(q.chunks_exact(4)) {
-            *to = ros_order(q);
+            *to = xyzw_of_wxyz(q);
         }
     }
     for (kind, bit, to) in [
