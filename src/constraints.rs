@@ -502,6 +502,9 @@ fn add_plane_hessian<S: TangentSink + ?Sized>(
 /// Orthonormal basis (columns) of the null space of `phi_q` (rows x n): the directions the joints
 /// allow. The identity without joints; `None` when the joints leave no freedom.
 pub fn null_space(phi_q: &DMatrix<f64>, n: usize) -> Option<DMatrix<f64>> {
+    if n == 0 {
+        return None;
+    }
     if phi_q.nrows() == 0 {
         return Some(DMatrix::identity(n, n));
     }

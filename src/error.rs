@@ -13,6 +13,32 @@ pub fn readable_number(x: f64) -> String {
     }
 }
 
+/// `" (did you mean 'x'?)"` for the candidate nearest `word` when it is a likely typo of it (an
+/// edit distance of at most a third of its length, at least 1), else an empty string.
+pub fn did_you_mean<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str>) -> String {
+    let best = candidates.into_iter().map(|c| (edit_distance(word, c), c)).min_by_key(|(d, _)| *d);
+    match best {
+        Some((d, c)) if d > 0 && d <= (word.chars().count() / 3).max(1) => format!(" (did you mean '{c}'?)"),
+        _ => String::new(),
+    }
+}
+
+/// The Levenshtein distance of `a` and `b` (insertions, deletions and substitutions of chars).
+pub fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut row: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut diagonal = row[0];
+        row[0] = i + 1;
+        for (j, cb) in b.iter().enumerate() {
+            let substitute = diagonal + usize::from(ca != *cb);
+            diagonal = row[j + 1];
+            row[j + 1] = substitute.min(row[j] + 1).min(row[j + 1] + 1);
+        }
+    }
+    row[b.len()]
+}
+
 /// A scene that cannot be read or is not a valid structure.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneError {

@@ -357,7 +357,9 @@ fn the_node_binary_answers_help_and_version_and_refuses_unknown_options() {
     }
     assert!(text.contains("ROS_DOMAIN_ID") && text.contains("SIGTERM"));
     // the ready file's lines, all of them (write_ready_file)
-    for key in ["pid=", "domain_id=", "namespace=", "node=", "shm_prefix=", "transports="] {
+    for key in
+        ["pid=", "domain_id=", "namespace=", "node=", "private_namespace=", "shm_prefix=", "transports="]
+    {
         assert!(text.contains(key), "--help names the ready file's {key} line");
     }
     let version = run(&["--version"]);

@@ -173,8 +173,50 @@ fn shared_memory_names_follow_namespace_and_node_remapping() {
     assert_eq!(q.private_namespace(), p.private_namespace());
     q.set("shm_prefix", "").unwrap();
     assert_eq!(q.shm_prefix(), "lab/rig2/sim");
-    for bad in ["/abs", "trailing/", "sp ace", "dot.ted", &"x".repeat(201)] {
+    for bad in ["//abs", "trailing/", "sp ace", "dot.ted", &"x".repeat(201)] {
         let e = q.set("shm_prefix", bad).unwrap_err().to_string();
         assert!(e.contains("parameter shm_prefix"), "{bad}: {e}");
     }
+}
+
+#[test]
+fn a_mistyped_parameter_or_integrator_is_answered_with_what_was_meant() {
+    let e = NodeParams::from_args(&args("--ros-args -p real_time_factr:=2"), no_env).unwrap_err().to_string();
+    assert!(e.contains("unknown parameter 'real_time_factr' (did you mean 'real_time_factor'?)"), "{e}");
+    let e = NodeParams::from_args(&args("--ros-args -p integrator:=rk5"), no_env).unwrap_err().to_string();
+    assert!(e.contains("unknown 'rk5' (did you mean 'rk4'?)"), "{e}");
+    assert!(e.contains("generalized-alpha, symplectic-euler, rk4, dormand-prince"), "{e}");
+    // far from every name: no guess, the list
+    let e = NodeParams::from_args(&args("--ros-args -p integrator:=verlet"), no_env).unwrap_err().to_string();
+    assert!(!e.contains("did you mean") && e.contains("dormand-prince"), "{e}");
+    // a shared-memory prefix written like a ROS name: its leading slash is dropped
+    let (p, _) = NodeParams::from_args(&args("--ros-args -p shm_prefix:=/lab/sim2"), no_env).unwrap();
+    assert_eq!(p.shm_prefix(), "lab/sim2");
+    assert!(NodeParams::from_args(&args("--ros-args -p shm_prefix:=/lab/"), no_env).is_err());
+}
+
+#[test]
+fn an_unknown_bundled_scene_is_named_as_the_user_wrote_it() {
+    let e = tensegrity::scene::bundled("sixbars").unwrap_err().to_string();
+    assert!(e.starts_with("bundled:sixbars: no bundled scene 'sixbars' (did you mean 'sixbar'?)"), "{e}");
+    assert!(!e.contains("config/scenes"), "{e}");
+}
+
+#[test]
+fn the_node_refuses_a_scene_with_nothing_to_move_as_a_bad_scene() {
+    let dir = std::env::temp_dir().join(format!("tensegrity-node-fixed-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("fixed.toml");
+    std::fs::write(
+        &scene,
+        "[[bodies]]\nname = \"a\"\nkind = \"fixed\"\n[[bodies]]\nname = \"b\"\nkind = \"fixed\"\nposition = [1.0, 0.0, 0.0]\n\
+         [[cables]]\nname = \"c\"\nroute = [\"a\", \"b\"]\nea = 1000.0\nrest_length = 0.9\n",
+    )
+    .unwrap();
+    // it stops before any transport opens: no network namespace needed
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_tensegrity_node")).arg(&scene).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(3), "{stderr}");
+    assert!(stderr.contains("nothing to move"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

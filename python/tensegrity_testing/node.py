@@ -238,7 +238,7 @@ class TensegrityNode:
                                             stderr=self._log, env=env, preexec_fn=_die_with_parent)
             self.pid = self.process.pid
             self.info = self._wait_ready()
-            self.namespace = self.info["namespace"]
+            self.namespace = self.info["private_namespace"]
             self.shm_prefix = self.info["shm_prefix"] if "shm" in self.transports else None
             self._wait_discoverable()
         except BaseException:

@@ -57,8 +57,9 @@ fn help() -> String {
          \x20                      --params-file FILE -r __ns:=/NAMESPACE -r __node:=NAME]\n\
          \x20      tensegrity_node --help | --version\n\n\
          Options:\n  --ready-file PATH                once every publisher and service is up, writes PATH\n\
-         \x20                                  (pid=, domain_id=, namespace=, node=, shm_prefix=,\n\
-         \x20                                  transports= lines; written whole, removed at exit) and\n\
+         \x20                                  (pid=, domain_id=, namespace=, node=, private_namespace=,\n\
+         \x20                                  shm_prefix=, transports= lines; written whole, removed at\n\
+         \x20                                  exit) and\n\
          \x20                                  prints `ready` on stdout\n\nParameters (-p NAME:=VALUE, or a ROS 2 params file):\n",
     );
     let bundled: Vec<&str> = tensegrity::scene::BUNDLED.iter().map(|(n, _)| *n).collect();
@@ -126,11 +127,12 @@ fn take_ready_file(args: &mut Vec<String>) -> Result<Option<PathBuf>, Failure> {
 fn write_ready_file(path: &Path, params: &NodeParams) -> Result<(), Failure> {
     let transports: Vec<_> = params.transports.iter().map(|t| t.name()).collect();
     let text = format!(
-        "pid={}\ndomain_id={}\nnamespace={}\nnode={}\nshm_prefix={}\ntransports={}\n",
+        "pid={}\ndomain_id={}\nnamespace={}\nnode={}\nprivate_namespace={}\nshm_prefix={}\ntransports={}\n",
         std::process::id(),
         params.domain_id,
-        params.private_namespace(),
+        params.namespace,
         params.node_name,
+        params.private_namespace(),
         params.shm_prefix(),
         transports.join(",")
     );
@@ -192,6 +194,10 @@ fn run() -> Result<(), Failure> {
         )
         .map_err(|e| bad_scene(e.to_string()))?,
     };
+    if model.dof_count == 0 {
+        let label = params.scene.as_ref().map_or("<bundled prism3>".into(), |p| p.display().to_string());
+        return Err(bad_scene(format!("{label}: {}", tensegrity::sim::StepError::NothingToMove)));
+    }
     let mut serving = Vec::new();
     for t in &params.transports {
         serving.push(match t {

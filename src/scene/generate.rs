@@ -690,7 +690,16 @@ pub struct SixbarParams {
     /// controller that rolls the robot where it wants, and no schedule; else the one
     /// `roll_winch` and its haul.
     pub all_winches: bool,
+    /// Robots on the one ground, on a square grid `ROBOT_SPACING` apart (at least 1; rows of
+    /// `ceil(sqrt(robots))` along x, then on along y); from 2 on,
+    /// each robot's bodies, cables, actuators and ramps carry the prefix `rK_` (`r0_x0`,
+    /// `r1_roll_winch`), for measuring cost against size.
+    pub robots: usize,
 }
+
+/// Distance between neighbouring robots of a generated fleet (`SixbarParams::robots`), m: far
+/// enough that a robot rolling one face does not reach the next.
+pub const ROBOT_SPACING: f64 = 3.0;
 
 impl Default for SixbarParams {
     fn default() -> Self {
@@ -705,6 +714,7 @@ impl Default for SixbarParams {
             roll_fraction: 0.57,
             roll_duration: 2.0,
             all_winches: false,
+            robots: 1,
         }
     }
 }
@@ -719,6 +729,52 @@ impl Default for SixbarParams {
 /// `contact_radius`. One actuator (`roll_winch`) on an edge of that bottom triangle hauls the cable
 /// in: the robot tips over the opposite edge onto the next face, one roll.
 pub fn sixbar(p: &SixbarParams) -> SceneSpec {
+    let one = one_sixbar(p);
+    if p.robots <= 1 {
+        return one;
+    }
+    let mut fleet = SceneSpec {
+        name: format!("{} x{}", one.name, p.robots),
+        description: format!(
+            "{} robots on a grid {ROBOT_SPACING} m apart on one ground (names prefixed rK_), each: {}",
+            p.robots, one.description
+        ),
+        bodies: Vec::new(),
+        cables: Vec::new(),
+        actuators: Vec::new(),
+        deployment: one.deployment.as_ref().map(|d| DeploymentSpec { steps: d.steps, ramps: Vec::new() }),
+        ..one.clone()
+    };
+    let columns = (p.robots as f64).sqrt().ceil() as usize;
+    for k in 0..p.robots {
+        let prefix = |name: &str| format!("r{k}_{name}");
+        let (dx, dy) = ((k % columns) as f64 * ROBOT_SPACING, (k / columns) as f64 * ROBOT_SPACING);
+        for b in &one.bodies {
+            let ends = b.ends.map(|e| e.map(|[x, y, z]| [round9s(x + dx), round9s(y + dy), z]));
+            fleet.bodies.push(BodySpec { name: prefix(&b.name), ends, ..b.clone() });
+        }
+        for c in &one.cables {
+            let route = c.route.iter().map(|r| prefix(r)).collect();
+            fleet.cables.push(CableSpec { name: prefix(&c.name), route, ..c.clone() });
+        }
+        for a in &one.actuators {
+            fleet.actuators.push(ActuatorSpec {
+                name: prefix(&a.name),
+                cable: prefix(&a.cable),
+                ..a.clone()
+            });
+        }
+        if let (Some(d), Some(fd)) = (&one.deployment, &mut fleet.deployment) {
+            for r in &d.ramps {
+                fd.ramps.push(RampSpec { actuator: prefix(&r.actuator), ..r.clone() });
+            }
+        }
+    }
+    fleet
+}
+
+/// One robot of `sixbar`.
+fn one_sixbar(p: &SixbarParams) -> SceneSpec {
     use nalgebra::{Rotation3, Vector3};
     let (l, s) = (p.strut_length, p.strut_length / 4.0);
     // struts by family (the axis they run along) and sign of their offset

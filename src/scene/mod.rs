@@ -48,11 +48,12 @@ pub fn bundled(name: &str) -> Result<Model, SceneError> {
     match bundled_text(stem) {
         Some(text) => from_toml(text, &label),
         None => Err(SceneError {
-            file: label,
+            file: format!("bundled:{stem}"),
             line: None,
             field: String::new(),
             reason: format!(
-                "no bundled scene '{stem}' (bundled: {})",
+                "no bundled scene '{stem}'{} (bundled: {})",
+                crate::error::did_you_mean(stem, BUNDLED.iter().map(|(n, _)| *n)),
                 BUNDLED.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
             ),
         }),

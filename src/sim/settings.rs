@@ -160,4 +160,7 @@ pub enum StepError {
     /// The tolerance is not positive and finite.
     #[error("invalid error tolerance {0} m")]
     InvalidTolerance(f64),
+    /// The model has no free coordinate (every body is fixed): there is nothing to simulate.
+    #[error("nothing to move: every body is fixed (the scene has no free coordinate)")]
+    NothingToMove,
 }

@@ -79,6 +79,9 @@ impl Simulator {
 
     /// A simulator starting at `state` (e.g. a quasi-static equilibrium).
     pub fn from_state(model: Model, mut state: State, settings: SimSettings) -> Result<Self, StepError> {
+        if model.dof_count == 0 {
+            return Err(StepError::NothingToMove);
+        }
         if !(settings.dt.is_finite() && settings.dt > 0.0) {
             return Err(StepError::InvalidStep(settings.dt));
         }

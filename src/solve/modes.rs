@@ -40,10 +40,14 @@ pub struct Mode {
     pub segment_change: Vec<f64>,
 }
 
-/// The modes at `state` (an equilibrium with its multipliers), lowest `omega^2` first. `None`
-/// when the mass matrix on the joints' null space is singular (a massless free coordinate).
+/// The modes at `state` (an equilibrium with its multipliers), lowest `omega^2` first; none when
+/// nothing can move (no free coordinate, or joints that hold every one). `None` when the mass
+/// matrix on the joints' null space is singular (a massless free coordinate).
 pub fn natural_modes(model: &Model, state: &State) -> Option<Vec<Mode>> {
     let n = model.dof_count;
+    if n == 0 {
+        return Some(Vec::new());
+    }
     let mut ws = Workspace::new(model);
     evaluate(model, state, &mut ws, Tangents::Stiffness);
     let mut k = ws.stiffness.clone();
@@ -52,7 +56,9 @@ pub fn natural_modes(model: &Model, state: &State) -> Option<Vec<Mode>> {
     }
     let k = (&k + k.transpose()) * 0.5;
     let m = mass_matrix(model);
-    let z = crate::constraints::null_space(&ws.constraint_jacobian, n)?;
+    let Some(z) = crate::constraints::null_space(&ws.constraint_jacobian, n) else {
+        return Some(Vec::new()); // the joints hold every coordinate
+    };
     let l = (z.transpose() * &m * &z).cholesky()?.l();
     let l_inv = l.try_inverse()?;
     let s = &l_inv * (z.transpose() * &k * &z) * l_inv.transpose();

@@ -131,7 +131,7 @@ fn steps_bench(target: &str, integrator: IntegratorName, dt: f64, steps: usize) 
                 stages.parse().ok().filter(|s| (1..=256).contains(s)).ok_or("stages must be in [1, 256]")?;
             family.model(stages)?
         }
-        None => load(Path::new(&target))?,
+        None => crate::output::load_moving(Path::new(&target))?,
     };
     crate::output::check_dt("--dt", dt)?;
     if steps == 0 {
@@ -229,7 +229,7 @@ fn work_precision(
     if let Some(t) = tolerances.iter().find(|t| !(t.is_finite() && **t > 0.0)) {
         return Err(format!("--tolerances must be positive, got {t}"));
     }
-    let model = load(scene)?;
+    let model = crate::output::load_moving(scene)?;
     let duration = duration.unwrap_or(model.schedule.end_time() + 0.5);
     let steps = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4];
     let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };

@@ -77,6 +77,7 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
     let mut model = load(&scene)?;
     let out = out.unwrap_or_default();
     if dynamic {
+        crate::output::refuse_nothing_to_move(&model, &scene)?;
         let settings = dynamics.settings(&model)?;
         if global_error && settings.tolerance.is_none() {
             return Err("--global-error needs --tol (the global tolerance, m)".into());
@@ -85,7 +86,7 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
         return deploy_dynamic(&model, &scene, settings, run, &out, bag_dir.as_deref());
     }
     if let Some(note) = report::unheld_bodies_note(&model) {
-        return Err(format!("{}: {note}", scene.display()));
+        return Err(crate::output::input_error(format!("{}: {note}", scene.display())));
     }
     if let Some(n) = steps {
         let max = tensegrity::scene::limits::MAX_LOAD_STEPS;

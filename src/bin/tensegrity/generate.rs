@@ -72,6 +72,10 @@ pub enum GenerateKind {
         /// A winch on every cable and no schedule (the bundled sixbar_rover, for controllers).
         #[arg(long)]
         all_winches: bool,
+        /// Robots on the one ground, on a square grid 3 m apart, names prefixed rK_ (for
+        /// measuring cost against size).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        robots: u16,
     },
 }
 
@@ -118,9 +122,12 @@ pub fn run(kind: GenerateKind, out: Option<PathBuf>) -> Result<(), String> {
         GenerateKind::Atwood { m1, m2 } => {
             generate::atwood(&generate::AtwoodParams { m1, m2, ..Default::default() })
         }
-        GenerateKind::Sixbar { mu, all_winches } => {
-            generate::sixbar(&generate::SixbarParams { mu, all_winches, ..Default::default() })
-        }
+        GenerateKind::Sixbar { mu, all_winches, robots } => generate::sixbar(&generate::SixbarParams {
+            mu,
+            all_winches,
+            robots: robots.into(),
+            ..Default::default()
+        }),
     };
     // a generator's arguments are scene fields: refuse what `check` would refuse
     let label = format!("<generated {}>", spec.name);

@@ -136,7 +136,7 @@ fn main() -> ExitCode {
         Err(e) if e == CLOSED_PIPE => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
-            ExitCode::FAILURE
+            ExitCode::from(output::exit_status())
         }
     }
 }

@@ -14,6 +14,7 @@ use crate::output::*;
 /// Runs `modes` on `scene`: `count` modes, as JSON when `json`, drawn to `plot` when given.
 pub fn run(scene: &Path, json: bool, count: usize, plot: Option<PathBuf>) -> Result<(), String> {
     let model = load_for_statics(scene)?;
+    crate::output::refuse_nothing_to_move(&model, scene)?;
     let mut state = State::initial(&model);
     let mut ws = Workspace::new(&model);
     let mut solver = StaticSolver::new(&model);
@@ -104,6 +105,10 @@ fn format_modes(
         r.stability_words(),
         zero.len()
     );
+    if modes.is_empty() {
+        let _ = writeln!(out, "no free motion: the joints hold every coordinate, so nothing vibrates");
+        return Ok(out);
+    }
     let _ = writeln!(
         out,
         "\n{:>4} {:>14} {:>12}  {:<40} cables stretched, m per unit amplitude",

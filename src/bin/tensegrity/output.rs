@@ -77,16 +77,57 @@ pub(crate) fn say_closing(out: &Path, text: String) {
 }
 
 pub(crate) fn load(path: &Path) -> Result<Model, String> {
-    scene::load(path).map_err(|e| e.to_string())
+    scene::load(path).map_err(|e| input_error(e.to_string()))
 }
 
 /// Like `load`, but refuses scenes with bodies that nothing holds (they have no equilibrium).
 pub(crate) fn load_for_statics(path: &Path) -> Result<Model, String> {
     let model = load(path)?;
     match report::unheld_bodies_note(&model) {
-        Some(note) => Err(format!("{}: {note}", path.display())),
+        Some(note) => Err(input_error(format!("{}: {note}", path.display()))),
         None => Ok(model),
     }
+}
+
+/// Like `load`, but refuses a scene with nothing to move (every body fixed: no free
+/// coordinate), for the commands that move it (`deploy --dynamic`, `modes`, `study`).
+pub(crate) fn load_moving(path: &Path) -> Result<Model, String> {
+    let model = load(path)?;
+    refuse_nothing_to_move(&model, path)?;
+    Ok(model)
+}
+
+/// The input error of a scene with no free coordinate, for the commands that move it.
+pub(crate) fn refuse_nothing_to_move(model: &Model, path: &Path) -> Result<(), String> {
+    if model.dof_count == 0 {
+        return Err(input_error(format!(
+            "{}: nothing to move: every body is fixed (the scene has no free coordinate); \
+             `tensegrity statics` and `check` still report its tensions",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Exit status of a run that failed (no equilibrium, a step that failed, a replay that differs).
+pub(crate) const STATUS_FAILED: u8 = 1;
+/// Exit status of a command whose input cannot be used: a scene (or bag, or option file) that
+/// cannot be read, is invalid, or has nothing to do for the command. Clap's usage errors exit 2.
+pub(crate) const STATUS_INPUT: u8 = 3;
+
+/// The exit status `main` returns for the error that ended the run (`STATUS_FAILED` unless
+/// `input_error` set it).
+static EXIT_STATUS: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU8::new(STATUS_FAILED);
+
+/// `message` as the error of an input that cannot be used: the run exits with `STATUS_INPUT`.
+pub(crate) fn input_error(message: String) -> String {
+    EXIT_STATUS.store(STATUS_INPUT, std::sync::atomic::Ordering::Relaxed);
+    message
+}
+
+/// The exit status of the error that ended the run.
+pub(crate) fn exit_status() -> u8 {
+    EXIT_STATUS.load(std::sync::atomic::Ordering::Relaxed)
 }
 
 /// What `run` returns when its standard output was closed by the reader (`| head`): not an error.

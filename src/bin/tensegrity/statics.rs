@@ -22,7 +22,12 @@ struct StaticsJson {
     stable: bool,
     negative_stiffness_modes: usize,
     zero_stiffness_modes: usize,
-    min_stiffness_eigenvalue: f64,
+    /// Left out where it does not exist (no free motion): `not_computed` says why.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    min_stiffness_eigenvalue: Option<f64>,
+    /// The quantities left out of this report, each with the reason (docs/cli.md, "JSON").
+    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
+    not_computed: std::collections::BTreeMap<&'static str, &'static str>,
     potential_energy_j: f64,
     largest_move_from_scene_m: f64,
     bodies: Vec<report::BodyReport>,
@@ -32,6 +37,9 @@ struct StaticsJson {
     contacts: Vec<report::ContactReport>,
     joints: Vec<report::JointReport>,
 }
+
+/// Why a structure whose joints hold every coordinate has no reduced stiffness to report.
+const NO_FREE_MOTION: &str = "no free motion: the joints hold every coordinate";
 
 /// Runs `statics` on `scene`, as JSON when `json`.
 pub fn run(scene: &Path, json: bool) -> Result<(), String> {
@@ -73,7 +81,15 @@ pub fn run(scene: &Path, json: bool) -> Result<(), String> {
             stable: r.stable,
             negative_stiffness_modes: r.negative_modes,
             zero_stiffness_modes: r.zero_modes,
-            min_stiffness_eigenvalue: r.min_stiffness_eigenvalue,
+            min_stiffness_eigenvalue: r
+                .min_stiffness_eigenvalue
+                .is_finite()
+                .then_some(r.min_stiffness_eigenvalue),
+            not_computed: if r.min_stiffness_eigenvalue.is_finite() {
+                Default::default()
+            } else {
+                [("min_stiffness_eigenvalue", NO_FREE_MOTION)].into()
+            },
             potential_energy_j: r.potential_energy,
             largest_move_from_scene_m: largest_move.0,
             bodies: report::body_reports(&model, &state),
@@ -101,14 +117,18 @@ fn format_statics(
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{}: equilibrium after {}, residual {:.3e} N ({:.1e} of {:.4} N), {} (min reduced stiffness eigenvalue {:.4e})",
+        "{}: equilibrium after {}, residual {:.3e} N ({:.1e} of {:.4} N), {} ({})",
         model.name,
         counted(r.iterations, "Newton iteration"),
         r.residual,
         r.residual / r.force_scale,
         r.force_scale,
         r.stability_words(),
-        r.min_stiffness_eigenvalue
+        if r.min_stiffness_eigenvalue.is_finite() {
+            format!("min reduced stiffness eigenvalue {:.4e}", r.min_stiffness_eigenvalue)
+        } else {
+            NO_FREE_MOTION.to_string()
+        }
     );
     let _ = writeln!(
         out,
@@ -120,7 +140,12 @@ fn format_statics(
     let _ = writeln!(
         out,
         "\n{:<14} {:>12} {:>12} {:>12} {:>12} {:>12}  slack",
-        "cable", "tension N", "length m", "rest m", "strain", "pulleys"
+        if model.cables.iter().any(|c| !c.tension_only) { "cable/member" } else { "cable" },
+        "tension N",
+        "length m",
+        "rest m",
+        "strain",
+        "pulleys"
     );
     for c in cables {
         let _ = writeln!(

@@ -31,7 +31,7 @@ pub struct StudyArgs {
 /// Runs `study`.
 pub fn run(args: StudyArgs) -> Result<(), String> {
     let StudyArgs { scene, ramp_times, point, friction, settle, dynamics, jobs, out } = args;
-    let model = load(&scene)?;
+    let model = crate::output::load_moving(&scene)?;
     if let Some(mus) = friction {
         let result = study::friction_study(&model, &mus, point.as_deref(), &out)?;
         emit(&result.markdown());

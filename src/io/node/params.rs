@@ -314,7 +314,12 @@ impl NodeParams {
             "integrator" => {
                 let v = text(value);
                 if crate::solve::dynamics::Integrator::parse(&v, self.rho_inf).is_none() {
-                    return Err(err(format!("parameter integrator: unknown '{v}'")));
+                    let names = ["generalized-alpha", "symplectic-euler", "rk4", "dormand-prince"];
+                    return Err(err(format!(
+                        "parameter integrator: unknown '{v}'{}; the integrators: {}",
+                        crate::error::did_you_mean(&v, names),
+                        names.join(", ")
+                    )));
                 }
                 self.integrator = v;
             }
@@ -363,11 +368,14 @@ impl NodeParams {
             "shm_prefix" => {
                 let v = text(value);
                 let ok = |c: char| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '/');
+                // a ROS name's leading slash is not part of the prefix (`/lab/sim` is `lab/sim`)
+                let v = v.strip_prefix('/').map(str::to_string).unwrap_or(v);
                 if v.is_empty() {
                     self.shm_prefix_override = None;
                 } else if v.len() > 200 || !v.chars().all(ok) || v.starts_with('/') || v.ends_with('/') {
                     return Err(err(format!(
-                        "parameter shm_prefix: '{}' must be 1 to 200 letters, digits, '_', '-' and inner '/'",
+                        "parameter shm_prefix: '{}' must be 1 to 200 letters, digits, '_', '-' and '/' (a leading \
+                         '/' is dropped, as in a ROS name; no trailing one)",
                         crate::io::commands::excerpt(&v, 60)
                     )));
                 } else {
@@ -379,7 +387,12 @@ impl NodeParams {
                 self.record = (!v.is_empty()).then(|| PathBuf::from(v));
             }
             "use_sim_time" => {}
-            _ => return Err(err(format!("unknown parameter '{name}'"))),
+            _ => {
+                return Err(err(format!(
+                    "unknown parameter '{name}'{}; tensegrity_node --help lists them",
+                    crate::error::did_you_mean(name, PARAMETERS.iter().map(|(n, _, _)| *n))
+                )))
+            }
         }
         Ok(())
     }

@@ -17,13 +17,23 @@ pub(crate) struct LineSearch {
     pub energy_mode: bool,
 }
 
+/// What a line search found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Searched {
+    /// The fraction of the step to take.
+    pub alpha: f64,
+    /// Whether a trial decreased (`LineSearch::energy_mode`); else `alpha` is the best of the 12.
+    pub decreased: bool,
+}
+
 /// Trials at `alpha = limit, limit/2, ...` (12 at most): `trial(alpha)` sets the trial state and
 /// gives its residual merit and energy merit. Stops at the first trial that decreases (see
 /// `LineSearch::energy_mode`) and gives the fraction of the best finite trial so far (by the
 /// merit the mode compares); `None` when no trial was finite.
-pub(crate) fn line_search(search: &LineSearch, mut trial: impl FnMut(f64) -> (f64, f64)) -> Option<f64> {
+pub(crate) fn line_search(search: &LineSearch, mut trial: impl FnMut(f64) -> (f64, f64)) -> Option<Searched> {
     let mut alpha = search.limit;
     let mut best = (f64::INFINITY, alpha);
+    let mut decreased = false;
     for _ in 0..12 {
         let (residual_merit, energy) = trial(alpha);
         let value = if search.energy_mode { energy } else { residual_merit };
@@ -34,15 +44,16 @@ pub(crate) fn line_search(search: &LineSearch, mut trial: impl FnMut(f64) -> (f6
         // from the solution the energy tells progress better than the residual (a cable swung
         // about its anchor stretches on the tangent line), near it the residual does (the
         // energy's decrease drowns in round-off)
-        let decreased = if search.energy_mode {
-            value < search.energy0
-        } else {
-            value <= (1.0 - 1e-4 * alpha) * search.merit0 || energy < search.energy0
-        };
-        if value.is_finite() && decreased {
+        decreased = value.is_finite()
+            && if search.energy_mode {
+                value < search.energy0
+            } else {
+                value <= (1.0 - 1e-4 * alpha) * search.merit0 || energy < search.energy0
+            };
+        if decreased {
             break;
         }
         alpha *= 0.5;
     }
-    best.0.is_finite().then_some(best.1)
+    best.0.is_finite().then_some(Searched { alpha: best.1, decreased })
 }

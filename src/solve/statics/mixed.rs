@@ -11,7 +11,7 @@ use crate::model::{CableId, Model, SolverSettings};
 use crate::solve::statics::kkt::{
     commit_friction, convexity_correction, fit_multipliers, solve_regularized, STEP_CAP,
 };
-use crate::solve::statics::line_search::{line_search, LineSearch};
+use crate::solve::statics::line_search::{line_search, LineSearch, Searched};
 use crate::solve::statics::residual::{EquilibriumReport, Residual, StopReason};
 use crate::solve::statics::solver::{Start, StaticSolver};
 use crate::solve::statics::stiff::{MixedResidual, StiffCables};
@@ -293,7 +293,7 @@ impl StaticSolver {
                 let trial_res = Self::mixed_residual(model, &work, ws, &stiff, &rest, None);
                 (trial_res.merit(f_scale, l_scale), energy_of(ws, &stiff, trial_res.cable))
             });
-            let Some(alpha) = searched else {
+            let Some(Searched { alpha, .. }) = searched else {
                 stiff.tension.copy_from_slice(&base_tension);
                 self.stop = StopReason::Diverged;
                 break;

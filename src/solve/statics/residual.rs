@@ -121,8 +121,10 @@ pub(crate) struct Residual {
     pub(crate) constraint: f64,
     pub(crate) force_scale: f64,
     pub(crate) length_scale: f64,
-    /// Round-off floor of the force residual: positions carry a relative error of about machine
-    /// epsilon, so a cable's force is only known to `~eps EA L / L0`.
+    /// Round-off floor of the force residual: positions carry an absolute error of about machine
+    /// epsilon times their magnitude, so a cable's force is only known to `~eps EA R / L0`, with
+    /// `R` the larger of its length and the largest point coordinate (a structure far from the
+    /// origin knows its lengths less well than one at it).
     pub(crate) force_floor: f64,
 }
 
@@ -208,11 +210,12 @@ pub(crate) fn residual_of(
     let weight = model.bodies.iter().map(|b| b.mass * model.gravity.norm()).fold(0.0, f64::max);
     let tension = ws.cables.iter().map(|c| c.tension.abs()).fold(0.0, f64::max);
     let length = ws.cables.iter().map(|c| c.length).fold(0.0, f64::max);
+    let reach = ws.points.iter().map(|p| p.position.amax()).fold(0.0, f64::max);
     let force_floor = model
         .cables
         .iter()
         .zip(&ws.cables)
-        .map(|(m, c)| 16.0 * f64::EPSILON * m.axial_stiffness * c.length / c.rest_length)
+        .map(|(m, c)| 16.0 * f64::EPSILON * m.axial_stiffness * c.length.max(reach) / c.rest_length)
         .fold(0.0, f64::max);
     Residual {
         force_floor,

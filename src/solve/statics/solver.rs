@@ -6,7 +6,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::constraints::add_multiplier_hessian;
 use crate::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
-use crate::model::{Model, Pose, SolverSettings};
+use crate::model::{BodyId, Model, Pose, SolverSettings};
 use crate::solve::linear::{KktSystem, LinearBackend};
 use crate::solve::stability::{dense_stability, sparse_stability};
 use crate::solve::statics::kkt::{
@@ -14,7 +14,7 @@ use crate::solve::statics::kkt::{
     solve_regularized, solve_sparse, sparse_least_squares_multipliers, MAX_CONVEXITY_CHECK,
     SPARSE_STATICS_MIN,
 };
-use crate::solve::statics::line_search::{line_search, LineSearch};
+use crate::solve::statics::line_search::{line_search, LineSearch, Searched};
 use crate::solve::statics::residual::{
     body_size, load_rate, residual_of, EquilibriumReport, Residual, StopReason, CAP_EXTENSION,
 };
@@ -58,6 +58,12 @@ pub struct StaticSolver {
     /// The stiff cables of a structure held by prestress (`prestressed_stiff_cables`), which
     /// `equilibrate` first solves for as if they could push.
     pub(crate) prestressed: Vec<usize>,
+    /// The Levenberg-Marquardt shift of the sparse displacement form, 1/s^2: 0 while plain
+    /// Newton steps make progress; `mu M` is added to the tangent after a step that lowered
+    /// neither the residual nor the energy (an indefinite or singular tangent at a rough start,
+    /// which the dense path's convexity check would have shifted), grown tenfold while shifted
+    /// steps fail and shrunk tenfold while they succeed (`SPARSE_SHIFT_*`).
+    pub(crate) sparse_shift: f64,
 }
 
 impl StaticSolver {
@@ -88,6 +94,7 @@ impl StaticSolver {
             stop: StopReason::Converged,
             stiff,
             prestressed,
+            sparse_shift: 0.0,
         };
         if large {
             solver = solver.with_sparse_kkt(model, true);
@@ -305,6 +312,7 @@ impl StaticSolver {
         // step had to be cut or did not halve the residual
         let mut check_convexity = fresh || model.constraint_count == 0;
         let mut previous_merit = f64::INFINITY;
+        self.sparse_shift = 0.0;
         loop {
             let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
                 Start::Go(res) => res,
@@ -324,9 +332,16 @@ impl StaticSolver {
             // iteration that wants the convexity check (a fresh start, a step that had to be cut)
             // takes the dense step with it
             let dense_check = check_convexity && n <= MAX_CONVEXITY_CHECK;
-            let step = match self.sparse.as_mut().filter(|_| self.sparse_newton && !dense_check) {
+            let sparse_step = self.sparse_newton && !dense_check;
+            let step = match self.sparse.as_mut().filter(|_| sparse_step) {
                 Some(kkt) => {
                     assemble_sparse(kkt, model, state, ws);
+                    if self.sparse_shift > 0.0 {
+                        // a descent step of the energy where K + mu M is positive definite; the
+                        // line search judges it as a Newton step (by the residual or the energy:
+                        // near the solution the energy's decrease drowns in round-off)
+                        add_mass_shift(kkt, model, self.sparse_shift);
+                    }
                     solve_sparse(kkt, &self.rhs)
                 }
                 None => {
@@ -376,11 +391,17 @@ impl StaticSolver {
                 std::mem::swap(&mut state.poses, &mut self.trial_poses);
                 (residual_merit, energy_merit(ws))
             });
-            let Some(alpha) = searched else {
+            let Some(Searched { alpha, decreased }) = searched else {
                 self.stop = StopReason::Diverged;
                 break;
             };
             check_convexity |= alpha < limit.min(1.0);
+            if sparse_step {
+                // a full step that lowered the merit is a success; a capped or failed one not
+                let success = decreased && alpha >= 1.0;
+                self.sparse_shift =
+                    next_sparse_shift(self.sparse_shift, success, sparse_shift_base(model, &res));
+            }
             retract(model, &mut state.poses, &self.dq, alpha);
             state.multipliers = &base_multipliers + &dlambda * alpha;
             if energy_mode {
@@ -458,6 +479,45 @@ impl StaticSolver {
             zero_modes: modes.zero,
             rigid_modes: modes.rigid,
             potential_energy: ws.energies.elastic + ws.energies.gravitational,
+        }
+    }
+}
+
+/// The sparse displacement form's first Levenberg-Marquardt shift, 1/s^2: the curvature of the
+/// structure's own scale, `(|g| + F / m_max) / L` (the dense convexity shift's floor,
+/// `convexity_correction`), with `F` and `L` the residual's force and length scales.
+fn sparse_shift_base(model: &Model, res: &Residual) -> f64 {
+    let m_max = model.bodies.iter().map(|b| b.mass).fold(0.0, f64::max).max(1e-300);
+    (model.gravity.norm() + res.force_scale / m_max) / res.length_scale
+}
+
+/// Shifts below this fraction of the base return to plain Newton steps.
+pub const SPARSE_SHIFT_OFF: f64 = 1e-4;
+
+/// The largest shift, as a multiple of the base: a step this shifted is a gradient step of the
+/// size the structure's own forces move it in `1e-3 / sqrt(base)` s.
+pub const SPARSE_SHIFT_MAX: f64 = 1e6;
+
+/// The sparse shift after a step with shift `shift` that was a `success` (taken whole, and it
+/// lowered its merit) or not: a failed plain step starts shifting at `base`, a failed shifted
+/// step shifts ten times more (up to `SPARSE_SHIFT_MAX` times the base), a successful shifted
+/// step ten times less (and none below `SPARSE_SHIFT_OFF` of the base).
+fn next_sparse_shift(shift: f64, success: bool, base: f64) -> f64 {
+    match (shift > 0.0, success) {
+        (false, true) => 0.0,
+        (false, false) => base,
+        (true, false) => (10.0 * shift).min(SPARSE_SHIFT_MAX * base),
+        (true, true) if shift / 10.0 < SPARSE_SHIFT_OFF * base => 0.0,
+        (true, true) => shift / 10.0,
+    }
+}
+
+/// Adds `shift` times every body's mass matrix (`BodyModel::mass_matrix`, in its local
+/// coordinates) to the coordinate block of the sparse `kkt`.
+fn add_mass_shift(kkt: &mut KktSystem, model: &Model, shift: f64) {
+    for (b, body) in model.bodies.iter().enumerate() {
+        if body.dof_count > 0 {
+            kkt.add_body_block(BodyId(b), BodyId(b), &body.mass_matrix(), shift);
         }
     }
 }

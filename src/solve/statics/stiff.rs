@@ -95,7 +95,10 @@ pub(crate) fn stiff_sets(model: &Model, ws: &mut Workspace, size: f64) -> (Vec<u
     let mixed: Vec<usize> = (0..model.cables.len())
         .filter(|&c| {
             let cable = &model.cables[c];
-            let kind = if cable.tension_only { !prestressed } else { members && mixed_member(cable) };
+            // the mixed form is dense: from SPARSE_STATICS_MIN coordinates the displacement form
+            // on the sparse KKT system solves it (its cost grows with the structure, not its cube)
+            let kind =
+                if cable.tension_only { !prestressed && small } else { members && mixed_member(cable) };
             kind && stiff(c)
         })
         .collect();
