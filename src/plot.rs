@@ -4,7 +4,7 @@
 //! ticks at decades labelled as numbers are written (`0.1`, `1`, `10`; `1e-6` outside 1e-3 to
 //! 1e4); series take the Okabe-Ito colour-blind-safe palette (its yellow left out: too faint on
 //! white; dashed once it repeats) with alternating marker shapes, or, when they are ordered
-//! values of one parameter, a sequential map (viridis) with one colour each. Reference curves
+//! values of one parameter, a sequential map (plasma) with one colour each. Reference curves
 //! are drawn first as a wide grey band, so that series that follow them stay visible on top.
 //! The legend sits beside the plot, never over the data, and draws each entry as the plot does.
 
@@ -73,27 +73,29 @@ pub const PALETTE: [RGBColor; 6] = [
     RGBColor(86, 180, 233),
 ];
 
-/// Viridis (van der Walt and Smith) at nine evenly spaced points, for ordered series.
-const VIRIDIS: [(f64, f64, f64); 9] = [
-    (68.0, 1.0, 84.0),
-    (71.0, 44.0, 122.0),
-    (59.0, 81.0, 139.0),
-    (44.0, 113.0, 142.0),
-    (33.0, 144.0, 141.0),
-    (39.0, 173.0, 129.0),
-    (92.0, 200.0, 99.0),
-    (170.0, 220.0, 50.0),
-    (253.0, 231.0, 37.0),
+/// Plasma (van der Walt and Smith, matplotlib) at nine evenly spaced points, for ordered
+/// series: its hue turns from blue through purple and red to orange, so neighbouring series stay
+/// apart (viridis spent its last third on greens that looked alike).
+const PLASMA: [(f64, f64, f64); 9] = [
+    (13.0, 8.0, 135.0),
+    (76.0, 2.0, 161.0),
+    (126.0, 3.0, 168.0),
+    (169.0, 35.0, 149.0),
+    (204.0, 71.0, 120.0),
+    (230.0, 108.0, 92.0),
+    (248.0, 149.0, 64.0),
+    (253.0, 197.0, 39.0),
+    (240.0, 249.0, 33.0),
 ];
 
-/// Colour `i` of `n` ordered series: viridis from dark purple to green, its pale yellow end left
+/// Colour `i` of `n` ordered series: plasma from dark blue to orange, its pale yellow end left
 /// out (too faint on white).
 fn sequential_colour(i: usize, n: usize) -> RGBColor {
-    let t = if n <= 1 { 0.0 } else { 0.85 * i as f64 / (n - 1) as f64 };
-    let x = t * (VIRIDIS.len() - 1) as f64;
-    let k = (x.floor() as usize).min(VIRIDIS.len() - 2);
+    let t = if n <= 1 { 0.0 } else { 0.8 * i as f64 / (n - 1) as f64 };
+    let x = t * (PLASMA.len() - 1) as f64;
+    let k = (x.floor() as usize).min(PLASMA.len() - 2);
     let f = x - k as f64;
-    let (a, b) = (VIRIDIS[k], VIRIDIS[k + 1]);
+    let (a, b) = (PLASMA[k], PLASMA[k + 1]);
     let mix = |p: f64, q: f64| (p + f * (q - p)).round() as u8;
     RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
 }

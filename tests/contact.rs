@@ -297,7 +297,10 @@ fn explicit_steps_are_limited_by_the_contact_stiffness_before_the_first_touch() 
     let limit = explicit_stability_limit(&model, &State::initial(&model), Integrator::SymplecticEuler);
     assert!((limit - 2e-3).abs() < 1e-9, "limit {limit} s");
     let settings = SimSettings { dt: 0.01, integrator: Integrator::SymplecticEuler, ..Default::default() };
-    assert!(matches!(Simulator::new(model, settings), Err(StepError::UnstableExplicitStep { .. })));
+    let err = Simulator::new(model, settings).unwrap_err();
+    assert!(matches!(err, StepError::UnstableExplicitStep { .. }));
+    // the message says the contact sets it (without it a free block has no limit)
+    assert!(err.to_string().contains("set by the contacts' normal stiffness"), "{err}");
 }
 
 #[test]

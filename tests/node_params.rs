@@ -198,7 +198,8 @@ fn a_mistyped_parameter_or_integrator_is_answered_with_what_was_meant() {
 #[test]
 fn an_unknown_bundled_scene_is_named_as_the_user_wrote_it() {
     let e = tensegrity::scene::bundled("sixbars").unwrap_err().to_string();
-    assert!(e.starts_with("bundled:sixbars: no bundled scene 'sixbars' (did you mean 'sixbar'?)"), "{e}");
+    assert!(e.starts_with("bundled:sixbars: no bundled scene 'sixbars' (bundled: "), "{e}");
+    assert!(e.ends_with("(did you mean 'sixbar'?)"), "{e}");
     assert!(!e.contains("config/scenes"), "{e}");
 }
 

@@ -58,14 +58,18 @@ def find_executable():
     if found:
         return found
     cwd = Path.cwd().resolve()
+    looked = []
     for root in (Path(__file__).resolve().parents[2], cwd, *cwd.parents):
         for profile in ("release", "debug"):
             candidate = root / "target" / profile / "tensegrity_node"
             if candidate.exists():
                 return str(candidate)
+            looked.append(str(candidate))
     raise FileNotFoundError(
-        "tensegrity_node not found: set TENSEGRITY_NODE, put it on PATH, or build it with "
-        "`cargo build --release`"
+        "tensegrity_node not found: TENSEGRITY_NODE is not set, it is not on PATH, and none of "
+        + ", ".join(dict.fromkeys(looked))
+        + " exists. Set TENSEGRITY_NODE to the binary, or run `cargo install --path .` in the "
+        "simulator's checkout (puts it in ~/.cargo/bin), or `cargo build --release` there"
     )
 
 

@@ -52,9 +52,9 @@ pub fn bundled(name: &str) -> Result<Model, SceneError> {
             line: None,
             field: String::new(),
             reason: format!(
-                "no bundled scene '{stem}'{} (bundled: {})",
+                "no bundled scene '{stem}' (bundled: {}){}",
+                BUNDLED.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", "),
                 crate::error::did_you_mean(stem, BUNDLED.iter().map(|(n, _)| *n)),
-                BUNDLED.iter().map(|(n, _)| *n).collect::<Vec<_>>().join(", ")
             ),
         }),
     }

@@ -105,7 +105,7 @@ pub enum StepError {
     InvalidStep(f64),
     /// The explicit integrator would be unstable at this step size.
     #[error(
-        "{integrator} is unstable at dt = {dt:.3e} s: its stability limit here is {limit:.3e} s; use a smaller step, an error tolerance (dormand-prince) or generalized-alpha"
+        "{integrator} is unstable at dt = {dt:.3e} s: its stability limit here is {limit:.3e} s{cause}; use a smaller step, an error tolerance (dormand-prince) or generalized-alpha"
     )]
     UnstableExplicitStep {
         /// The integrator's name.
@@ -114,6 +114,9 @@ pub enum StepError {
         dt: f64,
         /// Stability limit at the initial state, s.
         limit: f64,
+        /// What sets the limit when it is not the cables: `" (set by the ground contact's
+        /// stiffness and stuck friction: X s without contact)"`, else empty.
+        cause: String,
     },
     /// An explicit integrator's run diverged although its step was below the stability limit at
     /// the start (the structure stiffened since): the energy it made up is far above any the

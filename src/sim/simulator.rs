@@ -107,6 +107,7 @@ impl Simulator {
                     integrator: settings.integrator.name(),
                     dt: settings.dt,
                     limit,
+                    cause: contact_limit_cause(&model, &state, settings, limit),
                 });
             }
         }
@@ -237,5 +238,32 @@ impl Simulator {
     fn with_guards(mut self) -> Self {
         self.guards = Guards::arm(&self.model, &self.settings, &self.state, &self.ws, &self.energy);
         self
+    }
+}
+
+/// Why an explicit step's stability `limit` (s) is what it is, when the contacts set it: the
+/// limit without them, if it is more than twice as long (the contacts count as pressed in, with
+/// their normal stiffness and their stuck friction at the structure's weight); else empty.
+fn contact_limit_cause(model: &Model, state: &State, settings: SimSettings, limit: f64) -> String {
+    if model.contact_pairs() == 0 {
+        return String::new();
+    }
+    let mut free = model.clone();
+    free.grounds.clear();
+    free.contact_spheres.clear();
+    free.strut_pairs.clear();
+    let without = explicit_stability_limit(&free, state, settings.integrator);
+    if without > 2.0 * limit {
+        let free_limit = if without.is_finite() {
+            format!("{without:.3e} s without them")
+        } else {
+            "none without them".into()
+        };
+        format!(
+            " (set by the contacts' normal stiffness and stuck friction, counted pressed in: {free_limit}; \
+             a softer ground or a smaller mu raises it)"
+        )
+    } else {
+        String::new()
     }
 }

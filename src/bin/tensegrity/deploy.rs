@@ -336,7 +336,7 @@ fn deploy_dynamic(
             totals.steps,
             settings.dt,
             settings.integrator.name(),
-            if from_equilibrium { "the static equilibrium" } else { "the scene's pose (--from-equilibrium: from rest in equilibrium)" },
+            if from_equilibrium { "the static equilibrium" } else { "the scene's pose (--from-equilibrium would start at rest in its equilibrium)" },
             if out.as_os_str().is_empty() { String::new() } else { format!(" written to {}", out.display()) },
             totals.newton_iterations,
             totals.rejected,
