@@ -134,11 +134,11 @@ fn study_writes_tables_histories_and_plots() {
     assert!(svg.contains("\n0.1\n") && svg.contains("\n1\n"), "decade tick labels as numbers");
     // colour-blind-safe palette for the two deviations
     assert!(svg.contains("#0072B2") && svg.contains("#D55E00"), "Okabe-Ito palette");
-    // the runs, ordered by actuation time, one colour each (viridis from #440154); the
+    // the runs, ordered by actuation time, one colour each (plasma from #0D0887); the
     // quasi-static reference is the grey band drawn first, under them
     let svg = std::fs::read_to_string(dir.join("histories.svg")).unwrap();
     let grey = svg.find("#AFAFAF").expect("the quasi-static band");
-    let first_run = svg.find("#440154").expect("the first run in viridis");
+    let first_run = svg.find("#0D0887").expect("the first run in plasma");
     assert!(grey < first_run, "the band under the runs");
     let colours: std::collections::BTreeSet<&str> = svg
         .split("stroke=\"#")
