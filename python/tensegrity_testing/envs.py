@@ -134,11 +134,11 @@ class TensegrityEnv(gym.Env):
             if unknown or bad or not self.target_tension:
                 raise ValueError(f"target_tension must map cables of {cable_names} to tensions > 0 N, "
                                  f"got {self.target_tension}")
-            self._targets = [(cable_names.index(c), float(t)) for c, t in self.target_tension.items()]
+            targets = [(cable_names.index(c), float(t)) for c, t in self.target_tension.items()]
             # the task: the library's action mapping, observation layout and reward
-            task = (index, action == "rate", self.limits[0].tolist(), self.limits[1].tolist(), normalize,
-                    list(self.fields), bool(measured), self._targets)
-            self._task = _native.Task(len(cable_names), len(all_actuators), len(names["body_names"]), *task)
+            self._task = _native.Task(len(cable_names), len(all_actuators), len(names["body_names"]), index,
+                                      action == "rate", self.limits[0].tolist(), self.limits[1].tolist(),
+                                      normalize, list(self.fields), bool(measured), targets)
             # where each observed array sits: (field, elements, numbers per element)
             self._layout = self._task.layout()
             size = sum(n * width for _, n, width in self._layout)
@@ -148,7 +148,7 @@ class TensegrityEnv(gym.Env):
             raise
         self._state, self._steps, self.episode_seed = start, 0, None
         # the hot path, as plain Python over the shared-memory sample: one command entry per
-        # actuator, made once (by index), and the limits as floats
+        # actuator, made once (by index)
         self._entries = [command(i, **{action: 0.0}) for i in index]
         # without callbacks or sensors a step reads the sample in place instead of a `State`;
         # in process, without callbacks, the whole step is one call into the extension
@@ -156,7 +156,7 @@ class TensegrityEnv(gym.Env):
         self._native = None
         if backend == "inprocess" and reward is None and terminated is None:
             self._native = self.node.sim
-            self._native.configure(*task)
+            self._native.configure(self._task)
         self._observation = self.observe(start)
         self._last_info = self._info(start)
 

@@ -320,28 +320,22 @@ impl Simulator {
         Ok(())
     }
 
-    /// Sets the learning task `act` steps: `actuators` (indices) driven by `rate` (m/s) or
-    /// rest-length targets, each action value within `low[k]..high[k]` (SI), given in [-1, 1]
-    /// when `normalize`; `fields` observed (envs.py `STATE_FIELDS` names, concatenated; what
-    /// the sensors report where declared, with `measured`); `targets` the default reward's
-    /// (cable index, tension N > 0) pairs.
-    #[allow(clippy::too_many_arguments)]
-    fn configure(
-        &mut self,
-        actuators: Vec<usize>,
-        rate: bool,
-        low: Vec<f64>,
-        high: Vec<f64>,
-        normalize: bool,
-        fields: Vec<String>,
-        measured: bool,
-        targets: Vec<(usize, f64)>,
-    ) -> PyResult<()> {
+    /// Sets the learning task `act` steps (a `Task`, built for this simulator's model: its
+    /// cable, actuator and body counts must be the model's, else `ValueError`).
+    fn configure(&mut self, task: PyRef<'_, PyTask>) -> PyResult<()> {
         let sizes = TaskSizes::of(self.core.simulator().model());
-        let task =
-            LearningTask::new(&sizes, actuators, rate, &low, &high, normalize, &fields, measured, targets)
-                .map_err(PyValueError::new_err)?;
-        self.task = Some(task);
+        if task.sizes != sizes {
+            return Err(PyValueError::new_err(format!(
+                "the task is for {} cables, {} actuators and {} bodies; this model has {}, {} and {}",
+                task.sizes.cables,
+                task.sizes.actuators,
+                task.sizes.bodies,
+                sizes.cables,
+                sizes.actuators,
+                sizes.bodies
+            )));
+        }
+        self.task = Some(task.task.clone());
         Ok(())
     }
 
@@ -533,8 +527,12 @@ pub struct PyTask {
 
 #[pymethods]
 impl PyTask {
-    /// The task for a model of `cables`, `actuators` and `bodies`, with the arguments of
-    /// `Simulator.configure`. Raises `ValueError` naming what is wrong.
+    /// The task for a model of `cables`, `actuators_count` and `bodies`: `actuators` (indices)
+    /// driven by `rate` (m/s) or rest-length targets, each action value within
+    /// `low[k]..high[k]` (SI), given in [-1, 1] when `normalize`; `fields` observed
+    /// (`observation_fields()` names, concatenated; what the sensors report where declared, with
+    /// `measured`); `targets` the default reward's (cable index, tension N > 0) pairs
+    /// (`tensegrity::task::LearningTask::new`). Raises `ValueError` naming what is wrong.
     #[new]
     #[allow(clippy::too_many_arguments)]
     fn new(

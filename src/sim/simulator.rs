@@ -136,6 +136,7 @@ impl Simulator {
         let nc = model.cables.len();
         let model_winches = model.winches.len();
         let control = Control::new(&model);
+        let guards = Guards::arm(&model, &settings, &state, &ws, &energy);
         Ok(Self {
             initial: state.clone(),
             model,
@@ -152,10 +153,9 @@ impl Simulator {
             next_h: (settings.dt * INITIAL_STEP_FRACTION).min(step_cap),
             mean_h: settings.dt,
             step_cap,
-            guards: Guards { sub_step: Vec::new(), start: None, divergence: None },
+            guards,
             winch_rest_force: vec![0.0; model_winches],
-        }
-        .with_guards())
+        })
     }
 
     /// The model.
@@ -232,12 +232,6 @@ impl Simulator {
         let fresh = Self::from_state(self.model.clone(), self.initial.clone(), settings)
             .expect("the initial state was accepted before");
         *self = fresh;
-    }
-
-    /// Arms the guards the model and settings need (`Guards::arm`) at the start state.
-    fn with_guards(mut self) -> Self {
-        self.guards = Guards::arm(&self.model, &self.settings, &self.state, &self.ws, &self.energy);
-        self
     }
 }
 

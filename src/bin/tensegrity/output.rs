@@ -101,9 +101,9 @@ pub(crate) fn load_moving(path: &Path) -> Result<Model, String> {
 pub(crate) fn refuse_nothing_to_move(model: &Model, path: &Path) -> Result<(), String> {
     if model.dof_count == 0 {
         return Err(input_error(format!(
-            "{}: nothing to move: every body is fixed (the scene has no free coordinate); \
-             `tensegrity statics` and `check` still report its tensions",
-            path.display()
+            "{}: {}; `tensegrity statics` and `check` still report its tensions",
+            path.display(),
+            tensegrity::sim::StepError::NothingToMove
         )));
     }
     Ok(())

@@ -8,9 +8,7 @@ use crate::assembly::DenseTangents;
 use crate::constraints::add_multiplier_hessian;
 use crate::evaluate::{evaluate, Tangents, Workspace};
 use crate::model::{CableId, Model, SolverSettings};
-use crate::solve::statics::kkt::{
-    commit_friction, convexity_correction, fit_multipliers, solve_regularized, STEP_CAP,
-};
+use crate::solve::statics::kkt::{convexity_correction, fit_multipliers, solve_regularized, STEP_CAP};
 use crate::solve::statics::line_search::{line_search, LineSearch, Searched};
 use crate::solve::statics::residual::{EquilibriumReport, Residual, StopReason};
 use crate::solve::statics::solver::{Start, StaticSolver};
@@ -166,10 +164,7 @@ impl StaticSolver {
             // converged in the displacement form, as `equilibrate` tests it
             let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
                 Start::Go(res) => res,
-                Start::Converged(report) => {
-                    commit_friction(model, state, ws);
-                    return Ok(report);
-                }
+                Start::Converged(report) => return Ok(report),
                 Start::Stop => break,
             };
             iterations += 1;

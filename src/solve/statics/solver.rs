@@ -25,7 +25,7 @@ use crate::state::{retract, State};
 pub(crate) enum Start {
     /// Go on with this residual.
     Go(Residual),
-    /// Converged: the report.
+    /// Converged: the report (the pulleys' friction already committed at the equilibrium).
     Converged(EquilibriumReport),
     /// Stop without an equilibrium (`StaticSolver::stop_reason` says why).
     Stop,
@@ -58,12 +58,6 @@ pub struct StaticSolver {
     /// The stiff cables of a structure held by prestress (`prestressed_stiff_cables`), which
     /// `equilibrate` first solves for as if they could push.
     pub(crate) prestressed: Vec<usize>,
-    /// The Levenberg-Marquardt shift of the sparse displacement form, 1/s^2: 0 while plain
-    /// Newton steps make progress; `mu M` is added to the tangent after a step that lowered
-    /// neither the residual nor the energy (an indefinite or singular tangent at a rough start,
-    /// which the dense path's convexity check would have shifted), grown tenfold while shifted
-    /// steps fail and shrunk tenfold while they succeed (`SPARSE_SHIFT_*`).
-    pub(crate) sparse_shift: f64,
 }
 
 impl StaticSolver {
@@ -94,7 +88,6 @@ impl StaticSolver {
             stop: StopReason::Converged,
             stiff,
             prestressed,
-            sparse_shift: 0.0,
         };
         if large {
             solver = solver.with_sparse_kkt(model, true);
@@ -153,7 +146,7 @@ impl StaticSolver {
     pub(crate) fn start_iteration(
         &mut self,
         model: &Model,
-        state: &State,
+        state: &mut State,
         ws: &mut Workspace,
         settings: &SolverSettings,
         iterations: usize,
@@ -173,7 +166,9 @@ impl StaticSolver {
         *best = best.min(res.force);
         if res.converged(settings) {
             self.stop = StopReason::Converged;
-            return Start::Converged(self.report(model, state, ws, &res, iterations));
+            let report = self.report(model, state, ws, &res, iterations);
+            commit_friction(model, state, ws);
+            return Start::Converged(report);
         }
         if iterations >= settings.max_iterations {
             self.stop = StopReason::at_cap(&self.history);
@@ -312,14 +307,16 @@ impl StaticSolver {
         // step had to be cut or did not halve the residual
         let mut check_convexity = fresh || model.constraint_count == 0;
         let mut previous_merit = f64::INFINITY;
-        self.sparse_shift = 0.0;
+        // the Levenberg-Marquardt shift of the sparse path, 1/s^2: 0 while plain Newton steps
+        // make progress; `mu M` is added to the tangent after a step that was capped or lowered
+        // neither the residual nor the energy (an indefinite or singular tangent at a rough
+        // start, which the dense path's convexity check would have shifted), grown tenfold while
+        // shifted steps fail and shrunk tenfold while they succeed (`next_sparse_shift`)
+        let mut sparse_shift = 0.0;
         loop {
             let res = match self.start_iteration(model, state, ws, settings, iterations, &mut best) {
                 Start::Go(res) => res,
-                Start::Converged(report) => {
-                    commit_friction(model, state, ws);
-                    return Ok(report);
-                }
+                Start::Converged(report) => return Ok(report),
                 Start::Stop => break,
             };
             iterations += 1;
@@ -336,11 +333,11 @@ impl StaticSolver {
             let step = match self.sparse.as_mut().filter(|_| sparse_step) {
                 Some(kkt) => {
                     assemble_sparse(kkt, model, state, ws);
-                    if self.sparse_shift > 0.0 {
+                    if sparse_shift > 0.0 {
                         // a descent step of the energy where K + mu M is positive definite; the
                         // line search judges it as a Newton step (by the residual or the energy:
                         // near the solution the energy's decrease drowns in round-off)
-                        add_mass_shift(kkt, model, self.sparse_shift);
+                        add_mass_shift(kkt, model, sparse_shift);
                     }
                     solve_sparse(kkt, &self.rhs)
                 }
@@ -399,8 +396,7 @@ impl StaticSolver {
             if sparse_step {
                 // a full step that lowered the merit is a success; a capped or failed one not
                 let success = decreased && alpha >= 1.0;
-                self.sparse_shift =
-                    next_sparse_shift(self.sparse_shift, success, sparse_shift_base(model, &res));
+                sparse_shift = next_sparse_shift(sparse_shift, success, sparse_shift_base(model, &res));
             }
             retract(model, &mut state.poses, &self.dq, alpha);
             state.multipliers = &base_multipliers + &dlambda * alpha;
