@@ -115,15 +115,18 @@ pub enum ActuatorMode {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Control {
     modes: Vec<ActuatorMode>,
+    /// Each actuator's command delay in whole steps (`Delay::steps` at the physics step).
+    delay_steps: Vec<usize>,
     /// Accepted commands waiting for their step: `(steps left, actuator, mode)`, oldest first.
     delayed: std::collections::VecDeque<(usize, ActuatorId, ActuatorMode)>,
 }
 
 impl Control {
-    /// Every actuator on the schedule.
-    pub fn new(model: &Model) -> Self {
+    /// Every actuator on the schedule; command delays resolved to whole steps of `dt` (s).
+    pub fn new(model: &Model, dt: f64) -> Self {
         Self {
             modes: vec![ActuatorMode::Schedule; model.actuators.len()],
+            delay_steps: model.actuators.iter().map(|a| a.command_delay.steps(dt)).collect(),
             delayed: std::collections::VecDeque::new(),
         }
     }
@@ -183,7 +186,7 @@ impl Control {
         cmd: ActuatorCommand,
     ) -> Result<(), CommandError> {
         let mode = Self::validate(model, id, cmd)?;
-        match model.actuators[id.0].command_delay {
+        match self.delay_steps[id.0] {
             0 => self.modes[id.0] = mode,
             k => self.delayed.push_back((k, id, mode)),
         }

@@ -33,7 +33,9 @@ struct Channel {
     rng: Pcg64,
     /// The last update's values (held until the next).
     held: Vec<f64>,
-    /// The last `delay + 1` held vectors, oldest first, as one ring of `delay + 1` rows.
+    /// The delay in whole steps (`Delay::steps` at the physics step).
+    delay_steps: usize,
+    /// The last `delay_steps + 1` held vectors, as one ring of `delay_steps + 1` rows.
     ring: Vec<f64>,
     /// Row of `ring` the next report writes.
     head: usize,
@@ -90,8 +92,9 @@ pub fn reading<'a>(model: &Model, measured: &'a [f64], kind: SensorKind) -> Opti
 }
 
 impl Sensors {
-    /// The sensors of `model` with `seed` (the scene's when `None`), before any update.
-    pub fn new(model: &Model, seed: Option<u64>) -> Self {
+    /// The sensors of `model` with `seed` (the scene's when `None`), before any update, updated
+    /// once per physics step of `dt` (s, > 0: the delays in whole steps).
+    pub fn new(model: &Model, seed: Option<u64>, dt: f64) -> Self {
         let seed = seed.unwrap_or(model.sensors.seed);
         let channels = model
             .sensors
@@ -99,13 +102,15 @@ impl Sensors {
             .iter()
             .map(|&(kind, m)| {
                 let n = kind.len(model);
+                let delay_steps = m.delay.steps(dt);
                 let index = SensorKind::ALL.iter().position(|k| *k == kind).unwrap_or(0) as u64;
                 Channel {
                     kind,
                     model: m,
                     rng: Pcg64::seed_from_u64(seed ^ (index + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
                     held: vec![0.0; n],
-                    ring: vec![0.0; n * (m.delay + 1)],
+                    delay_steps,
+                    ring: vec![0.0; n * (delay_steps + 1)],
                     head: 0,
                     next_update: 0.0,
                     updates: 0,
@@ -180,7 +185,7 @@ impl Sensors {
                 ch.measure();
             }
             let n = ch.held.len();
-            let rows = ch.model.delay + 1;
+            let rows = ch.delay_steps + 1;
             if first {
                 // the delay line starts full of the first measurement
                 for r in 0..rows {

@@ -592,7 +592,7 @@ fn sensed_hoist(name: &str, seed: u64) -> (PathBuf, Vec<(f64, f64)>) {
     let scene = common::scratch("sensors").join(format!("{name}.toml"));
     let sensors = format!(
         "\n[sensors]\nseed = {seed}\n[sensors.tension]\nsigma = 0.5\n\
-         [sensors.rest_length]\nresolution = 1e-4\ndelay = 3\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\n"
+         [sensors.rest_length]\nresolution = 1e-4\ndelay_s = 0.003\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\n"
     );
     std::fs::write(&scene, text + &sensors).unwrap();
     let dir = record_from_equilibrium(&scene, name, "0.02");

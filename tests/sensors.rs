@@ -21,14 +21,20 @@ fn hanging_text(sensors: &str) -> String {
 
 /// Steps a simulator at rest in its equilibrium `steps` times at 1 ms, updating `sensors` after
 /// each step (and once before), and gives `f(sim, sensors)` at every update.
-fn run<T>(
+fn run<T>(model: Model, seed: Option<u64>, steps: usize, f: impl FnMut(&Simulator, &Sensors) -> T) -> Vec<T> {
+    run_at(model, seed, steps, 1e-3, f)
+}
+
+/// `run` at the physics step `dt`, s.
+fn run_at<T>(
     model: Model,
     seed: Option<u64>,
     steps: usize,
+    dt: f64,
     mut f: impl FnMut(&Simulator, &Sensors) -> T,
 ) -> Vec<T> {
-    let mut sensors = Sensors::new(&model, seed);
-    let mut sim = Simulator::at_equilibrium(model, SimSettings::default()).unwrap();
+    let mut sensors = Sensors::new(&model, seed, dt);
+    let mut sim = Simulator::at_equilibrium(model, SimSettings { dt, ..SimSettings::default() }).unwrap();
     let mut out = Vec::with_capacity(steps + 1);
     sensors.update(sim.model(), sim.state(), sim.workspace());
     out.push(f(&sim, &sensors));
@@ -101,17 +107,33 @@ fn the_same_seed_gives_the_same_stream_and_another_seed_another() {
 
 #[test]
 fn a_delay_of_k_steps_reports_what_was_measured_k_steps_before() {
-    let at = |delay: usize| {
-        run(hanging(&format!("[sensors.tension]\nsigma = 0.5\ndelay = {delay}\n")), None, 200, |_, s| {
-            tension(s)
-        })
-    };
-    let now = at(0);
-    for k in [1, 4, 25] {
-        let late = at(k);
-        assert!(late[..=k].iter().all(|v| *v == now[0]), "delay {k}: the first measurement until then");
-        assert_eq!(&late[k..], &now[..now.len() - k], "delay {k}");
+    // `delay_s` in seconds at two physics steps, and the step-counted `delay` kept for a release
+    for dt in [1e-3, 5e-4] {
+        let at = |delay: &str| {
+            let model = hanging(&format!("[sensors.tension]\nsigma = 0.5\n{delay}\n"));
+            let warnings = model.delay_warnings(dt);
+            (run_at(model, None, 200, dt, |_, s| tension(s)), warnings)
+        };
+        let (now, _) = at("");
+        for k in [1, 4, 25] {
+            let (late, warnings) = at(&format!("delay_s = {}", k as f64 * dt));
+            assert!(late[..=k].iter().all(|v| *v == now[0]), "delay {k}: the first measurement until then");
+            assert_eq!(&late[k..], &now[..now.len() - k], "dt {dt}, delay {k}");
+            assert!(warnings.is_empty(), "{warnings:?}");
+            let (stepped, warnings) = at(&format!("delay = {k}"));
+            assert_eq!(stepped, late, "the step-counted field");
+            assert!(
+                warnings.len() == 1
+                    && warnings[0].contains("sensors.tension.delay = ")
+                    && warnings[0].contains("delay_s ="),
+                "{warnings:?}"
+            );
+        }
     }
+    // 1.4 ms at 1 ms steps: one step, with a warning
+    let model = hanging("[sensors.tension]\ndelay_s = 0.0014\n");
+    let warnings = model.delay_warnings(1e-3);
+    assert!(warnings.len() == 1 && warnings[0].contains("rounded to 1 step ("), "{warnings:?}");
 }
 
 #[test]
@@ -182,6 +204,9 @@ fn careless_sensors_are_refused_naming_the_field() {
         ("[sensors.position]\nbias = inf", "sensors.position.bias", "finite"),
         ("[sensors.orientation]\nbias = 0.1", "sensors.orientation.bias", "no bias"),
         ("[sensors.tension]\ndelay = 1000000", "sensors.tension.delay", "at most"),
+        ("[sensors.tension]\ndelay_s = -1e-3", "sensors.tension.delay_s", ">= 0"),
+        ("[sensors.tension]\ndelay_s = 2.0", "sensors.tension.delay_s", "[0, 1] s"),
+        ("[sensors.tension]\ndelay_s = 0.01\ndelay = 10", "sensors.tension.delay", "not both"),
         ("[sensors.voltage]\nsigma = 1.0", "sensors", "voltage"),
         ("[sensors]\nseed = -3", "sensors", ""),
     ] {
@@ -225,6 +250,30 @@ fn the_nodes_sensor_seed_parameter_overrides_the_scenes_and_a_reset_starts_the_s
 }
 
 #[test]
+fn the_nodes_physics_dt_keeps_a_delay_in_seconds() {
+    // at the node's physics_dt of 0.5 ms, 2 ms are 4 steps: as the step-counted delay of 4, not 2
+    use tensegrity::io::node::{params::NodeParams, NodeCore};
+    let stream = |delay: &str| {
+        let model = hanging(&format!("[sensors.tension]\nsigma = 0.5\n{delay}\n"));
+        let params = NodeParams { start_paused: true, physics_dt: Some(5e-4), ..NodeParams::default() };
+        let mut core = NodeCore::new(model, params).unwrap();
+        let mut out = Vec::new();
+        for _ in 0..20 {
+            core.request_steps(1, &mut DiscardSink).unwrap();
+            for k in 0..4 {
+                core.tick(std::time::Duration::from_millis(k), &mut DiscardSink);
+            }
+            out.push(tension(core.sensors()));
+        }
+        assert_eq!(core.stats().steps, 20);
+        out
+    };
+    let seconds = stream("delay_s = 0.002");
+    assert_eq!(seconds, stream("delay = 4"));
+    assert_ne!(seconds, stream("delay = 2"));
+}
+
+#[test]
 fn an_imu_on_a_swinging_bar_reads_its_closed_form_rate_and_specific_force() {
     // a uniform rod about its end (I = m L^2 / 3), at theta below level: theta' = sqrt(3 g sin
     // theta / L), theta'' = 3 g cos theta / (2 L); its centre accelerates by L/2 (theta'' along the
@@ -234,7 +283,7 @@ fn an_imu_on_a_swinging_bar_reads_its_closed_form_rate_and_specific_force() {
     let text =
         std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/config/examples/imu.toml")).unwrap();
     let model = model_from_toml(&text);
-    let mut sensors = Sensors::new(&model, None);
+    let mut sensors = Sensors::new(&model, None, dt);
     let settings = SimSettings { dt, ..SimSettings::default() };
     let mut sim = Simulator::new(model, settings).unwrap();
     sensors.update(sim.model(), sim.state(), sim.workspace());
@@ -307,7 +356,7 @@ fn an_imu_reads_zero_in_free_fall_and_one_g_up_at_rest() {
     let start = text.find("[[cables]]").unwrap();
     let end = text.find("[sensors.gyro]").unwrap();
     let free = model_from_toml(&format!("{}{}", &text[..start], &text[end..]));
-    let mut sensors = Sensors::new(&free, None);
+    let mut sensors = Sensors::new(&free, None, 1e-3);
     let mut sim = Simulator::new(free, SimSettings::default()).unwrap();
     sensors.update(sim.model(), sim.state(), sim.workspace());
     for _ in 0..100 {

@@ -244,30 +244,61 @@ fn winch_cable_tangents_match_finite_differences() {
 
 #[test]
 fn a_command_delay_shifts_the_rest_length_history_by_whole_steps() {
+    // `command_delay_s` in seconds at two physics steps, and the step-counted field kept for one
+    // release: each shifts the history by whole steps
     let text = hoist_text();
-    let ideal = |delay: usize| {
-        let t = text.replace("max_rate = 0.1\n", &format!("max_rate = 0.1\ncommand_delay = {delay}\n"));
+    let ideal = |field: &str| {
+        let t = text.replace("max_rate = 0.1\n", &format!("max_rate = 0.1\n{field}\n"));
         let end = t.find("[actuators.winch]").unwrap();
         model_from_toml(&t[..end])
     };
-    let history = |delay: usize| {
-        let mut sim = hoist_sim(ideal(delay), 1e-3, SimSettings::default().integrator);
+    let history = |field: &str, dt: f64| {
+        let mut sim = hoist_sim(ideal(field), dt, SimSettings::default().integrator);
         sim.command("hoist", ActuatorCommand { rest_length: Some(0.99), rate: Some(0.001), tension: None })
             .unwrap();
-        (0..40)
+        let warnings = sim.delay_warnings();
+        let rest = (0..40)
             .map(|_| {
                 sim.step().unwrap();
                 sim.state().rest_lengths[0]
             })
-            .collect::<Vec<f64>>()
+            .collect::<Vec<f64>>();
+        (rest, warnings)
     };
-    let now = history(0);
-    assert!(now[0] < 1.0, "an undelayed command acts in the next step");
-    for k in [1, 3, 7] {
-        let late = history(k);
-        assert!(late[..k].iter().all(|l| *l == 1.0), "delay {k}: {:?}", &late[..k]);
-        assert_eq!(&late[k..], &now[..40 - k], "delay {k}");
+    for dt in [1e-3, 5e-4] {
+        let (now, quiet) = history("", dt);
+        assert!(now[0] < 1.0, "an undelayed command acts in the next step");
+        assert!(quiet.is_empty(), "{quiet:?}");
+        for k in [1, 3, 7] {
+            let (late, warnings) = history(&format!("command_delay_s = {}", k as f64 * dt), dt);
+            assert!(late[..k].iter().all(|l| *l == 1.0), "dt {dt}, delay {k}: {:?}", &late[..k]);
+            assert_eq!(&late[k..], &now[..40 - k], "dt {dt}, delay {k}");
+            assert!(warnings.is_empty(), "a whole number of steps is not warned about: {warnings:?}");
+            let (stepped, warnings) = history(&format!("command_delay = {k}"), dt);
+            assert_eq!(stepped, late, "the step-counted field, {k} steps");
+            assert_eq!(warnings.len(), 1, "{warnings:?}");
+            assert!(
+                warnings[0].contains("actuators[0].command_delay")
+                    && warnings[0].contains("counts physics steps")
+                    && warnings[0].contains(&format!(
+                        "command_delay_s = {}",
+                        tensegrity::error::readable_number(k as f64 * dt)
+                    )),
+                "{}",
+                warnings[0]
+            );
+        }
     }
+    // 2.5 ms at 1 ms steps: rounded (half away from zero) to 3 steps, with a warning that says so
+    let (rounded, warnings) = history("command_delay_s = 0.0025", 1e-3);
+    let (three, _) = history("command_delay_s = 0.003", 1e-3);
+    assert_eq!(rounded, three);
+    assert_eq!(warnings.len(), 1, "{warnings:?}");
+    assert!(
+        warnings[0].contains("not a whole number") && warnings[0].contains("rounded to 3 steps"),
+        "{}",
+        warnings[0]
+    );
 }
 
 #[test]
@@ -303,6 +334,16 @@ fn careless_winches_are_refused_naming_the_field() {
         ("rotor_inertia = 1e-5", "rotor_inertia = 1e-5\nbrake = true", "", "brake"),
         ("max_rate = 0.1\n", "max_rate = 0.1\ncommand_delay = -1\n", "command_delay", ""),
         ("max_rate = 0.1\n", "max_rate = 0.1\ncommand_delay = 10000000\n", "command_delay", "at most"),
+        ("max_rate = 0.1\n", "max_rate = 0.1\ncommand_delay_s = -0.001\n", "command_delay_s", ">= 0"),
+        ("max_rate = 0.1\n", "max_rate = 0.1\ncommand_delay_s = nan\n", "command_delay_s", "finite"),
+        ("max_rate = 0.1\n", "max_rate = 0.1\ncommand_delay_s = 5.0\n", "command_delay_s", "[0, 1] s"),
+        ("max_rate = 0.1\n", "max_rate = 0.1\ncommand_delay_s = 3\n", "command_delay_s", "[0, 1] s"),
+        (
+            "max_rate = 0.1\n",
+            "max_rate = 0.1\ncommand_delay_s = 0.001\ncommand_delay = 1\n",
+            "command_delay",
+            "not both",
+        ),
         ("ea = 1e9\n", "ea = 1e9\ntension_only = false\n", "winch", "member"),
     ] {
         assert!(text.contains(from), "{from}");

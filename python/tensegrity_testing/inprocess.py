@@ -17,6 +17,7 @@ needs a process of its own: DDS and shared-memory peers, real-time pacing, crash
 """
 
 import ctypes
+import warnings
 
 from . import shm
 from .node import state_of
@@ -61,6 +62,8 @@ class InProcessSimulator:
         self.PhysicsFailure = tensegrity_native.PhysicsFailure
         self.names = self.sim.names()
         self.timeout = None
+        for line in self.sim.delay_warnings():
+            warnings.warn(line, FutureWarning if "counts physics steps" in line else UserWarning, stacklevel=2)
 
     def lockstep(self, steps, commands=(), reset=False, seed=None):
         """Applies `commands` (`command(...)` entries) at the next boundary, takes `steps` steps

@@ -215,9 +215,14 @@ fn run() -> Result<(), Failure> {
         params.namespace.trim_end_matches('/'),
         params.node_name,
         serving.join(" and "),
-        params.physics_dt.or(model.physics_dt).unwrap_or(1e-3),
+        params.physics_dt.or(model.physics_dt).unwrap_or(tensegrity::sim::DEFAULT_PHYSICS_DT),
         params.real_time_factor
     );
+    for w in model
+        .delay_warnings(params.physics_dt.or(model.physics_dt).unwrap_or(tensegrity::sim::DEFAULT_PHYSICS_DT))
+    {
+        eprintln!("tensegrity_node: warning: {w}");
+    }
     let bag = params.record.clone();
     let launch_params = params.clone();
     let mut node = tensegrity::io::launch(model, launch_params).map_err(|e| match e {

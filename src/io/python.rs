@@ -197,6 +197,12 @@ impl Simulator {
         Ok(Self { core, out, epoch: Instant::now(), task: None, action: Vec::new(), observation: Vec::new() })
     }
 
+    /// What the scene's delays say at this simulator's physics step, one line each
+    /// (`crate::sim::Simulator::delay_warnings`); the kit raises them as Python warnings.
+    fn delay_warnings(&self) -> Vec<String> {
+        self.core.simulator().delay_warnings()
+    }
+
     /// The scene's names and limits, as the shared-memory client's `structure()` gives them:
     /// scene_name, physics_dt, body_names, cable_names, actuator_names, actuator_cable,
     /// actuator_min_rest_length, actuator_max_rest_length, actuator_max_rate, contacts.

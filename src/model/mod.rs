@@ -374,6 +374,82 @@ impl JointModel {
     }
 }
 
+/// A delay as the scene gives it: in seconds (`delay_s`, `command_delay_s`), or in physics
+/// steps (the step-counted `delay` and `command_delay`, kept for one release), which change
+/// their length in seconds with the physics step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Delay {
+    /// `k` physics steps (`Simulator::step` calls): `k dt` seconds.
+    Steps(usize),
+    /// Seconds, `>= 0`: `round(s / dt)` physics steps.
+    Seconds(f64),
+}
+
+impl Default for Delay {
+    fn default() -> Self {
+        Delay::Steps(0)
+    }
+}
+
+impl std::fmt::Display for Delay {
+    /// `3 steps` or `0.003 s`.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Delay::Steps(k) => write!(f, "{k} steps"),
+            Delay::Seconds(s) => write!(f, "{} s", crate::error::readable_number(*s)),
+        }
+    }
+}
+
+impl Delay {
+    /// Relative distance from a whole number of steps under which a delay in seconds counts as
+    /// whole (`0.003 / 0.001` is `2.9999999999999996`).
+    const WHOLE: f64 = 1e-9;
+
+    /// Whole physics steps at the physics step `dt` (s, > 0): `k`, or `round(s / dt)`.
+    pub fn steps(self, dt: f64) -> usize {
+        match self {
+            Delay::Steps(k) => k,
+            Delay::Seconds(s) => (s / dt).round() as usize,
+        }
+    }
+
+    /// True when the delay is zero (no queue, the next step).
+    pub fn is_zero(self) -> bool {
+        matches!(self, Delay::Steps(0)) || self == Delay::Seconds(0.0)
+    }
+
+    /// What a user should hear about this delay at the physics step `dt` (`field` its place in
+    /// the scene, e.g. `actuators[0].command_delay`): a step-counted field's length in seconds
+    /// and its replacement, or a delay in seconds that is not a whole number of steps and the
+    /// steps it was rounded to; `None` for a delay in seconds that is whole.
+    pub fn warning(self, dt: f64, field: &str) -> Option<String> {
+        match self {
+            Delay::Steps(0) => None,
+            Delay::Steps(k) => Some(format!(
+                "{field} = {k} counts physics steps ({} s at physics_dt {} s) and changes with \
+                 physics_dt: write {field}_s = {} instead (the step-counted field goes in the next release)",
+                crate::error::readable_number(k as f64 * dt),
+                crate::error::readable_number(dt),
+                crate::error::readable_number(k as f64 * dt),
+            )),
+            Delay::Seconds(s) => {
+                let ratio = s / dt;
+                let k = ratio.round();
+                ((ratio - k).abs() > Self::WHOLE * k.max(1.0)).then(|| {
+                    format!(
+                        "{field}_s = {} s is not a whole number of physics steps of {} s: rounded to {k} step{} ({} s)",
+                        crate::error::readable_number(s),
+                        crate::error::readable_number(dt),
+                        if k == 1.0 { "" } else { "s" },
+                        crate::error::readable_number(k * dt),
+                    )
+                })
+            }
+        }
+    }
+}
+
 /// An actuator owns one cable and sets its rest length within limits (docs/architecture.md, "Actuation").
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ActuatorModel {
@@ -385,9 +461,9 @@ pub struct ActuatorModel {
     pub max_rest_length: f64,
     /// Largest allowed rate of change of the rest length, m/s (> 0).
     pub max_rate: f64,
-    /// Steps (`Simulator::step` calls) between a command's arrival and its effect (0: the next
-    /// step).
-    pub command_delay: usize,
+    /// Time between a command's arrival and its effect (zero: the next step), resolved to
+    /// whole physics steps by `Delay::steps`.
+    pub command_delay: Delay,
     /// Index into `Model::winches` when a winch motor drives the cable (`None`: the ideal
     /// actuator, which follows its command exactly).
     pub winch: Option<usize>,
@@ -518,8 +594,9 @@ pub struct ChannelModel {
     pub bias: f64,
     /// Quantization step, in the channel's unit (0: none).
     pub resolution: f64,
-    /// Steps between a measurement and its report.
-    pub delay: usize,
+    /// Time between a measurement and its report, resolved to whole physics steps by
+    /// `Delay::steps`.
+    pub delay: Delay,
     /// Time between updates, s (0: every step); held in between.
     pub period: f64,
     /// Probability that an update is lost, in `[0, 1)`: the value is held.
@@ -792,6 +869,16 @@ pub struct Model {
 }
 
 impl Model {
+    /// What the scene's delays (`Delay::warning`) say at the physics step `dt` (s): step-counted
+    /// fields, and delays in seconds rounded to whole steps, one line each, actuators first.
+    pub fn delay_warnings(&self, dt: f64) -> Vec<String> {
+        let actuators = (self.actuators.iter().enumerate())
+            .filter_map(|(i, a)| a.command_delay.warning(dt, &format!("actuators[{i}].command_delay")));
+        let sensors = (self.sensors.channels.iter())
+            .filter_map(|(kind, c)| c.delay.warning(dt, &format!("sensors.{}.delay", kind.name())));
+        actuators.chain(sensors).collect()
+    }
+
     /// Calls `f(a, b, block)` for every block of the consistent-mass corrections
     /// (`MassCoupling`): `block = B_a^T [[c I, 0], [0, 0]] B_b` in the bodies' local coordinates
     /// (their `k_a x k_b` corner), with `c = -m/6` on `(a, a)` and `(b, b)` and `+m/6` on `(a, b)`

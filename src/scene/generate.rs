@@ -406,7 +406,8 @@ pub fn tower(p: &TowerParams) -> SceneSpec {
                 min_rest_length: round6(0.5 * l0),
                 max_rest_length: round6(1.2 * l0),
                 max_rate: round6(l0),
-                command_delay: 0,
+                command_delay: None,
+                command_delay_s: None,
                 winch: None,
             });
             ramps.push(RampSpec {
@@ -580,7 +581,8 @@ pub fn tbar(p: &TbarParams) -> SceneSpec {
             min_rest_length: round6(0.5 * l0),
             max_rest_length: round6(1.2 * l0),
             max_rate: round6(l0),
-            command_delay: 0,
+            command_delay: None,
+            command_delay_s: None,
             winch: None,
         });
         spec.deployment = Some(DeploymentSpec {
@@ -854,7 +856,8 @@ fn one_sixbar(p: &SixbarParams) -> SceneSpec {
         min_rest_length: round9s(0.2 * cable_length),
         max_rest_length: round9s(1.2 * cable_length),
         max_rate: round9s(cable_length),
-        command_delay: 0,
+        command_delay: None,
+        command_delay_s: None,
         winch: None,
     };
     if p.all_winches {

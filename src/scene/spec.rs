@@ -47,8 +47,10 @@ pub mod limits {
     pub const RATE: (f64, f64) = (1e-12, 1e6);
     /// Winch parameters (radius, tension, speed, motor constants, inertia, gains).
     pub const WINCH: (f64, f64) = (1e-12, 1e12);
-    /// Command delay, steps (and a sensor's delay).
+    /// Command delay, steps (and a sensor's delay), in the step-counted fields.
     pub const COMMAND_DELAY: usize = 100_000;
+    /// Command delay and a sensor's delay, s.
+    pub const DELAY_S: (f64, f64) = (0.0, 1.0);
     /// A sensor's noise, bias and resolution, in its unit.
     pub const SENSOR_VALUE: (f64, f64) = (0.0, 1e12);
     /// A sensor's update rate, Hz.
@@ -251,9 +253,12 @@ pub struct ChannelSpec {
     /// Quantization step (0: none).
     #[serde(default)]
     pub resolution: f64,
-    /// Steps between a measurement and its report.
-    #[serde(default)]
-    pub delay: usize,
+    /// Time between a measurement and its report, s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delay_s: Option<f64>,
+    /// The same in physics steps (kept for one release; `delay_s` is the field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delay: Option<usize>,
     /// Updates per second (none: every step), held in between.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rate: Option<f64>,
@@ -620,16 +625,15 @@ pub struct ActuatorSpec {
     pub max_rest_length: f64,
     /// Largest rate, m/s (> 0).
     pub max_rate: f64,
-    /// Steps between a command's arrival and its effect (default 0: the next step).
-    #[serde(default, skip_serializing_if = "is_zero_usize")]
-    pub command_delay: usize,
+    /// Time between a command's arrival and its effect, s (default 0: the next step).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_delay_s: Option<f64>,
+    /// The same in physics steps (kept for one release; `command_delay_s` is the field).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command_delay: Option<usize>,
     /// A winch motor instead of the ideal actuator (`[actuators.winch]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub winch: Option<WinchSpec>,
-}
-
-fn is_zero_usize(n: &usize) -> bool {
-    *n == 0
 }
 
 /// A winch motor (`crate::forces::winch`): a drum, a linear torque-speed line given in rope

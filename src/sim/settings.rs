@@ -25,10 +25,13 @@ pub struct SimSettings {
     pub tolerance: Option<f64>,
 }
 
+/// The physics step when neither the caller nor the scene (`physics_dt`) gives one, s.
+pub const DEFAULT_PHYSICS_DT: f64 = 1e-3;
+
 impl Default for SimSettings {
     fn default() -> Self {
         Self {
-            dt: 1e-3,
+            dt: DEFAULT_PHYSICS_DT,
             integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
             newton: NewtonSettings::default(),
             min_dt: 1e-9,

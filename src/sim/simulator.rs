@@ -135,7 +135,7 @@ impl Simulator {
         };
         let nc = model.cables.len();
         let model_winches = model.winches.len();
-        let control = Control::new(&model);
+        let control = Control::new(&model, settings.dt);
         let guards = Guards::arm(&model, &settings, &state, &ws, &energy);
         Ok(Self {
             initial: state.clone(),
@@ -156,6 +156,12 @@ impl Simulator {
             guards,
             winch_rest_force: vec![0.0; model_winches],
         })
+    }
+
+    /// What the scene's delays say at this simulator's physics step (`Model::delay_warnings`):
+    /// step-counted fields and delays in seconds rounded to whole steps, one line each.
+    pub fn delay_warnings(&self) -> Vec<String> {
+        self.model.delay_warnings(self.settings.dt)
     }
 
     /// The model.

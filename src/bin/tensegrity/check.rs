@@ -101,12 +101,13 @@ pub fn run(scene: &Path) -> Result<(), String> {
             w.rotor_inertia
         );
     }
+    let dt = model.physics_dt.unwrap_or(tensegrity::sim::DEFAULT_PHYSICS_DT);
     let delayed: Vec<String> = model
         .actuators
         .iter()
         .zip(&model.actuator_names)
-        .filter(|(a, _)| a.command_delay > 0)
-        .map(|(a, name)| format!("{name} {} steps", a.command_delay))
+        .filter(|(a, _)| !a.command_delay.is_zero())
+        .map(|(a, name)| format!("{name} {}", delay_text(a.command_delay, dt)))
         .collect();
     if !delayed.is_empty() {
         say!("command delay: {}", delayed.join(", "));
@@ -135,7 +136,7 @@ pub fn run(scene: &Path) -> Result<(), String> {
                     c.sigma,
                     c.bias,
                     c.resolution,
-                    c.delay,
+                    delay_text(c.delay, dt),
                     c.dropout
                 )
             })
@@ -177,5 +178,21 @@ pub fn run(scene: &Path) -> Result<(), String> {
     if let Some(note) = report::unheld_bodies_note(&model) {
         say!("warning: {note} (dynamics lets them drift or fall)");
     }
+    for w in model.delay_warnings(dt) {
+        say!("warning: {w}");
+    }
     Ok(())
+}
+
+/// A delay as `check` lists it: `0`, or as given with its whole steps at `dt` (s) beside it.
+fn delay_text(delay: tensegrity::model::Delay, dt: f64) -> String {
+    use tensegrity::model::Delay;
+    let steps = delay.steps(dt);
+    match delay {
+        _ if delay.is_zero() => "0".into(),
+        Delay::Steps(_) => {
+            format!("{delay} ({} s at {dt} s)", tensegrity::error::readable_number(steps as f64 * dt))
+        }
+        Delay::Seconds(_) => format!("{delay} ({steps} step{} of {dt} s)", if steps == 1 { "" } else { "s" }),
+    }
 }

@@ -259,6 +259,9 @@ fn deploy_dynamic(
         settings.tolerance = Some(g.tolerance);
     }
     let mut run = record::offline::OfflineRun::start(model, &label, settings, from_equilibrium, record)?;
+    for w in run.simulator().delay_warnings() {
+        eprintln!("warning: {w}");
+    }
     let mut file = csv_output(out)?;
     // the scene's sensors, where it declares them, add what they report after the columns of
     // the exact state (and of the exact IMU values, which the state does not hold)

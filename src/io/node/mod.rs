@@ -118,7 +118,7 @@ impl NodeCore {
     pub fn new(model: Model, params: NodeParams) -> Result<Self, CoreError> {
         let integrator = Integrator::parse(&params.integrator, params.rho_inf)
             .ok_or_else(|| CoreError::Params(format!("unknown integrator '{}'", params.integrator)))?;
-        let dt = params.physics_dt.or(model.physics_dt).unwrap_or(1e-3);
+        let dt = params.physics_dt.or(model.physics_dt).unwrap_or(crate::sim::DEFAULT_PHYSICS_DT);
         let tolerance = (params.tolerance > 0.0).then_some(params.tolerance);
         let settings = SimSettings { dt, integrator, tolerance, ..Default::default() };
         let sim = Simulator::start(model, settings, params.start_from_equilibrium)?;
@@ -130,7 +130,7 @@ impl NodeCore {
         let reference = report::all_pulley_coordinates(sim.model(), sim.state(), sim.workspace());
         let n_cables = sim.state().rest_lengths.len();
         let n_actuators = sim.model().actuators.len();
-        let mut sensors = Sensors::new(sim.model(), params.sensor_seed);
+        let mut sensors = Sensors::new(sim.model(), params.sensor_seed, sim.settings().dt);
         sensors.update(sim.model(), sim.state(), sim.workspace());
         let mut core = Self {
             paused: params.start_paused,
@@ -447,7 +447,8 @@ impl NodeCore {
         };
         // the sensors start over with the same seed (a reset run reports what a fresh one does),
         // or with the episode's
-        self.sensors = Sensors::new(self.sim.model(), seed.or(self.params.sensor_seed));
+        self.sensors =
+            Sensors::new(self.sim.model(), seed.or(self.params.sensor_seed), self.sim.settings().dt);
         self.sensors.update(self.sim.model(), self.sim.state(), self.sim.workspace());
         sink.simulation_reset(self.sim.state().time, self.stats.steps, seed);
         self.steps_since_reset = 0;

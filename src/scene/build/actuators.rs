@@ -1,7 +1,7 @@
 //! Actuators and the deployment schedule: takes `[[actuators]]` (with their winches) and
 //! `[deployment]`, gives `ActuatorModel`s, `WinchModel`s and the `Schedule`.
 
-use super::context::{in_range, Ctx};
+use super::context::{delay, in_range, Ctx};
 use crate::error::SceneError;
 use crate::forces::winch::{PositionGains, WinchModel};
 use crate::model::{ActuatorModel, Model, Ramp, Schedule};
@@ -38,12 +38,7 @@ pub(super) fn build_actuators(
             ));
         }
         in_range(a.max_rate, limits::RATE, "m/s").map_err(|r| e("max_rate", r))?;
-        if a.command_delay > limits::COMMAND_DELAY {
-            return Err(e(
-                "command_delay",
-                format!("must be at most {} steps, got {}", limits::COMMAND_DELAY, a.command_delay),
-            ));
-        }
+        let command_delay = delay(a.command_delay_s, a.command_delay, "command_delay", e)?;
         let winch = match &a.winch {
             Some(w) => {
                 let id = crate::model::ActuatorId(actuators.len());
@@ -57,7 +52,7 @@ pub(super) fn build_actuators(
             min_rest_length: a.min_rest_length,
             max_rest_length: a.max_rest_length,
             max_rate: a.max_rate,
-            command_delay: a.command_delay,
+            command_delay,
             winch,
         });
         actuator_names.push(a.name.clone());

@@ -79,3 +79,36 @@ pub(super) fn mass(x: Option<f64>) -> Result<f64, String> {
         Some(m) => in_range(m, limits::MASS, "kg"),
     }
 }
+
+/// The delay a scene gives in seconds (`seconds`, the `{field}_s` key) or in physics steps
+/// (`steps`, the step-counted `field`, kept for one release): at most one of them, seconds in
+/// `limits::DELAY_S`, steps up to `limits::COMMAND_DELAY`; zero when neither is given.
+/// `err(field, reason)` names the key.
+pub(super) fn delay(
+    seconds: Option<f64>,
+    steps: Option<usize>,
+    field: &str,
+    err: impl Fn(&str, String) -> SceneError,
+) -> Result<crate::model::Delay, SceneError> {
+    use crate::model::Delay;
+    use crate::scene::spec::limits;
+    let field_s = format!("{field}_s");
+    match (seconds, steps) {
+        (Some(_), Some(_)) => Err(err(
+            field,
+            format!("give {field_s} (seconds) or {field} (steps, kept for one release), not both"),
+        )),
+        (Some(s), None) => {
+            Ok(Delay::Seconds(in_range(s, limits::DELAY_S, "s").map_err(|r| err(&field_s, r))?))
+        }
+        (None, Some(k)) if k > limits::COMMAND_DELAY => Err(err(
+            field,
+            format!(
+                "must be at most {} steps, got {k} (better: {field_s}, in seconds)",
+                limits::COMMAND_DELAY
+            ),
+        )),
+        (None, Some(k)) => Ok(Delay::Steps(k)),
+        (None, None) => Ok(Delay::Steps(0)),
+    }
+}

@@ -1,7 +1,7 @@
 //! The scene's options: takes `[sensors]`, `[randomize]`, `[damping]` and `[solver]`, gives the
 //! sensor model, the randomization, Rayleigh damping and solver settings.
 
-use super::context::{in_range, Ctx};
+use super::context::{delay, in_range, Ctx};
 use crate::error::SceneError;
 use crate::model::{Model, SolverSettings};
 use crate::scene::spec::{self, limits, SceneSpec};
@@ -35,12 +35,7 @@ pub(super) fn build_sensors(spec: &SceneSpec, cx: &Ctx) -> Result<crate::sensors
                 "an orientation sensor has noise (sigma, rad) but no bias or resolution".into(),
             ));
         }
-        if c.delay > limits::COMMAND_DELAY {
-            return Err(e(
-                "delay",
-                format!("must be at most {} steps, got {}", limits::COMMAND_DELAY, c.delay),
-            ));
-        }
+        let delay = delay(c.delay_s, c.delay, "delay", e)?;
         let period = match c.rate {
             Some(r) => 1.0 / in_range(r, limits::SENSOR_RATE, "Hz").map_err(|r| e("rate", r))?,
             None => 0.0,
@@ -48,10 +43,7 @@ pub(super) fn build_sensors(spec: &SceneSpec, cx: &Ctx) -> Result<crate::sensors
         if !(c.dropout >= 0.0 && c.dropout < 1.0) {
             return Err(e("dropout", format!("must be in [0, 1), got {}", c.dropout)));
         }
-        channels.push((
-            kind,
-            ChannelModel { sigma, bias, resolution, delay: c.delay, period, dropout: c.dropout },
-        ));
+        channels.push((kind, ChannelModel { sigma, bias, resolution, delay, period, dropout: c.dropout }));
     }
     Ok(SensorModel { seed: s.seed, channels })
 }
