@@ -42,6 +42,7 @@ pub mod kinematics;
 pub mod machine;
 pub mod model;
 pub mod plot;
+pub mod progress;
 pub mod randomize;
 pub mod report;
 pub mod scene;

@@ -4,9 +4,9 @@
 //! winches' encoders), body positions and orientations, and an IMU on every body (a gyro: the
 //! angular velocity in body axes; an accelerometer: the specific force `R^T (a - g)` in body axes,
 //! `a` the mean acceleration over the last step), each with Gaussian noise, a bias,
-//! quantization, a delay in steps, an update rate (held between updates) and dropouts (a lost
-//! update holds the last value), drawn from a seeded generator so that the same seed gives the
-//! same streams to the bit. The physics never reads them: the truth stays the state.
+//! quantization, a delay (in seconds, whole physics steps), an update rate (held between
+//! updates) and dropouts (a lost update holds the last value, marked in `Sensors::lost`),
+//! drawn from a seeded generator so that the same seed gives the same streams to the bit. The physics never reads them: the truth stays the state.
 //!
 //! Per channel and update, in this order for each value `x_i`: a standard normal `n_i`, then,
 //! with a dropout probability, a uniform `d_i`; the value `q(x_i + bias + sigma n_i)` with
@@ -33,10 +33,15 @@ struct Channel {
     rng: Pcg64,
     /// The last update's values (held until the next).
     held: Vec<f64>,
+    /// Per value: true while `held` holds a value whose last update was lost (a dropout),
+    /// until an update measures it again.
+    held_lost: Vec<bool>,
     /// The delay in whole steps (`Delay::steps` at the physics step).
     delay_steps: usize,
     /// The last `delay_steps + 1` held vectors, as one ring of `delay_steps + 1` rows.
     ring: Vec<f64>,
+    /// `held_lost` of the same rows.
+    lost_ring: Vec<bool>,
     /// Row of `ring` the next report writes.
     head: usize,
     /// Time of the next update, s.
@@ -57,6 +62,8 @@ pub struct Sensors {
     channels: Vec<Channel>,
     /// What every channel reports now, concatenated in `SensorKind::ALL` order (`layout`).
     measured: Vec<f64>,
+    /// Per value of `measured`: whether it is held after a lost update (`Sensors::lost`).
+    lost: Vec<bool>,
     /// The true IMU values now, `[gyro x y z, specific force x y z]` per body, where the scene
     /// declares a gyro or an accelerometer (empty otherwise).
     imu: Vec<f64>,
@@ -109,8 +116,10 @@ impl Sensors {
                     model: m,
                     rng: Pcg64::seed_from_u64(seed ^ (index + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
                     held: vec![0.0; n],
+                    held_lost: vec![false; n],
                     delay_steps,
                     ring: vec![0.0; n * (delay_steps + 1)],
+                    lost_ring: vec![false; n * (delay_steps + 1)],
                     head: 0,
                     next_update: 0.0,
                     updates: 0,
@@ -125,6 +134,7 @@ impl Sensors {
         Self {
             channels,
             measured: vec![0.0; total],
+            lost: vec![false; total],
             imu: vec![0.0; 6 * bodies],
             previous_velocity: vec![0.0; 3 * bodies],
             previous_time: None,
@@ -161,6 +171,14 @@ impl Sensors {
         &self.measured
     }
 
+    /// Per value of `measured`, in its order: `true` when the value reported is held because
+    /// its last update was lost (a dropout): a real driver would have published nothing. It
+    /// stays `true` until an update measures that value again, and travels through the delay
+    /// with the value. An orientation's four values are lost together. Empty without sensors.
+    pub fn lost(&self) -> &[bool] {
+        &self.lost
+    }
+
     /// True when the scene declares no channel.
     pub fn is_empty(&self) -> bool {
         self.channels.is_empty()
@@ -190,17 +208,21 @@ impl Sensors {
                 // the delay line starts full of the first measurement
                 for r in 0..rows {
                     ch.ring[r * n..(r + 1) * n].copy_from_slice(&ch.held);
+                    ch.lost_ring[r * n..(r + 1) * n].copy_from_slice(&ch.held_lost);
                 }
                 ch.head = 0;
             } else {
                 ch.ring[ch.head * n..(ch.head + 1) * n].copy_from_slice(&ch.held);
+                ch.lost_ring[ch.head * n..(ch.head + 1) * n].copy_from_slice(&ch.held_lost);
                 ch.head = (ch.head + 1) % rows;
             }
         }
         let mut start = 0;
         for ch in &self.channels {
             let n = ch.held.len();
-            self.measured[start..start + n].copy_from_slice(&ch.ring[ch.head * n..(ch.head + 1) * n]);
+            let row = ch.head * n..(ch.head + 1) * n;
+            self.measured[start..start + n].copy_from_slice(&ch.ring[row.clone()]);
+            self.lost[start..start + n].copy_from_slice(&ch.lost_ring[row]);
             start += n;
         }
     }
@@ -237,10 +259,13 @@ impl Channel {
     fn measure(&mut self) {
         let m = self.model;
         if self.kind == SensorKind::Orientation {
-            for (q, t) in self.held.chunks_exact_mut(4).zip(self.truth.chunks_exact(4)) {
+            let quaternions = self.held.chunks_exact_mut(4).zip(self.held_lost.chunks_exact_mut(4));
+            for ((q, q_lost), t) in quaternions.zip(self.truth.chunks_exact(4)) {
                 let noise: [f64; 3] = std::array::from_fn(|_| self.rng.sample::<f64, _>(StandardNormal));
                 let lost = m.dropout > 0.0 && self.rng.random::<f64>() < m.dropout;
-                if lost && self.updates > 1 {
+                let lost = lost && self.updates > 1;
+                q_lost.fill(lost);
+                if lost {
                     self.dropped += 1;
                     continue;
                 }
@@ -251,11 +276,12 @@ impl Channel {
             }
             return;
         }
-        for (h, x) in self.held.iter_mut().zip(&self.truth) {
+        for ((h, h_lost), x) in self.held.iter_mut().zip(&mut self.held_lost).zip(&self.truth) {
             let n: f64 = self.rng.sample(StandardNormal);
             let lost = m.dropout > 0.0 && self.rng.random::<f64>() < m.dropout;
             // the first update has nothing to hold: it is never lost
-            if lost && self.updates > 1 {
+            *h_lost = lost && self.updates > 1;
+            if *h_lost {
                 self.dropped += 1;
                 continue;
             }
@@ -316,6 +342,45 @@ pub fn imu_truth_csv_columns(model: &Model) -> Vec<String> {
         cols.extend(["fx", "fy", "fz"].map(|f| format!("{}_{f}_m_s2", b.name)));
     }
     cols
+}
+
+/// CSV column names of the lost flags (`Sensors::lost`) of every declared channel, in
+/// `Sensors::measured` order, one per value but one per body for an orientation:
+/// `{cable}_tension_lost`, `{cable}_length_lost`, `{actuator}_rest_length_lost`,
+/// `{body}_{x|y|z}_lost`, `{body}_orientation_lost`, `{body}_{wx|wy|wz}_lost`,
+/// `{body}_{fx|fy|fz}_lost`; their cells are `1` for a value held after a lost update, else `0`
+/// (`lost_csv_flags`).
+pub fn lost_csv_columns(model: &Model) -> Vec<String> {
+    let mut cols = Vec::new();
+    let per_body = |cols: &mut Vec<String>, axes: [&str; 3]| {
+        for b in &model.bodies {
+            cols.extend(axes.map(|ax| format!("{}_{ax}_lost", b.name)));
+        }
+    };
+    for (kind, _, _) in layout(model) {
+        match kind {
+            SensorKind::Tension => cols.extend(model.cable_names.iter().map(|c| format!("{c}_tension_lost"))),
+            SensorKind::Length => cols.extend(model.cable_names.iter().map(|c| format!("{c}_length_lost"))),
+            SensorKind::RestLength => {
+                cols.extend(model.actuator_names.iter().map(|a| format!("{a}_rest_length_lost")))
+            }
+            SensorKind::Position => per_body(&mut cols, ["x", "y", "z"]),
+            SensorKind::Orientation => {
+                cols.extend(model.bodies.iter().map(|b| format!("{}_orientation_lost", b.name)))
+            }
+            SensorKind::Gyro => per_body(&mut cols, ["wx", "wy", "wz"]),
+            SensorKind::Accelerometer => per_body(&mut cols, ["fx", "fy", "fz"]),
+        }
+    }
+    cols
+}
+
+/// The flags of `lost_csv_columns` from `lost` (`Sensors::lost` of `model`), one per column.
+pub fn lost_csv_flags<'a>(model: &'a Model, lost: &'a [bool]) -> impl Iterator<Item = bool> + 'a {
+    layout(model).flat_map(move |(kind, start, n)| {
+        let step = if kind == SensorKind::Orientation { 4 } else { 1 };
+        lost[start..start + n].iter().step_by(step).copied()
+    })
 }
 
 /// CSV column names of every declared channel's values, in `Sensors::measured` order:

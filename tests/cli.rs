@@ -327,3 +327,123 @@ fn a_quasi_static_roll_of_the_robot_says_to_follow_it_dynamically() {
     let rows = std::fs::read_to_string(&out).unwrap().lines().count();
     assert!(rows > 50, "{rows} rows");
 }
+
+#[test]
+fn the_sensed_csv_marks_every_lost_reading_and_the_step_counted_delay_is_warned_about() {
+    // config/examples/sensors.toml drops 1 % of its position updates; its rest-length delay
+    // given in steps instead of seconds is warned about, and gives the same numbers
+    let scene = root().join("config/examples/sensors.toml");
+    let dir = common::scratch("sensed_csv");
+    let csv = dir.join("sensed.csv");
+    let out = tensegrity(&[
+        "deploy",
+        "--dynamic",
+        scene.to_str().unwrap(),
+        "--from-equilibrium",
+        "--duration",
+        "1",
+        "--out",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("warning"), "delays in seconds are quiet");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|x| x.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), 1001);
+    let col =
+        |name: &str| header.iter().position(|h| *h == name).unwrap_or_else(|| panic!("{name}: {header:?}"));
+    for lost in ["rope_tension_lost", "winch_rest_length_lost", "ceiling_x_lost", "load_z_lost"] {
+        col(lost);
+    }
+    let mut flagged = 0;
+    for axis in ["x", "y", "z"] {
+        let (value, lost) = (col(&format!("load_{axis}_measured_m")), col(&format!("load_{axis}_lost")));
+        for w in rows.windows(2) {
+            assert!(w[1][lost] == 0.0 || w[1][lost] == 1.0);
+            assert_eq!(w[1][lost] == 1.0, w[1][value] == w[0][value], "flagged exactly when held");
+            flagged += (w[1][lost] == 1.0) as usize;
+        }
+    }
+    assert!(flagged > 10 && flagged < 60, "about 1 % of 3000 values: {flagged}");
+    assert!(rows.iter().all(|r| r[col("rope_tension_lost")] == 0.0));
+    // the step-counted delay: a warning naming its replacement, the same CSV
+    let stepped = dir.join("stepped.toml");
+    let old = std::fs::read_to_string(&scene).unwrap().replace("delay_s = 0.003", "delay = 3");
+    std::fs::write(&stepped, old).unwrap();
+    let again = dir.join("again.csv");
+    let out = tensegrity(&[
+        "deploy",
+        "--dynamic",
+        stepped.to_str().unwrap(),
+        "--from-equilibrium",
+        "--duration",
+        "1",
+        "--out",
+        again.to_str().unwrap(),
+    ]);
+    assert!(out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("warning: sensors.rest_length.delay = 3 counts physics steps")
+            && err.contains("delay_s = 0.003"),
+        "{err}"
+    );
+    // the same numbers but the wall time
+    let wall = col("wall_us");
+    let without_wall = |text: &str| -> Vec<String> {
+        text.lines()
+            .map(|l| l.split(',').enumerate().filter(|(i, _)| *i != wall).map(|(_, x)| x).collect())
+            .collect()
+    };
+    assert!(without_wall(&std::fs::read_to_string(&again).unwrap()) == without_wall(&text), "the same run");
+}
+
+#[test]
+fn long_work_shows_progress_lines_when_standard_error_is_not_a_terminal() {
+    // TENSEGRITY_PROGRESS_AFTER_S = 0 shows at once what a run longer than a second shows: one
+    // plain line (then one every 5 s), and a closing line; standard output is unchanged
+    let run = |args: &[&str], after: Option<&str>| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_tensegrity"));
+        c.args(args).current_dir(root());
+        if let Some(a) = after {
+            c.env("TENSEGRITY_PROGRESS_AFTER_S", a);
+        }
+        let out = c.output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        (String::from_utf8(out.stdout).unwrap(), String::from_utf8(out.stderr).unwrap())
+    };
+    let statics = ["statics", "config/scenes/prism3.toml"];
+    let (quiet_out, quiet_err) = run(&statics, None);
+    let (out, err) = run(&statics, Some("0"));
+    assert!(quiet_err.is_empty(), "a short solve says nothing: {quiet_err}");
+    assert_eq!(out, quiet_out);
+    assert!(err.starts_with("statics config/scenes/prism3.toml: 0 Newton iterations, residual "), "{err}");
+    assert!(err.lines().last().unwrap().contains(": done in "), "{err}");
+    // a quasi-static path counts its load steps out of the total, a study its runs, a benchmark
+    // its steps
+    let path = common::scratch("progress_deploy").join("path.csv");
+    let (_, err) = run(
+        &["deploy", "--quasi-static", "config/scenes/prism3.toml", "--out", path.to_str().unwrap()],
+        Some("0"),
+    );
+    assert!(err.contains("deploy config/scenes/prism3.toml: ") && err.contains(" load steps"), "{err}");
+    let study = common::scratch("progress_study");
+    let (_, err) = run(
+        &[
+            "study",
+            "config/scenes/prism3.toml",
+            "--ramp-times",
+            "0.5",
+            "--settle",
+            "0.1",
+            "--out",
+            study.to_str().unwrap(),
+        ],
+        Some("0"),
+    );
+    assert!(err.contains("study config/scenes/prism3.toml: ") && err.contains(" runs"), "{err}");
+    let (_, err) = run(&["bench", "steps", "config/scenes/prism3.toml", "--steps", "600"], Some("0"));
+    assert!(err.starts_with("bench: 256/600 steps"), "{err}");
+}

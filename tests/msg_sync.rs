@@ -64,6 +64,7 @@ fn rust_structs_match_the_msg_files_field_by_field() {
     tracer.trace_simple_type::<tensegrity::io::msg::ContactStates>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::TensionCommand>().unwrap();
     tracer.trace_simple_type::<tensegrity::io::msg::ImuStates>().unwrap();
+    tracer.trace_simple_type::<tensegrity::io::msg::SensorReadings>().unwrap();
     let registry = tracer.registry().unwrap();
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("msg/msg");
     let mut checked = 0;
@@ -75,6 +76,7 @@ fn rust_structs_match_the_msg_files_field_by_field() {
         "ContactStates",
         "TensionCommand",
         "ImuStates",
+        "SensorReadings",
     ] {
         let text = std::fs::read_to_string(dir.join(format!("{name}.msg"))).unwrap();
         let expected: Vec<(String, Format)> =
@@ -246,6 +248,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
     tracer.trace_simple_type::<msg::ContactStates>().unwrap();
     tracer.trace_simple_type::<msg::TensionCommand>().unwrap();
     tracer.trace_simple_type::<msg::ImuStates>().unwrap();
+    tracer.trace_simple_type::<msg::SensorReadings>().unwrap();
     let registry = tracer.registry().unwrap();
     let rust_of = [
         ("rosgraph_msgs/msg/Clock", "Clock"),
@@ -261,6 +264,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
         ("tensegrity_msgs/msg/ContactStates", "ContactStates"),
         ("tensegrity_msgs/msg/TensionCommand", "TensionCommand"),
         ("tensegrity_msgs/msg/ImuStates", "ImuStates"),
+        ("tensegrity_msgs/msg/SensorReadings", "SensorReadings"),
     ];
     // every topic a bag records is covered
     for topic in Topic::ALL {

@@ -592,7 +592,7 @@ fn sensed_hoist(name: &str, seed: u64) -> (PathBuf, Vec<(f64, f64)>) {
     let scene = common::scratch("sensors").join(format!("{name}.toml"));
     let sensors = format!(
         "\n[sensors]\nseed = {seed}\n[sensors.tension]\nsigma = 0.5\n\
-         [sensors.rest_length]\nresolution = 1e-4\ndelay_s = 0.003\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\n"
+         [sensors.rest_length]\nresolution = 1e-4\ndelay_s = 0.003\n[sensors.position]\nsigma = 1e-4\nrate = 1000.0\ndropout = 0.05\n"
     );
     std::fs::write(&scene, text + &sensors).unwrap();
     let dir = record_from_equilibrium(&scene, name, "0.02");
@@ -633,7 +633,34 @@ fn a_run_with_sensors_records_measured_and_true_states_and_replays_bit_for_bit()
         tensions.iter().map(|t| t.1).collect::<Vec<_>>(),
         other.iter().map(|t| t.1).collect::<Vec<_>>()
     );
+    // ~/sensor_readings: every channel's values as the state topics carry them, and a lost flag
+    // per value on exactly the positions that held their last value after a dropout
+    let reader = BagReader::open(&dir).unwrap();
+    let readings: Vec<msg::SensorReadings> = (reader.messages().map(Result::unwrap))
+        .filter(|m| m.topic == "/tensegrity_sim/sensor_readings")
+        .map(|m| m.decode().unwrap())
+        .collect();
+    assert_eq!(readings.len(), 2001);
+    assert_eq!(readings[0].channel, ["tension", "rest_length", "position"]);
+    assert_eq!(readings[0].count, [1, 1, 6]);
+    for (r, (measured, _)) in readings.iter().zip(&tensions) {
+        assert_eq!(r.value[0].to_bits(), measured.to_bits(), "the value ~/cable_states carries");
+        assert_eq!(r.lost.len(), r.value.len());
+    }
+    let mut lost = 0;
+    for w in readings.windows(2) {
+        for i in 2..8 {
+            if w[1].lost[i] {
+                lost += 1;
+                assert_eq!(w[1].value[i], w[0].value[i], "a lost position holds its last value");
+            }
+        }
+    }
+    // 1 kHz at 10 us steps: 20 updates of 6 values (the fixed ceiling's too), 5 % lost
+    assert!(lost > 0, "some positions were lost");
     if let Some(v) = rosbags_read(&dir) {
+        let read = v["messages"]["/tensegrity_sim/sensor_readings"].as_array().unwrap();
+        assert_eq!(read.len(), 2001);
         let truth = v["messages"]["/tensegrity_sim/ground_truth/cable_states"].as_array().unwrap();
         assert_eq!(truth.len(), 2001);
         let poses = v["messages"]["/tensegrity_sim/ground_truth/body_poses"].as_array().unwrap();

@@ -137,6 +137,57 @@ fn a_delay_of_k_steps_reports_what_was_measured_k_steps_before() {
 }
 
 #[test]
+fn a_lost_reading_is_marked_until_an_update_measures_it_again() {
+    // every step an update: a flagged value is the previous step's, an unflagged one is new
+    let n = 5000;
+    let history = |table: &str| {
+        run(hanging(table), None, n, |_, s| {
+            (s.measured().to_vec(), s.lost().to_vec(), s.dropped(SensorKind::Tension))
+        })
+    };
+    let every = history("[sensors.tension]\nsigma = 0.5\ndropout = 0.3\n");
+    assert!(every.iter().all(|(m, l, _)| m.len() == 1 && l.len() == 1));
+    assert!(!every[0].1[0], "the first update is never lost");
+    for w in every.windows(2) {
+        let ((before, _, _), (now, lost, _)) = (&w[0], &w[1]);
+        assert_eq!(lost[0], now[0] == before[0], "held exactly when flagged: {before:?} -> {now:?}");
+    }
+    let flagged = every.iter().filter(|(_, l, _)| l[0]).count() as u64;
+    assert_eq!(flagged, every.last().unwrap().2, "one flag per value lost");
+    assert!((flagged as f64 / n as f64 - 0.3).abs() < 0.03, "{flagged} of {n}");
+    // at 100 Hz the flag holds with the value until the next update
+    let slow = history("[sensors.tension]\nsigma = 0.5\ndropout = 0.3\nrate = 100.0\n");
+    for (k, w) in slow.windows(2).enumerate() {
+        if (k + 1) % 10 != 0 {
+            assert_eq!(w[0].0, w[1].0, "held between updates");
+            assert_eq!(w[0].1, w[1].1, "and so is its flag");
+        }
+    }
+    assert!(slow.iter().any(|(_, l, _)| l[0]) && slow.iter().any(|(_, l, _)| !l[0]));
+    // a delay of 5 steps delays the flag with the value
+    let late = history("[sensors.tension]\nsigma = 0.5\ndropout = 0.3\ndelay_s = 0.005\n");
+    assert_eq!(
+        late[5..].iter().map(|h| h.1[0]).collect::<Vec<_>>(),
+        every[..=n - 5].iter().map(|h| h.1[0]).collect::<Vec<_>>()
+    );
+    // an orientation's four values are lost together; a position's three one by one
+    let bodies = history("[sensors.orientation]\nsigma = 0.01\ndropout = 0.3\n[sensors.position]\nsigma = 1e-3\ndropout = 0.3\n");
+    let model = hanging("[sensors.orientation]\n[sensors.position]\n");
+    let layout: Vec<_> = tensegrity::sensors::layout(&model).collect();
+    let (_, q0, qn) = *layout.iter().find(|(k, _, _)| *k == SensorKind::Orientation).unwrap();
+    let (_, x0, xn) = *layout.iter().find(|(k, _, _)| *k == SensorKind::Position).unwrap();
+    let mut mixed = false;
+    for (_, lost, _) in &bodies {
+        assert!(lost[q0..q0 + qn].chunks_exact(4).all(|q| q.iter().all(|l| *l == q[0])));
+        mixed |= lost[x0..x0 + xn].chunks_exact(3).any(|x| x.iter().any(|l| *l != x[0]));
+    }
+    assert!(mixed, "a position's coordinates are lost one by one");
+    // no sensors, no flags
+    let plain = run(hanging(""), None, 3, |_, s| s.lost().len());
+    assert!(plain.iter().all(|l| *l == 0));
+}
+
+#[test]
 fn quantization_dropout_and_orientation_noise() {
     let values =
         run(hanging("[sensors.rest_length]\nsigma = 1e-4\nresolution = 1e-3\n"), None, 300, |_, s| {

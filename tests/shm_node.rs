@@ -666,6 +666,7 @@ fn a_scene_with_sensors_serves_what_they_report_with_each_lockstep_answer() {
     use tensegrity::io::shm::{MEASURED_POSITION, MEASURED_TENSION};
     let (_node, client) = sensed_node("measured");
     let mut errors = Vec::new();
+    let mut positions = Vec::new();
     for _ in 0..200 {
         let answer = client.lockstep(1, &[], WAIT).unwrap();
         let state = &answer.payload().state;
@@ -677,7 +678,16 @@ fn a_scene_with_sensors_serves_what_they_report_with_each_lockstep_answer() {
         assert!((state.cable_tension[0] - 98.1).abs() < 1e-6);
         errors.push((m.cable_tension[0], m.cable_tension[0] - state.cable_tension[0]));
         assert!((m.body_position[1][2] - state.body_position[1][2]).abs() < 0.01);
+        // the scene's positions drop 1 % of their updates: a flagged value is the last one held
+        for (x, lost) in m.body_position[1].iter().zip(m.body_position_lost[1]) {
+            positions.push((*x, lost));
+        }
+        assert_eq!(m.cable_tension_lost[0], 0, "no dropout declared on tensions");
     }
+    let lost: Vec<usize> = (3..positions.len()).filter(|&i| positions[i].1 == 1).collect();
+    assert!(!lost.is_empty(), "some of 600 position values at 1 % were lost");
+    assert!(lost.iter().all(|&i| positions[i].0 == positions[i - 3].0), "each holds its last value");
+    assert!((3..positions.len()).all(|i| positions[i].1 == 1 || positions[i].0 != positions[i - 3].0));
     // 100 Hz at 1 ms: 20 updates of sigma 0.5 N, held in between
     let distinct = errors.windows(2).filter(|w| w[0].0 != w[1].0).count();
     assert!((18..=20).contains(&distinct), "{distinct} changes in 200 steps");

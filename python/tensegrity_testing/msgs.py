@@ -116,6 +116,17 @@ class ImuStates(IdlStruct, typename="tensegrity_msgs::msg::dds_::ImuStates_"):
 
 
 @dataclass
+class SensorReadings(IdlStruct, typename="tensegrity_msgs::msg::dds_::SensorReadings_"):
+    """`tensegrity_msgs/msg/SensorReadings`."""
+
+    header: Header = field(default_factory=Header)
+    channel: types.sequence[str] = field(default_factory=list)
+    count: types.sequence[types.uint32] = field(default_factory=list)
+    value: types.sequence[types.float64] = field(default_factory=list)
+    lost: types.sequence[bool] = field(default_factory=list)
+
+
+@dataclass
 class Structure(IdlStruct, typename="tensegrity_msgs::msg::dds_::Structure_"):
     """`tensegrity_msgs/msg/Structure`."""
 
@@ -359,6 +370,7 @@ TOPICS = {
     "~/ground_truth/cable_states": (CableStates, 16, False),
     "~/imu": (ImuStates, 16, False),
     "~/ground_truth/imu": (ImuStates, 16, False),
+    "~/sensor_readings": (SensorReadings, 16, False),
     "~/actuator_commands": (ActuatorCommand, 1, False),
     "~/joint_commands": (JointState, 1, False),
     "~/tension_commands": (TensionCommand, 1, False),

@@ -130,6 +130,9 @@ class State:
     # what the scene's sensors report (lockstep, scenes with [sensors]): channel name to values,
     # in the arrays' layout ("tension", "length", "rest_length", "position", "orientation")
     measured: dict = field(default_factory=dict)
+    # per reported value, True when it is held because its last update was lost (a dropout): the
+    # same channel names and layout as `measured` (an orientation has one flag per body)
+    measured_lost: dict = field(default_factory=dict)
 
     @classmethod
     def of(cls, s):
@@ -167,6 +170,7 @@ def state_of(s, names, contacts=None, measured=None):
         ]
     if measured is not None and measured.step == state.step:
         state.measured = measured_of(measured)
+        state.measured_lost = measured_lost_of(measured)
     return state
 
 
@@ -194,6 +198,31 @@ def measured_of(m):
         out["gyro"] = [tuple(m.body_angular_velocity[i]) for i in range(b)]
     if m.channels & shm.MEASURED_ACCELEROMETER:
         out["accelerometer"] = [tuple(m.body_specific_force[i]) for i in range(b)]
+    return out
+
+
+def measured_lost_of(m):
+    """The lost flags of a `MeasuredSample` `m`'s declared channels, as `measured_of` lays out
+    the values: True where a value is held because its last update was lost."""
+    from . import shm
+
+    b, c, a = m.body_count, m.cable_count, m.actuator_count
+    flags = lambda row: tuple(bool(x) for x in row)  # noqa: E731
+    out = {}
+    if m.channels & shm.MEASURED_TENSION:
+        out["tension"] = [bool(x) for x in m.cable_tension_lost[:c]]
+    if m.channels & shm.MEASURED_LENGTH:
+        out["length"] = [bool(x) for x in m.cable_length_lost[:c]]
+    if m.channels & shm.MEASURED_REST_LENGTH:
+        out["rest_length"] = [bool(x) for x in m.actuator_rest_length_lost[:a]]
+    if m.channels & shm.MEASURED_POSITION:
+        out["position"] = [flags(m.body_position_lost[i]) for i in range(b)]
+    if m.channels & shm.MEASURED_ORIENTATION:
+        out["orientation"] = [bool(x) for x in m.body_orientation_lost[:b]]
+    if m.channels & shm.MEASURED_GYRO:
+        out["gyro"] = [flags(m.body_angular_velocity_lost[i]) for i in range(b)]
+    if m.channels & shm.MEASURED_ACCELEROMETER:
+        out["accelerometer"] = [flags(m.body_specific_force_lost[i]) for i in range(b)]
     return out
 
 

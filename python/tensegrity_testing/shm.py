@@ -176,6 +176,14 @@ class MeasuredSample(ctypes.Structure):
         ("body_specific_force", (f64 * 3) * MAX_BODIES),
         ("true_angular_velocity", (f64 * 3) * MAX_BODIES),
         ("true_specific_force", (f64 * 3) * MAX_BODIES),
+        # per value, 1 when it is held because its last update was lost (a dropout)
+        ("body_position_lost", (u8 * 3) * MAX_BODIES),
+        ("body_orientation_lost", u8 * MAX_BODIES),
+        ("cable_tension_lost", u8 * MAX_CABLES),
+        ("cable_length_lost", u8 * MAX_CABLES),
+        ("actuator_rest_length_lost", u8 * MAX_ACTUATORS),
+        ("body_angular_velocity_lost", (u8 * 3) * MAX_BODIES),
+        ("body_specific_force_lost", (u8 * 3) * MAX_BODIES),
     ]
 
     @staticmethod

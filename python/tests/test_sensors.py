@@ -30,6 +30,45 @@ def test_the_tension_sensor_is_noisy_and_held_between_its_updates(tensegrity_nod
     assert any(abs(e) > 0.05 for e in errors) and all(abs(e) < 3.0 for e in errors)
 
 
+@pytest.mark.tensegrity(scene=SENSORS, params={"start_from_equilibrium": True}, transports=("shm",))
+def test_a_lost_position_is_flagged_and_holds_its_last_value(tensegrity_node):
+    # the scene drops 1 % of its position updates: State.measured_lost flags each value held
+    sim = tensegrity_node
+    previous, flagged = None, 0
+    for _ in range(300):
+        state = sim.lockstep(1)
+        lost, position = state.measured_lost["position"], state.measured["position"]
+        assert state.measured_lost["tension"] == [False] and len(lost) == len(position)
+        if previous is not None:
+            for body in range(len(position)):
+                for axis in range(3):
+                    held = position[body][axis] == previous[body][axis]
+                    assert lost[body][axis] == held, (body, axis, lost[body], position[body])
+                    flagged += lost[body][axis]
+        previous = position
+    assert 0 < flagged < 30, flagged
+
+
+def test_the_in_process_simulator_flags_lost_readings_too():
+    from tensegrity_testing.inprocess import InProcessSimulator
+
+    pytest.importorskip("tensegrity_native")
+    sim = InProcessSimulator(SENSORS, {"start_from_equilibrium": True})
+    flags = [sim.lockstep(1).measured_lost["position"] for _ in range(300)]
+    assert any(any(axis for body in f for axis in body) for f in flags)
+
+
+def test_a_step_counted_delay_warns_in_python():
+    from tensegrity_testing.inprocess import InProcessSimulator
+
+    pytest.importorskip("tensegrity_native")
+    text = SENSORS.read_text().replace("delay_s = 0.003", "delay = 3")
+    path = Path(__import__("tempfile").mkdtemp()) / "stepped.toml"
+    path.write_text(text)
+    with pytest.warns(FutureWarning, match="delay_s = 0.003"):
+        InProcessSimulator(path)
+
+
 IMU = Path(__file__).resolve().parents[2] / "config" / "examples" / "imu.toml"
 
 

@@ -248,6 +248,42 @@ impl ImuStates {
     }
 }
 
+/// `tensegrity_msgs/msg/SensorReadings`: what every declared sensor channel reports, with a
+/// lost flag per value.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct SensorReadings {
+    /// Stamp (the step's simulation time) and frame.
+    pub header: Header,
+    /// Declared channels (`crate::sensors::SensorKind::name`), in `SensorKind::ALL` order.
+    pub channel: Vec<String>,
+    /// Values per channel (`crate::sensors::SensorKind::len`).
+    pub count: Vec<u32>,
+    /// What the channels report, concatenated (`crate::sensors::Sensors::measured`).
+    pub value: Vec<f64>,
+    /// Parallel to `value`: held after a lost update (`crate::sensors::Sensors::lost`).
+    pub lost: Vec<bool>,
+}
+
+impl SensorReadings {
+    /// The message at sim time `time` from what the sensors of `model` report (`measured`) and
+    /// their lost flags (`lost`, parallel to it).
+    pub fn from_sensors(model: &Model, time: f64, measured: &[f64], lost: &[bool], frame: &str) -> Self {
+        let layout: Vec<_> = crate::sensors::layout(model).collect();
+        Self {
+            header: Header { stamp: Time::from_seconds(time), frame_id: frame.to_string() },
+            channel: layout.iter().map(|(kind, _, _)| kind.name().to_string()).collect(),
+            count: layout.iter().map(|(_, _, n)| *n as u32).collect(),
+            value: measured.to_vec(),
+            lost: lost.to_vec(),
+        }
+    }
+
+    /// True when every number is finite.
+    pub fn is_finite(&self) -> bool {
+        self.value.iter().all(|x| x.is_finite())
+    }
+}
+
 /// `tensegrity_msgs/msg/TensionCommand`: tension commands for winch actuators (on
 /// `~/tension_commands`; a type of its own, so that `ActuatorCommand` stays what existing
 /// controllers write).

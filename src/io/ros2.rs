@@ -70,6 +70,9 @@ struct Publishers {
     /// or an accelerometer publishes on them.
     imu_topics: [ros2_client::dds::rustdds::Topic; 2],
     imu: Option<(Publisher<msg::ImuStates>, Publisher<msg::ImuStates>)>,
+    /// `~/sensor_readings`: its topic, and its writer once a scene with sensors publishes on it.
+    readings_topic: ros2_client::dds::rustdds::Topic,
+    readings: Option<Publisher<msg::SensorReadings>>,
 }
 
 impl Message for msg::Empty {}
@@ -173,6 +176,13 @@ impl NodeSink for DdsTransport {
             let pair = writer_pair(&mut self._node, &self.publishers.imu_topics, Topic::Imu, "~/imu")?;
             self.publishers.imu = Some(pair);
         }
+        if topic == Topic::SensorReadings && self.publishers.readings.is_none() {
+            let offered = topics::topic_type(topic).expect("a ROS topic").1;
+            let qos = Some(writer_qos(offered.depth as usize, offered.transient_local));
+            let writer = (self._node.create_publisher(&self.publishers.readings_topic, qos))
+                .map_err(|e| PublishError::Failed(format!("~/sensor_readings writer: {e:?}")))?;
+            self.publishers.readings = Some(writer);
+        }
         let p = &self.publishers;
         match (topic, M::build(topic, v)?) {
             (Topic::GroundTruthPoses, Some(M::Poses(m))) => match &p.truth {
@@ -198,6 +208,10 @@ impl NodeSink for DdsTransport {
             },
             (_, Some(M::Imu(m))) => match &p.imu {
                 Some((_, w)) => sent(w.publish(m)),
+                None => Ok(()),
+            },
+            (_, Some(M::Sensors(m))) => match &p.readings {
+                Some(w) => sent(w.publish(m)),
                 None => Ok(()),
             },
             (_, Some(M::Contacts(m))) => match &p.contacts {
@@ -346,6 +360,11 @@ impl DdsTransport {
                 outputs.iter().find(|(t, _, _)| *t == topic).expect("every ROS topic is declared").1.clone()
             }),
             imu: None,
+            readings_topic: (outputs.iter().find(|(t, _, _)| *t == Topic::SensorReadings))
+                .expect("every ROS topic is declared")
+                .1
+                .clone(),
+            readings: None,
         };
         let mapping = match params.service_mapping.as_str() {
             "cyclone" => ServiceMapping::Cyclone,

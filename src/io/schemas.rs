@@ -12,6 +12,7 @@ const DEFINITIONS: &[(&str, &str)] = &[
     ("tensegrity_msgs/CableStates", include_str!("../../msg/msg/CableStates.msg")),
     ("tensegrity_msgs/ContactStates", include_str!("../../msg/msg/ContactStates.msg")),
     ("tensegrity_msgs/ImuStates", include_str!("../../msg/msg/ImuStates.msg")),
+    ("tensegrity_msgs/SensorReadings", include_str!("../../msg/msg/SensorReadings.msg")),
     ("tensegrity_msgs/Structure", include_str!("../../msg/msg/Structure.msg")),
     ("tensegrity_msgs/TensionCommand", include_str!("../../msg/msg/TensionCommand.msg")),
     ("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n"),

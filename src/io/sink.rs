@@ -9,7 +9,7 @@ use crate::control::ActuatorCommand;
 use crate::evaluate::Workspace;
 use crate::io::msg::{
     CableStates, Clock, ContactStates, DiagnosticArray, DiagnosticStatus, Header, ImuStates, JointState,
-    MarkerArray, PoseArray, SimResult, Structure, TfMessage, Time,
+    MarkerArray, PoseArray, SensorReadings, SimResult, Structure, TfMessage, Time,
 };
 use crate::io::topics::Topic;
 use crate::model::{ActuatorId, Model};
@@ -61,6 +61,8 @@ pub struct NodeView<'a> {
     /// What the scene's sensors report now (`crate::sensors::Sensors::measured`; empty without
     /// sensors): the state topics carry these values, `~/ground_truth/...` the exact ones.
     pub measured: &'a [f64],
+    /// Per value of `measured`: held after a lost update (`crate::sensors::Sensors::lost`).
+    pub lost: &'a [bool],
     /// The true IMU values (`crate::sensors::Sensors::imu_truth`; empty without a gyro or an
     /// accelerometer, and in views that have no step before them, such as a quasi-static path).
     pub imu_truth: &'a [f64],
@@ -177,6 +179,8 @@ pub enum TopicMessage {
     Contacts(ContactStates),
     /// `~/imu` or `~/ground_truth/imu`.
     Imu(ImuStates),
+    /// `tensegrity_msgs/msg/SensorReadings`.
+    Sensors(SensorReadings),
 }
 
 impl TopicMessage {
@@ -247,6 +251,19 @@ impl TopicMessage {
                     ));
                 }
                 Self::Imu(imu)
+            }
+            Topic::SensorReadings => {
+                if view.measured.is_empty() {
+                    return Ok(None);
+                }
+                let readings =
+                    SensorReadings::from_sensors(model, state.time, view.measured, view.lost, frame);
+                if !readings.is_finite() {
+                    return Err(crate::io::sink::PublishError::Failed(
+                        "refusing to publish non-finite sensor readings".into(),
+                    ));
+                }
+                Self::Sensors(readings)
             }
             Topic::State => return Ok(None),
         }))

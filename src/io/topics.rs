@@ -41,11 +41,14 @@ pub enum Topic {
     Imu,
     /// `~/ground_truth/imu`: the exact IMU values (with `~/imu`).
     GroundTruthImu,
+    /// `~/sensor_readings`: every declared channel's reported values with a lost flag per value
+    /// (only scenes that declare sensors publish it).
+    SensorReadings,
 }
 
 impl Topic {
     /// Every topic, in the order of `NodeStats::publish_failures`.
-    pub const ALL: [Topic; 15] = [
+    pub const ALL: [Topic; 16] = [
         Topic::Clock,
         Topic::Tf,
         Topic::TfStatic,
@@ -61,6 +64,7 @@ impl Topic {
         Topic::GroundTruthCables,
         Topic::Imu,
         Topic::GroundTruthImu,
+        Topic::SensorReadings,
     ];
     /// The topic's name (`~/` is the node's private namespace).
     pub fn name(self) -> &'static str {
@@ -80,6 +84,7 @@ impl Topic {
             Topic::GroundTruthCables => "~/ground_truth/cable_states",
             Topic::Imu => "~/imu",
             Topic::GroundTruthImu => "~/ground_truth/imu",
+            Topic::SensorReadings => "~/sensor_readings",
         }
     }
     /// The topic's position in `Topic::ALL` (and in `NodeStats::publish_failures`).
@@ -88,7 +93,7 @@ impl Topic {
     }
     /// The topics of one state, in publish order: the whole-state sample first (a shared-memory
     /// sample takes microseconds, so it does not wait for the DDS messages' serialization).
-    pub const STATE: [Topic; 10] = [
+    pub const STATE: [Topic; 11] = [
         Topic::State,
         Topic::BodyPoses,
         Topic::Tf,
@@ -99,6 +104,7 @@ impl Topic {
         Topic::GroundTruthCables,
         Topic::Imu,
         Topic::GroundTruthImu,
+        Topic::SensorReadings,
     ];
 
     /// Whether a node of `model` publishes this topic: `~/contacts` only where the scene declares
@@ -107,7 +113,9 @@ impl Topic {
     pub fn published_by(self, model: &crate::model::Model) -> bool {
         match self {
             Topic::Contacts => model.contact_pairs() > 0,
-            Topic::GroundTruthPoses | Topic::GroundTruthCables => !model.sensors.channels.is_empty(),
+            Topic::GroundTruthPoses | Topic::GroundTruthCables | Topic::SensorReadings => {
+                !model.sensors.channels.is_empty()
+            }
             Topic::Imu | Topic::GroundTruthImu => crate::sensors::has_imu(model),
             _ => true,
         }
@@ -164,6 +172,7 @@ pub fn topic_type(topic: Topic) -> Option<(&'static str, TopicQos)> {
         Topic::GroundTruthPoses => ("geometry_msgs/msg/PoseArray", q(16, false)),
         Topic::GroundTruthCables => ("tensegrity_msgs/msg/CableStates", q(16, false)),
         Topic::Imu | Topic::GroundTruthImu => ("tensegrity_msgs/msg/ImuStates", q(16, false)),
+        Topic::SensorReadings => ("tensegrity_msgs/msg/SensorReadings", q(16, false)),
     })
 }
 

@@ -282,6 +282,13 @@ pub fn deploy_quasi_static(
         let row = PathStep { index: s, time: state.time, report, cuts, kind };
         on_step(&row, state, ws);
         path.steps.push(row);
+        let total = Some(steps as u64);
+        crate::progress::report(crate::progress::Report {
+            unit: "load steps",
+            done: s as u64,
+            total,
+            residual_n: None,
+        });
     }
     Ok(path)
 }

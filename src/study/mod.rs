@@ -239,13 +239,24 @@ fn create(path: &Path) -> Result<std::io::BufWriter<std::fs::File>, String> {
     std::fs::File::create(path).map(std::io::BufWriter::new).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// Runs `f` over `items` on `jobs` threads (0: one per core), results in the items' order.
+/// Runs `f` over `items` on `jobs` threads (0: one per core), results in the items' order;
+/// reports each finished item (`crate::progress`, in `"runs"`).
 fn parallel_map<T: Sync, R: Send>(
     items: &[T],
     jobs: usize,
     f: impl Fn(&T) -> Result<R, String> + Sync,
 ) -> Result<Vec<R>, String> {
     use rayon::prelude::*;
+    use std::sync::atomic::{AtomicU64, Ordering};
     let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build().map_err(|e| e.to_string())?;
-    pool.install(|| items.par_iter().map(&f).collect())
+    let done = AtomicU64::new(0);
+    let total = Some(items.len() as u64);
+    let counted = |item: &T| {
+        let r = f(item);
+        let done = done.fetch_add(1, Ordering::Relaxed) + 1;
+        crate::progress::report(crate::progress::Report { unit: "runs", done, total, residual_n: None });
+        r
+    };
+    crate::progress::report(crate::progress::Report { unit: "runs", done: 0, total, residual_n: None });
+    pool.install(|| items.par_iter().map(counted).collect())
 }

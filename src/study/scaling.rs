@@ -127,9 +127,19 @@ pub fn step_times(model: &Model, settings: SimSettings, steps: usize) -> Result<
     }
     let mut times = Vec::with_capacity(steps);
     let (mut newton, mut factorizations) = (0, 0);
-    for _ in 0..steps {
+    for k in 0..steps {
         let s = sim.step().map_err(|e| e.to_string())?;
         times.push(s.wall_time.as_secs_f64());
+        // outside the timed step; every 256 steps
+        if k % 256 == 255 {
+            let total = Some(steps as u64);
+            crate::progress::report(crate::progress::Report {
+                unit: "steps",
+                done: k as u64 + 1,
+                total,
+                residual_n: None,
+            });
+        }
         newton += s.newton_iterations;
         factorizations += s.factorizations;
     }

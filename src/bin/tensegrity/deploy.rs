@@ -97,7 +97,8 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
     }
     let mut file = csv_output(&out)?;
     writeln!(file, "{}", report::path_csv_header(&model)).map_err(|e| e.to_string())?;
-    let bar = progress(model.schedule.steps as u64 + 1, "steps");
+    let what = format!("deploy {}", scene.display());
+    let bar = Progress::new(what, &["load steps"], Some(model.schedule.steps as u64)).observe();
     let mut state = State::initial(&model);
     let mut ws = Workspace::new(&model);
     let mut io_error = None;
@@ -125,9 +126,9 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
                 .get_or_insert_with(|| record::PathPublisher::new(&model, st, w, &params))
                 .row(r, &model, st, w);
         }
-        bar.inc(1);
-    })
-    .map_err(|e| {
+    });
+    bar.finish();
+    let path = path.map_err(|e| {
         // a robot on the ground loses its equilibrium where it tips over or slides: statics sees
         // the grounds' normal springs and no friction
         let hint = if model.contact_pairs() > 0 && matches!(e, SolveError::NoEquilibrium { .. }) {
@@ -138,7 +139,6 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
         };
         format!("{}: {e}{hint}", scene.display())
     })?;
-    bar.finish_and_clear();
     if let Some(e) = io_error {
         return Err(write_error(&out, e));
     }
@@ -214,7 +214,7 @@ fn global_tolerance(
     steps: u64,
 ) -> Result<study::GlobalRun, String> {
     let requested = settings.tolerance.expect("--global-error needs --tol");
-    let bar = progress(steps * 3, "steps (global error control)");
+    let bar = Progress::new(format!("deploy --global-error {label}"), &["steps"], None);
     let found = study::globally_controlled(requested, model.is_free_floating(), |tolerance| {
         let settings = SimSettings { tolerance: Some(tolerance), ..settings };
         let mut run = record::offline::OfflineRun::start(model, label, settings, from_equilibrium, None)?;
@@ -229,7 +229,7 @@ fn global_tolerance(
         }
         Ok((samples, totals))
     });
-    bar.finish_and_clear();
+    bar.finish();
     found.map_err(|e| format!("{label}: {e}"))
 }
 
@@ -269,6 +269,7 @@ fn deploy_dynamic(
     for c in tensegrity::sensors::imu_truth_csv_columns(model)
         .into_iter()
         .chain(tensegrity::sensors::csv_columns(model))
+        .chain(tensegrity::sensors::lost_csv_columns(model))
     {
         header.push(',');
         header.push_str(&c);
@@ -278,12 +279,15 @@ fn deploy_dynamic(
         for v in run.sensors().imu_truth().iter().chain(run.sensors().measured()) {
             let _ = std::fmt::Write::write_fmt(&mut row, format_args!(",{v:.12}"));
         }
+        for lost in tensegrity::sensors::lost_csv_flags(run.simulator().model(), run.sensors().lost()) {
+            row.push_str(if lost { ",1" } else { ",0" });
+        }
         row
     };
     writeln!(file, "{header}").map_err(|e| e.to_string())?;
     // the row of t = 0: the start, before any step
     writeln!(file, "{}", row(&run, &Default::default())).map_err(|e| e.to_string())?;
-    let bar = progress(steps, "steps");
+    let bar = Progress::new(format!("deploy --dynamic {label}"), &["steps"], Some(steps));
     let mut totals = study::RunTotals::default();
     // strut pairs ([collisions]) that touched at some step, by index
     let mut struts_touched = vec![false; model.strut_pairs.len()];
@@ -297,7 +301,7 @@ fn deploy_dynamic(
         bar.inc(1);
         writeln!(file, "{}", row(&run, &stats)).map_err(|e| write_error(out, e))?;
     }
-    bar.finish_and_clear();
+    bar.finish();
     file.flush().map_err(|e| write_error(out, e))?;
     let bag = match run.finish().map_err(|e| e.to_string())? {
         Some((dir, summary)) => format!(

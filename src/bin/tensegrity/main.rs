@@ -13,6 +13,8 @@ mod output;
 mod statics;
 mod study;
 
+use output::Progress;
+
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -146,15 +148,40 @@ fn run(cli: Cli) -> Result<(), String> {
     match cli.command {
         Command::Fields => fields::run(),
         Command::Check { scene } => check::run(&scene),
-        Command::Statics { scene, json } => statics::run(&scene, json),
-        Command::Modes { scene, json, count, plot } => modes::run(&scene, json, count, plot),
+        Command::Statics { scene, json } => {
+            let progress =
+                Progress::new(format!("statics {}", scene.display()), &["Newton iterations"], None);
+            statics::run(&scene, json, progress.observe())
+        }
+        Command::Modes { scene, json, count, plot } => {
+            let what = format!("modes {}", scene.display());
+            modes::run(&scene, json, count, plot, Progress::new(what, &["Newton iterations"], None).observe())
+        }
         Command::Deploy(args) => deploy::run(args),
         Command::Replay { bag, scene, out } => bag::replay(&bag, scene.as_deref(), out.as_deref()),
         Command::Bag { kind } => bag::run(kind),
         Command::Study { scene, ramp_times, point, friction, settle, dynamics, jobs, out } => {
-            study::run(study::StudyArgs { scene, ramp_times, point, friction, settle, dynamics, jobs, out })
+            let what = format!("study {}", scene.display());
+            let progress = Progress::new(what, &["runs", "load steps"], None).observe();
+            let result = study::run(study::StudyArgs {
+                scene,
+                ramp_times,
+                point,
+                friction,
+                settle,
+                dynamics,
+                jobs,
+                out,
+            });
+            progress.finish();
+            result
         }
-        Command::Bench { kind } => bench::run(kind),
+        Command::Bench { kind } => {
+            let progress = Progress::new("bench", &["steps", "runs"], None).observe();
+            let result = bench::run(kind);
+            progress.finish();
+            result
+        }
         Command::Generate { kind, out } => generate::run(kind, out),
     }
 }

@@ -11,14 +11,23 @@ use tensegrity::{Model, State};
 
 use crate::output::*;
 
-/// Runs `modes` on `scene`: `count` modes, as JSON when `json`, drawn to `plot` when given.
-pub fn run(scene: &Path, json: bool, count: usize, plot: Option<PathBuf>) -> Result<(), String> {
+/// Runs `modes` on `scene`: `count` modes, as JSON when `json`, drawn to `plot` when given;
+/// `progress` shows the Newton iterations of a long solve and is finished before any output.
+pub fn run(
+    scene: &Path,
+    json: bool,
+    count: usize,
+    plot: Option<PathBuf>,
+    progress: crate::output::Progress,
+) -> Result<(), String> {
     let model = load_for_statics(scene)?;
     crate::output::refuse_nothing_to_move(&model, scene)?;
     let mut state = State::initial(&model);
     let mut ws = Workspace::new(&model);
     let mut solver = StaticSolver::new(&model);
-    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(|(it, res)| {
+    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver);
+    progress.finish();
+    let r = r.map_err(|(it, res)| {
         format!(
             "{}: no equilibrium found: residual {res:.3e} N after {it} Newton iterations ({})",
             scene.display(),

@@ -15,6 +15,8 @@ use tensegrity::Model;
 use clap::ValueEnum;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 /// "1 ramp", "2 ramps", "0 ramps".
 pub(crate) fn counted(n: usize, what: &str) -> String {
@@ -41,16 +43,145 @@ macro_rules! say {
 }
 pub(crate) use say;
 
-pub(crate) fn progress(len: u64, unit: &str) -> ProgressBar {
-    if std::io::stderr().is_terminal() {
-        let b = ProgressBar::new(len);
-        b.set_style(
-            ProgressStyle::with_template(&format!("{{bar:40}} {{pos}}/{{len}} {unit} {{msg}}"))
-                .expect("valid template"),
-        );
-        b
-    } else {
-        ProgressBar::hidden()
+/// How long work runs before it shows progress (the environment's `TENSEGRITY_PROGRESS_AFTER_S`
+/// when set, in seconds: 0 shows it at once).
+const PROGRESS_AFTER: Duration = Duration::from_secs(1);
+
+fn progress_after() -> Duration {
+    std::env::var("TENSEGRITY_PROGRESS_AFTER_S")
+        .ok()
+        .and_then(|s| s.parse::<f64>().ok())
+        .and_then(|s| Duration::try_from_secs_f64(s).ok())
+        .unwrap_or(PROGRESS_AFTER)
+}
+/// Time between two plain progress lines (standard error not a terminal).
+const PROGRESS_LINE_EVERY: Duration = Duration::from_secs(5);
+
+/// Progress of one command's long work on standard error, shown once it has run
+/// `progress_after()`: a bar on a terminal, a plain line every `PROGRESS_LINE_EVERY` otherwise
+/// (a log, a CI job), so that no long run is silent. Fed by the command (`inc`) or by the
+/// library's reports (`Progress::observe`), of the units it was made for.
+#[derive(Clone)]
+pub(crate) struct Progress {
+    inner: Arc<ProgressInner>,
+}
+
+struct ProgressInner {
+    /// What runs: `statics config/scenes/sixbar.toml`.
+    what: String,
+    /// The units this progress counts (the first is the command's own).
+    units: Vec<&'static str>,
+    start: Instant,
+    /// `progress_after()`.
+    after: Duration,
+    /// The bar on a terminal (hidden until shown), `None` for plain lines.
+    bar: Option<ProgressBar>,
+    /// Latest count, total, unit and residual; when the last plain line went out.
+    latest: Mutex<ProgressLatest>,
+}
+
+#[derive(Default)]
+struct ProgressLatest {
+    done: u64,
+    total: Option<u64>,
+    unit: &'static str,
+    residual: Option<f64>,
+    shown: bool,
+    /// When the last plain line went out, and of which unit.
+    last_line: Option<(Instant, &'static str)>,
+}
+
+impl Progress {
+    /// Progress of `what`, counting `units` (`total` of the first when known).
+    pub(crate) fn new(what: impl Into<String>, units: &[&'static str], total: Option<u64>) -> Self {
+        let bar = std::io::stderr()
+            .is_terminal()
+            .then(|| ProgressBar::with_draw_target(total, indicatif::ProgressDrawTarget::hidden()));
+        let latest = ProgressLatest { total, unit: units[0], ..Default::default() };
+        Self {
+            inner: Arc::new(ProgressInner {
+                what: what.into(),
+                units: units.to_vec(),
+                start: Instant::now(),
+                after: progress_after(),
+                bar,
+                latest: Mutex::new(latest),
+            }),
+        }
+    }
+
+    /// Makes this progress the observer of the library's reports of its units
+    /// (`tensegrity::progress`) until `finish`.
+    pub(crate) fn observe(self) -> Self {
+        let me = self.clone();
+        tensegrity::progress::observe(move |r| {
+            if me.inner.units.contains(&r.unit) {
+                me.update(r.done, r.total, r.unit, r.residual_n);
+            }
+        });
+        self
+    }
+
+    /// One more of the first unit.
+    pub(crate) fn inc(&self, n: u64) {
+        let (done, total, unit) = {
+            let l = self.inner.latest.lock().unwrap_or_else(|e| e.into_inner());
+            (l.done + n, l.total, self.inner.units[0])
+        };
+        self.update(done, total, unit, None);
+    }
+
+    /// `done` of `total` `unit`, with the latest residual (N) where there is one.
+    pub(crate) fn update(&self, done: u64, total: Option<u64>, unit: &'static str, residual: Option<f64>) {
+        let elapsed = self.inner.start.elapsed();
+        let mut l = self.inner.latest.lock().unwrap_or_else(|e| e.into_inner());
+        (l.done, l.total, l.unit, l.residual) = (done, total, unit, residual.or(l.residual));
+        if elapsed < self.inner.after {
+            return;
+        }
+        let residual = l.residual.map(|r| format!(", residual {r:.3e} N")).unwrap_or_default();
+        match &self.inner.bar {
+            Some(bar) => {
+                if !l.shown {
+                    let template = match total {
+                        Some(_) => "{prefix} {bar:40} {pos}/{len} {msg} ({elapsed})",
+                        None => "{prefix} {spinner} {pos} {msg} ({elapsed})",
+                    };
+                    bar.set_style(ProgressStyle::with_template(template).expect("valid template"));
+                    bar.set_prefix(self.inner.what.clone());
+                    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                }
+                bar.set_length(total.unwrap_or(0));
+                bar.set_position(done);
+                bar.set_message(format!("{unit}{residual}"));
+            }
+            None => {
+                // a line every PROGRESS_LINE_EVERY, and one when the work turns to another unit
+                if l.last_line.is_none_or(|(t, u)| t.elapsed() >= PROGRESS_LINE_EVERY || u != unit) {
+                    let of = total.map(|t| format!("/{t}")).unwrap_or_default();
+                    eprintln!(
+                        "{}: {done}{of} {unit}{residual} ({:.0} s)",
+                        self.inner.what,
+                        elapsed.as_secs_f64()
+                    );
+                    l.last_line = Some((Instant::now(), unit));
+                }
+            }
+        }
+        l.shown = true;
+    }
+
+    /// Ends the progress: the bar goes; after plain lines, one that says the work is done. The
+    /// library's reports go nowhere again.
+    pub(crate) fn finish(&self) {
+        tensegrity::progress::stop_observing();
+        if let Some(bar) = &self.inner.bar {
+            bar.finish_and_clear();
+        }
+        let l = self.inner.latest.lock().unwrap_or_else(|e| e.into_inner());
+        if l.shown && self.inner.bar.is_none() {
+            eprintln!("{}: done in {:.1} s", self.inner.what, self.inner.start.elapsed().as_secs_f64());
+        }
     }
 }
 

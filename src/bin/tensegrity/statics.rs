@@ -42,14 +42,17 @@ struct StaticsJson {
 const NO_FREE_MOTION: &str = "no free motion: the joints hold every coordinate";
 
 /// Runs `statics` on `scene`, as JSON when `json`.
-pub fn run(scene: &Path, json: bool) -> Result<(), String> {
+/// `progress` shows the Newton iterations of a long solve and is finished before any output.
+pub fn run(scene: &Path, json: bool, progress: crate::output::Progress) -> Result<(), String> {
     let model = load_for_statics(scene)?;
     let mut state = State::initial(&model);
     let mut ws = Workspace::for_forces(&model);
     evaluate(&model, &state, &mut ws, Tangents::None);
     let reference = report::all_pulley_coordinates(&model, &state, &ws);
     let mut solver = StaticSolver::new(&model);
-    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver).map_err(|(it, res)| {
+    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver);
+    progress.finish();
+    let r = r.map_err(|(it, res)| {
         format!(
             "{}: no equilibrium found: residual {res:.3e} N after {} ({}; residual by iteration {})",
             scene.display(),

@@ -717,6 +717,7 @@ impl NodeCore {
             stats: self.stats,
             dt: self.sim.settings().dt,
             measured: self.sensors.measured(),
+            lost: self.sensors.lost(),
             imu_truth: self.sensors.imu_truth(),
         }
     }

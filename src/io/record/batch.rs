@@ -17,7 +17,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 /// The topics whose messages the writer thread builds from a `StepBatch`'s states. `/clock`
 /// goes in the batch too (its time alone); the others are built on the node's thread: those
 /// sent once or rarely.
-pub(super) const DEFERRED: [Topic; 10] = [
+pub(super) const DEFERRED: [Topic; 11] = [
     Topic::Tf,
     Topic::BodyPoses,
     Topic::CableStates,
@@ -28,6 +28,7 @@ pub(super) const DEFERRED: [Topic; 10] = [
     Topic::GroundTruthCables,
     Topic::Imu,
     Topic::GroundTruthImu,
+    Topic::SensorReadings,
 ];
 
 /// Records a `StepBatch` holds before the recorder hands it to the bag's writer thread (a
@@ -103,6 +104,7 @@ pub(super) fn rebuilt_view<'a>(
         stats: NodeStats { steps, ..NodeStats::default() },
         dt: 0.0,
         measured: &unpacked.measured,
+        lost: &unpacked.lost,
         imu_truth: &unpacked.imu_truth,
     }
 }
@@ -145,6 +147,8 @@ pub(super) struct UnpackedState {
     rates: Vec<f64>,
     /// What the sensors reported (`NodeView::measured`; empty without sensors).
     measured: Vec<f64>,
+    /// Their lost flags (`NodeView::lost`).
+    lost: Vec<bool>,
     /// The true IMU values (`NodeView::imu_truth`; empty without a gyro or accelerometer).
     imu_truth: Vec<f64>,
 }
@@ -168,6 +172,7 @@ impl StepBatch {
                 workspace: Workspace::for_forces(&model),
                 rates: vec![0.0; model.cables.len()],
                 measured: vec![0.0; crate::sensors::layout(&model).map(|(_, _, n)| n).sum()],
+                lost: vec![false; crate::sensors::layout(&model).map(|(_, _, n)| n).sum()],
                 imu_truth: vec![0.0; imu_len(&model)],
                 model,
             },
@@ -286,6 +291,7 @@ pub(super) fn pack_state(view: &NodeView<'_>, len: usize, out: &mut Vec<f64>) {
     }
     // what the sensors reported, and the IMU's truth
     out.extend_from_slice(view.measured);
+    out.extend(view.lost.iter().map(|l| if *l { 1.0 } else { 0.0 }));
     out.extend_from_slice(view.imu_truth);
     debug_assert_eq!(out.len() - start, len, "packed_len is what pack_state packs");
 }
@@ -300,7 +306,7 @@ pub(super) fn packed_len(model: &Model) -> usize {
         + 14 * model.contact_pairs()
         + 2 * model.initial_segment_rest_lengths.len()
         + 3 * model.pulley_friction.iter().map(|f| f.mu.len()).sum::<usize>()
-        + crate::sensors::layout(model).map(|(_, _, n)| n).sum::<usize>()
+        + 2 * crate::sensors::layout(model).map(|(_, _, n)| n).sum::<usize>()
         + imu_len(model)
 }
 
@@ -381,6 +387,9 @@ pub(super) fn unpack_state(numbers: &[f64], points: Option<&[f64]>, to: &mut Unp
     }
     let n = to.measured.len();
     to.measured.copy_from_slice(take(n));
+    for (l, v) in to.lost.iter_mut().zip(take(n)) {
+        *l = *v != 0.0;
+    }
     let n = to.imu_truth.len();
     to.imu_truth.copy_from_slice(take(n));
     if let Some(points) = points {

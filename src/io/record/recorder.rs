@@ -316,6 +316,7 @@ impl PathPublisher {
             stats: NodeStats { steps: self.rows, ..Default::default() },
             dt: 0.0,
             measured: &[],
+            lost: &[],
             imu_truth: &[],
         }
     }

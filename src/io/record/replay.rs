@@ -463,6 +463,7 @@ pub fn decode_json(m: &crate::io::record::bag::RecordedMessage) -> Result<serde_
         "tensegrity_msgs/msg/CableStates" => json::<msg::CableStates>(m),
         "tensegrity_msgs/msg/ContactStates" => json::<msg::ContactStates>(m),
         "tensegrity_msgs/msg/ImuStates" => json::<msg::ImuStates>(m),
+        "tensegrity_msgs/msg/SensorReadings" => json::<msg::SensorReadings>(m),
         "sensor_msgs/msg/JointState" => json::<msg::JointState>(m),
         "tensegrity_msgs/msg/Structure" => json::<msg::Structure>(m),
         "diagnostic_msgs/msg/DiagnosticArray" => json::<msg::DiagnosticArray>(m),

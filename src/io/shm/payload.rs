@@ -224,6 +224,22 @@ pub struct MeasuredSample {
     pub true_angular_velocity: [[f64; 3]; MAX_BODIES],
     /// The true specific forces, m/s^2, body axes (with a gyro or an accelerometer).
     pub true_specific_force: [[f64; 3]; MAX_BODIES],
+    /// Per value of `body_position`: 1 when it is held because its last update was lost (a
+    /// dropout; `crate::sensors::Sensors::lost`), else 0. The same for the arrays below.
+    pub body_position_lost: [[u8; 3]; MAX_BODIES],
+    /// Per body: 1 when its orientation is held after a lost update (its four values go
+    /// together).
+    pub body_orientation_lost: [u8; MAX_BODIES],
+    /// Per cable: its tension is held after a lost update.
+    pub cable_tension_lost: [u8; MAX_CABLES],
+    /// Per cable: its length is held after a lost update.
+    pub cable_length_lost: [u8; MAX_CABLES],
+    /// Per actuator: its rest length is held after a lost update.
+    pub actuator_rest_length_lost: [u8; MAX_ACTUATORS],
+    /// Per value of `body_angular_velocity`: held after a lost update.
+    pub body_angular_velocity_lost: [[u8; 3]; MAX_BODIES],
+    /// Per value of `body_specific_force`: held after a lost update.
+    pub body_specific_force_lost: [[u8; 3]; MAX_BODIES],
 }
 
 /// `MeasuredSample::channels` bit: tensions.

@@ -132,6 +132,32 @@ pub fn fill_measured(out: &mut MeasuredSample, v: &NodeView<'_>) {
         out.true_angular_velocity[body].copy_from_slice(&imu[..3]);
         out.true_specific_force[body].copy_from_slice(&imu[3..]);
     }
+    // the lost flags, channel by channel as the values (`Sensors::lost`, parallel to measured)
+    if v.lost.len() != v.measured.len() {
+        return;
+    }
+    for (kind, start, n) in crate::sensors::layout(model) {
+        let lost = v.lost[start..start + n].iter().map(|l| u8::from(*l));
+        let flat: &mut [u8] = match kind {
+            SensorKind::Tension => &mut out.cable_tension_lost[..n],
+            SensorKind::Length => &mut out.cable_length_lost[..n],
+            SensorKind::RestLength => &mut out.actuator_rest_length_lost[..n],
+            SensorKind::Position => out.body_position_lost.as_flattened_mut(),
+            SensorKind::Gyro => out.body_angular_velocity_lost.as_flattened_mut(),
+            SensorKind::Accelerometer => out.body_specific_force_lost.as_flattened_mut(),
+            SensorKind::Orientation => {
+                for (to, q) in
+                    out.body_orientation_lost.iter_mut().zip(v.lost[start..start + n].chunks_exact(4))
+                {
+                    *to = u8::from(q[0]);
+                }
+                continue;
+            }
+        };
+        for (to, l) in flat.iter_mut().zip(lost) {
+            *to = l;
+        }
+    }
 }
 
 /// Fills `out` (all zero on entry) with every contact of `v`.

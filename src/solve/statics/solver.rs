@@ -159,6 +159,12 @@ impl StaticSolver {
         }
         let res = residual_of(model, state, ws, &mut self.rhs, self.size);
         self.history.push(res.force);
+        crate::progress::report(crate::progress::Report {
+            unit: "Newton iterations",
+            done: iterations as u64,
+            total: None,
+            residual_n: Some(res.force),
+        });
         if !res.force.is_finite() || !res.constraint.is_finite() {
             self.stop = StopReason::Diverged;
             return Start::Stop;
