@@ -2,7 +2,9 @@
 """Steps per second of a learning loop in Python: our Gymnasium environment (`TensegrityEnv`, with
 the simulator in process, `backend="inprocess"`, and with a node in lockstep over shared memory,
 `backend="node"`) beside MuJoCo's own Python loop (a control write and `mujoco.mj_step`), on the
-free 3-strut prism, with one action per physics step and one per 10, in one interleaved run. Our
+free 3-strut prism, with one action per physics step and one per 10, quiet actions (a small sine:
+the ring stays taut) and random ones (uniform over the action space: the ring goes slack and
+taut), MuJoCo with its Euler and its implicitfast integrator, in one interleaved run. Our
 plain shared-memory lockstep call (`TensegrityClient.lockstep`, no Gymnasium wrapper) is timed
 too, to tell the transport's cost from the wrapper's. Then the vector
 environments: `TensegrityVectorEnv` in process (one call steps every simulator, in parallel) and
@@ -18,7 +20,7 @@ Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyP
     cargo build --release
     target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000]
 
-Models (dt = 1 ms): benches/peers/prism_free_actuator.xml (MuJoCo, implicitfast, its vclu0
+Models (dt = 1 ms): benches/peers/prism_free_actuator.xml (MuJoCo, Euler and implicitfast, its vclu0
 actuator driven) and benches/peers/prism_free.toml (ours, generalized-alpha, its vclu0 winch
 driven by a rate). Each round times every case once, alternating engines; the table gives the
 median over rounds of steps per second (physics steps, not actions).
@@ -39,26 +41,38 @@ from tensegrity_testing import command  # noqa: E402
 from tensegrity_testing.envs import TensegrityEnv, make_vector_env  # noqa: E402
 
 
-def mujoco_steps_per_s(period, actions):
+def action_sequence(kind, actions):
+    """The actions of a run, drawn before it is timed: `quiet`, a small sine (the ring stays
+    taut); `random`, uniform in [-1, 1] (the winch at up to its full rate either way, each action:
+    the ring goes slack and taut), seeded."""
+    if kind == "quiet":
+        return [1e-3 * np.sin(k * 0.01) for k in range(actions)]
+    return list(np.random.default_rng(7).uniform(-1.0, 1.0, actions))
+
+
+def mujoco_steps_per_s(period, actions, integrator, kind):
     m = mujoco.MjModel.from_xml_path(os.path.join(HERE, "peers", "prism_free_actuator.xml"))
     m.opt.timestep = 1e-3
-    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    m.opt.integrator = integrator
     d = mujoco.MjData(m)
     a = m.nu - 1  # a_vclu0
-    rest = 0.0
+    # its control is the cable's rest-length shift, m: the same sequence scaled to the winch's
+    # travel per action at its full rate (1 m/s), as a running sum like ours
+    shift = np.cumsum(np.array(action_sequence(kind, actions)) * 1e-3 * period)
     t0 = time.perf_counter()
     for k in range(actions):
-        d.ctrl[a] = rest + 1e-4 * np.sin(k * 0.01)  # a small, varying control, written each action
+        d.ctrl[a] = shift[k]
         mujoco.mj_step(m, d, period)
     return actions * period / (time.perf_counter() - t0)
 
 
-def ours_steps_per_s(env, period, actions):
+def ours_steps_per_s(env, period, actions, kind):
     env.action_period = period
     env.reset(seed=0)
+    sequence = [np.array([x]) for x in action_sequence(kind, actions)]
     t0 = time.perf_counter()
-    for k in range(actions):
-        env.step(np.array([1e-3 * np.sin(k * 0.01)]))
+    for action in sequence:
+        env.step(action)
     return actions * period / (time.perf_counter() - t0)
 
 
@@ -98,15 +112,21 @@ def main():
     try:
         for _ in range(args.rounds):
             for period in (1, 10):
-                for name, f in (
-                    ("MuJoCo (mj_step, control write)", lambda: mujoco_steps_per_s(period, args.actions)),
-                    ("ours: TensegrityEnv.step, in process", lambda: ours_steps_per_s(native, period, args.actions)),
-                    ("ours: TensegrityEnv.step, node over shared memory",
-                     lambda: ours_steps_per_s(env, period, args.actions)),
-                    ("ours: shared-memory lockstep call alone",
-                     lambda: lockstep_steps_per_s(env, period, args.actions)),
-                ):
-                    cases.setdefault((name, period), []).append(f())
+                for kind in ("quiet", "random"):
+                    for name, f in (
+                        ("MuJoCo Euler (mj_step, control write)",
+                         lambda: mujoco_steps_per_s(period, args.actions, mujoco.mjtIntegrator.mjINT_EULER, kind)),
+                        ("MuJoCo implicitfast (mj_step, control write)",
+                         lambda: mujoco_steps_per_s(period, args.actions, mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+                                                    kind)),
+                        ("ours: TensegrityEnv.step, in process (generalized-alpha)",
+                         lambda: ours_steps_per_s(native, period, args.actions, kind)),
+                        ("ours: TensegrityEnv.step, node over shared memory",
+                         lambda: ours_steps_per_s(env, period, args.actions, kind)),
+                    ):
+                        cases.setdefault((f"{name}, {kind} actions", period), []).append(f())
+                cases.setdefault(("ours: shared-memory lockstep call alone, quiet", period), []).append(
+                    lockstep_steps_per_s(env, period, args.actions))
     finally:
         env.close()
         native.close()
