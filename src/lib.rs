@@ -44,6 +44,7 @@ pub mod model;
 pub mod plot;
 pub mod progress;
 pub mod randomize;
+pub mod render;
 pub mod report;
 pub mod scene;
 pub mod sensors;

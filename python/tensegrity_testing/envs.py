@@ -74,15 +74,26 @@ class TensegrityEnv(gym.Env):
     declares them; target_tension: {cable: N} of the default reward (default: 1.5 times each
     actuated cable's tension at the start, at least 1 N); reward(state, action) and
     terminated(state): your task instead; params: node parameters; node_timeout: seconds;
-    backend: "inprocess", "node" or "auto" (module docs; `self.backend` says which it is).
+    backend: "inprocess", "node" or "auto" (module docs; `self.backend` says which it is);
+    render_mode: "rgb_array" (in process) for `render()` frames of `render_size` (width, height)
+    pixels, or None.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
 
     def __init__(self, scene=None, action="rate", normalize=True, actuators=None, action_period=10,
                  max_episode_steps=200, observation=("cable_tension", "actuator_rest_length"),
                  measured=False, target_tension=None, reward=None, terminated=None, params=None,
-                 node_timeout=30.0, backend="auto"):
+                 node_timeout=30.0, backend="auto", render_mode=None, render_size=(320, 240)):
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if render_mode is not None and backend == "node":
+            raise ValueError("render_mode='rgb_array' draws the simulator in this process: use "
+                             "backend='inprocess' (the default)")
+        width, height = (int(x) for x in render_size)
+        if not (1 <= width <= 4096 and 1 <= height <= 4096):
+            raise ValueError(f"render_size must be (width, height) in 1 to 4096 pixels, got {render_size}")
+        self.render_mode, self.render_size = render_mode, (width, height)
         if action not in ("rate", "rest_length"):
             raise ValueError(f"action must be 'rate' or 'rest_length', got {action!r}")
         if int(action_period) < 1 or int(max_episode_steps) < 1:
@@ -159,6 +170,9 @@ class TensegrityEnv(gym.Env):
             self._native.configure(self._task)
         self._observation = self.observe(start)
         self._last_info = self._info(start)
+        # a video plays an action per frame, in simulated time
+        period = self.action_period * names["physics_dt"]
+        self.metadata = {**self.metadata, "render_fps": max(1, round(1.0 / period))}
 
     # ----- what the agent sees ---------------------------------------------------------------
 
@@ -287,6 +301,15 @@ class TensegrityEnv(gym.Env):
             raise ValueError(f"the reward is not finite: {reward}")
         self._last_info = self._info(state)
         return self._observation, float(reward), terminated, truncated, self._last_info
+
+    def render(self):
+        """With `render_mode="rgb_array"`: the current state as a `(height, width, 3)` uint8 array
+        (`render_size`; the library's software renderer: struts grey, cables blue to red by
+        tension, slack ones pale, contacts green, the ground's grid; the camera frames the
+        structure). The same state gives the same pixels. None without a render mode."""
+        if self.render_mode is None:
+            return None
+        return self.node.sim.render(*self.render_size)
 
     def close(self):
         """Stops the node."""

@@ -395,3 +395,48 @@ def test_a_parallel_vector_environment_in_process_survives_a_failure_and_resets_
             vec.step(np.array([[np.nan], [0.0]]))
     finally:
         vec.close()
+
+
+def test_rgb_array_frames_show_the_robot_and_record_a_video(tmp_path):
+    # frames from the library's software renderer: the same seed and actions, the same pixels; a
+    # rolling robot's frames change; Gymnasium's RecordVideo writes an episode (with moviepy)
+    actions = np.random.default_rng(3).uniform(-1.0, 1.0, size=(6, 24))
+
+    def frames():
+        env = gym.make("tensegrity/SixbarRoll-v0", render_mode="rgb_array", max_episode_steps=6)
+        try:
+            env.reset(seed=5)
+            out = [env.render()]
+            for a in actions:
+                env.step(a)
+                out.append(env.render())
+            return out
+        finally:
+            env.close()
+
+    first, second = frames(), frames()
+    assert all(f.shape == (240, 320, 3) and f.dtype == np.uint8 for f in first)
+    assert all(np.array_equal(a, b) for a, b in zip(first, second)), "deterministic"
+    assert not np.array_equal(first[0], first[-1]), "the robot moved"
+    strut = np.all(np.abs(first[0].astype(int) - [70, 76, 92]) <= 6, axis=2)
+    assert strut.sum() > 800 and strut[60:180, 80:240].sum() > strut.sum() / 2, "struts in the middle"
+    env = TensegrityEnv(render_mode="rgb_array", render_size=(64, 48))
+    assert env.render().shape == (48, 64, 3)
+    assert TensegrityEnv().render() is None
+    env.close()
+    for bad in ({"render_mode": "human"}, {"render_size": (0, 10)}, {"render_mode": "rgb_array", "backend": "node"}):
+        with pytest.raises(ValueError):
+            TensegrityEnv(**bad)
+    pytest.importorskip("moviepy")
+    from gymnasium.wrappers import RecordVideo
+
+    env = RecordVideo(gym.make("tensegrity/SixbarRoll-v0", render_mode="rgb_array", max_episode_steps=20),
+                      str(tmp_path / "video"), episode_trigger=lambda e: True, disable_logger=True)
+    env.reset(seed=1)
+    done = False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        done = terminated or truncated
+    env.close()
+    videos = list((tmp_path / "video").glob("*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 1000, videos

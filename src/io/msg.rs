@@ -964,7 +964,7 @@ impl MarkerArray {
     /// (`contact_forces`: a line from each contact point along the force on the body, normal and
     /// friction, the largest force drawn a fifth of the structure's size long).
     pub fn from_state(model: &Model, state: &State, ws: &Workspace, frame: &str) -> Self {
-        use crate::model::BodyKind;
+        use crate::render::CableLook;
         let header = Header { stamp: Time::from_seconds(state.time), frame_id: frame.into() };
         let point = |p: &nalgebra::Vector3<f64>| Point { x: p.x, y: p.y, z: p.z };
         let identity =
@@ -979,41 +979,22 @@ impl MarkerArray {
             ..Default::default()
         };
         let grey = ColorRgba { r: 0.35, g: 0.35, b: 0.38, a: 1.0 };
+        let shown = crate::render::primitives(model, state, ws);
         let mut struts = base("struts", 5, 0.03, grey);
         let mut nodes = base("nodes", 7, 0.06, grey);
-        for (b, body) in model.bodies.iter().enumerate() {
-            let origin = state.poses[b].position;
-            if matches!(body.kind, BodyKind::Bar | BodyKind::Rigid) {
-                for (k, _) in
-                    model.points.iter().enumerate().filter(|(_, p)| p.body.0 == b && p.local.norm() > 0.0)
-                {
-                    struts.points.push(point(&origin));
-                    struts.points.push(point(&ws.points[k].position));
-                }
-            }
-            if body.kind == BodyKind::Node {
-                nodes.points.push(point(&origin));
-            }
+        for [a, b] in &shown.struts {
+            struts.points.extend([point(a), point(b)]);
         }
-        let t_max = ws.cables.iter().map(|c| c.tension).fold(0.0, f64::max).max(1e-12);
+        nodes.points.extend(shown.nodes.iter().map(point));
         let mut cables = base("cables", 5, 0.012, grey);
-        for c in 0..model.cables.len() {
-            let r = &ws.cables[c];
-            let s = (r.tension / t_max) as f32;
-            let color = if !model.cables[c].tension_only {
-                ColorRgba { r: 0.35, g: 0.35, b: 0.35, a: 1.0 } // an elastic member: a strut's grey
-            } else if r.tension > 0.0 {
-                ColorRgba { r: s, g: 0.1, b: 1.0 - s, a: 1.0 }
-            } else {
-                ColorRgba { r: 0.8, g: 0.8, b: 0.8, a: 0.6 }
+        for ([a, b], look) in &shown.cables {
+            let color = match *look {
+                CableLook::Member => ColorRgba { r: 0.35, g: 0.35, b: 0.35, a: 1.0 }, // a strut's grey
+                CableLook::Taut(s) => ColorRgba { r: s, g: 0.1, b: 1.0 - s, a: 1.0 },
+                CableLook::Slack => ColorRgba { r: 0.8, g: 0.8, b: 0.8, a: 0.6 },
             };
-            let route = model.route(crate::model::CableId(c));
-            for w in route.windows(2) {
-                cables.points.push(point(&ws.points[w[0].0].position));
-                cables.points.push(point(&ws.points[w[1].0].position));
-                cables.colors.push(color);
-                cables.colors.push(color);
-            }
+            cables.points.extend([point(a), point(b)]);
+            cables.colors.extend([color, color]);
         }
         let mut markers = vec![struts, cables];
         if !nodes.points.is_empty() {
@@ -1023,19 +1004,9 @@ impl MarkerArray {
             let green = ColorRgba { r: 0.1, g: 0.7, b: 0.2, a: 1.0 };
             let mut touching = base("contacts", 7, 0.04, green);
             let mut forces = base("contact_forces", 5, 0.01, ColorRgba { r: 0.1, g: 0.5, b: 0.1, a: 1.0 });
-            let f_max = ws.contacts.iter().map(|c| c.normal_force).fold(0.0, f64::max).max(1e-12);
-            let (lo, hi) = ws.points.iter().fold(
-                (nalgebra::Vector3::repeat(f64::INFINITY), nalgebra::Vector3::repeat(f64::NEG_INFINITY)),
-                |(lo, hi), p| (lo.inf(&p.position), hi.sup(&p.position)),
-            );
-            let length = 0.2 * (hi - lo).norm() / f_max;
-            for c in &ws.contacts {
-                if !c.in_contact() {
-                    continue;
-                }
-                touching.points.push(point(&c.position));
-                forces.points.push(point(&c.position));
-                forces.points.push(point(&(c.position + c.force() * length)));
+            for [at, end] in &shown.contacts {
+                touching.points.push(point(at));
+                forces.points.extend([point(at), point(end)]);
             }
             markers.push(touching);
             markers.push(forces);

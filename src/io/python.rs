@@ -19,7 +19,7 @@ use std::mem::MaybeUninit;
 use std::sync::Mutex;
 use std::time::Instant;
 
-use numpy::{PyArray1, PyReadonlyArrayDyn};
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArrayDyn};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict};
@@ -132,6 +132,8 @@ pub struct Simulator {
     action: Vec<f64>,
     /// Scratch of `act`: the observation.
     observation: Vec<f64>,
+    /// Scratch of `render`: the frame's RGB bytes.
+    frame: Vec<u8>,
 }
 
 impl Simulator {
@@ -194,13 +196,43 @@ impl Simulator {
         let mut out = Outputs { recorder: recorder.map(Mutex::new), done: None };
         core.set_paused(true, &mut out);
         core.start(&mut out);
-        Ok(Self { core, out, epoch: Instant::now(), task: None, action: Vec::new(), observation: Vec::new() })
+        Ok(Self {
+            core,
+            out,
+            epoch: Instant::now(),
+            task: None,
+            action: Vec::new(),
+            observation: Vec::new(),
+            frame: Vec::new(),
+        })
     }
 
     /// What the scene's delays say at this simulator's physics step, one line each
     /// (`crate::sim::Simulator::delay_warnings`); the kit raises them as Python warnings.
     fn delay_warnings(&self) -> Vec<String> {
         self.core.simulator().delay_warnings()
+    }
+
+    /// A picture of the current state (`crate::render`): a `(height, width, 3)` uint8 array, RGB,
+    /// rows top to bottom, from the camera that frames the structure; made in software, the same
+    /// pixels for the same state. `width` and `height` in 1 to 4096.
+    #[pyo3(signature = (width=320, height=240))]
+    fn render<'py>(
+        &mut self,
+        py: Python<'py>,
+        width: usize,
+        height: usize,
+    ) -> PyResult<Bound<'py, numpy::PyArray3<u8>>> {
+        if !(1..=4096).contains(&width) || !(1..=4096).contains(&height) {
+            return Err(PyValueError::new_err(format!(
+                "render: width and height must be in 1 to 4096 pixels, got {width} x {height}"
+            )));
+        }
+        let sim = self.core.simulator();
+        let (model, state, ws) = (sim.model(), sim.state(), sim.workspace());
+        let camera = crate::render::Camera::framing(model, ws, width as f64 / height as f64);
+        crate::render::render_rgb(model, state, ws, &camera, (width, height), &mut self.frame);
+        numpy::PyArray1::from_slice(py, &self.frame).reshape([height, width, 3])
     }
 
     /// The scene's names and limits, as the shared-memory client's `structure()` gives them:

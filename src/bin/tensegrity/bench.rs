@@ -29,6 +29,22 @@ pub enum BenchKind {
         #[arg(long, default_value_t = 5000)]
         steps: usize,
     },
+    /// Wall time of a software-rendered frame (`tensegrity::render`, Gymnasium's `rgb_array`):
+    /// median and largest over `frames` frames of the scene's run from its pose, one frame
+    /// every 10 steps.
+    Render {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// Frame width, pixels.
+        #[arg(long, default_value_t = 320)]
+        width: usize,
+        /// Frame height, pixels.
+        #[arg(long, default_value_t = 240)]
+        height: usize,
+        /// Frames timed.
+        #[arg(long, default_value_t = 500)]
+        frames: usize,
+    },
     /// Whether this machine can keep a real-time node on time: how late a loop sleeping to
     /// each period's deadline wakes (the node's loop without its step) and how long a thread
     /// that never sleeps is kept off its core. Run it where the node runs (e.g. under the same
@@ -96,6 +112,7 @@ pub fn run(kind: BenchKind) -> Result<(), String> {
     match kind {
         BenchKind::Steps { target, integrator, dt, steps } => steps_bench(&target, integrator, dt, steps),
         BenchKind::Machine { period, seconds } => machine(period, seconds),
+        BenchKind::Render { scene, width, height, frames } => render(&scene, (width, height), frames),
         BenchKind::Scaling { stages, steps, out } => scaling(&stages, steps, &out),
         BenchKind::WorkPrecision {
             scene,
@@ -154,6 +171,44 @@ fn steps_bench(target: &str, integrator: IntegratorName, dt: f64, steps: usize) 
         1e6 * t.max,
         t.newton_per_step,
         t.factorizations_per_step
+    );
+    Ok(())
+}
+
+/// `bench render`.
+fn render(scene: &Path, (width, height): (usize, usize), frames: usize) -> Result<(), String> {
+    if !(1..=4096).contains(&width) || !(1..=4096).contains(&height) || frames == 0 {
+        return Err(format!(
+            "--width and --height must be in 1 to 4096 pixels and --frames at least 1, got {width} x {height}, {frames}"
+        ));
+    }
+    let model = crate::output::load_moving(scene)?;
+    let mut sim =
+        tensegrity::sim::Simulator::new(model, SimSettings::default()).map_err(|e| e.to_string())?;
+    let mut rgb = Vec::new();
+    let mut times = Vec::with_capacity(frames);
+    for k in 0..frames {
+        for _ in 0..10 {
+            sim.step().map_err(|e| format!("{}: step {}: {e}", scene.display(), 10 * k))?;
+        }
+        let (m, state, ws) = (sim.model(), sim.state(), sim.workspace());
+        let start = std::time::Instant::now();
+        let camera = tensegrity::render::Camera::framing(m, ws, width as f64 / height as f64);
+        tensegrity::render::render_rgb(m, state, ws, &camera, (width, height), &mut rgb);
+        times.push(start.elapsed().as_secs_f64());
+        tensegrity::progress::report(tensegrity::progress::Report {
+            unit: "runs",
+            done: k as u64 + 1,
+            total: Some(frames as u64),
+            residual_n: None,
+        });
+    }
+    times.sort_by(f64::total_cmp);
+    say!(
+        "{}: {width} x {height} frames: median {:.1} us, largest {:.1} us over {frames} frames",
+        sim.model().name,
+        1e6 * times[frames / 2],
+        1e6 * times[frames - 1]
     );
     Ok(())
 }
