@@ -661,6 +661,14 @@ fn a_run_with_sensors_records_measured_and_true_states_and_replays_bit_for_bit()
     if let Some(v) = rosbags_read(&dir) {
         let read = v["messages"]["/tensegrity_sim/sensor_readings"].as_array().unwrap();
         assert_eq!(read.len(), 2001);
+        // the independent reader sees the same values and flags
+        for (m, r) in read.iter().zip(&readings) {
+            assert_eq!(floats(&m["value"]), r.value);
+            assert_eq!(
+                m["lost"].as_array().unwrap().iter().map(|b| b.as_bool().unwrap()).collect::<Vec<_>>(),
+                r.lost
+            );
+        }
         let truth = v["messages"]["/tensegrity_sim/ground_truth/cable_states"].as_array().unwrap();
         assert_eq!(truth.len(), 2001);
         let poses = v["messages"]["/tensegrity_sim/ground_truth/body_poses"].as_array().unwrap();

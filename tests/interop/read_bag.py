@@ -63,6 +63,9 @@ def fields(msgtype, m):
         return {'name': list(m.name),
                 'angular_velocity': [{'x': v.x, 'y': v.y, 'z': v.z} for v in m.angular_velocity],
                 'specific_force': [{'x': v.x, 'y': v.y, 'z': v.z} for v in m.specific_force]}
+    if msgtype == 'tensegrity_msgs/msg/SensorReadings':
+        return {'channel': list(m.channel), 'count': [int(n) for n in m.count],
+                'value': [float(x) for x in m.value], 'lost': [bool(b) for b in m.lost]}
     raise SystemExit(f'unexpected type {msgtype}')
 
 
