@@ -284,7 +284,7 @@ fn draw_stroke(s: &Stroke, (width, height): (usize, usize), rgb: &mut [u8]) {
     let band = reach * (1.0 + slope * slope).sqrt();
     let m0 = (a[0].min(b[0]) - reach).floor().max(0.0);
     let m1 = (a[0].max(b[0]) + reach).ceil().min(major_len as f64 - 1.0);
-    if !(m0 <= m1) || minor_len == 0 {
+    if !in_order(m0, m1) || minor_len == 0 {
         return;
     }
     let (lo_end, hi_end) = (a[1].min(b[1]) - reach, a[1].max(b[1]) + reach);
@@ -294,7 +294,7 @@ fn draw_stroke(s: &Stroke, (width, height): (usize, usize), rgb: &mut [u8]) {
         let centre = a[1] + (major as f64 + 0.5 - a[0]) * slope;
         let n0 = (centre - band).max(lo_end).floor().max(0.0);
         let n1 = (centre + band).min(hi_end).ceil().min(minor_len as f64 - 1.0);
-        if !(n0 <= n1) {
+        if !in_order(n0, n1) {
             continue;
         }
         for minor in n0 as usize..=n1 as usize {
@@ -314,4 +314,9 @@ fn draw_stroke(s: &Stroke, (width, height): (usize, usize), rgb: &mut [u8]) {
             }
         }
     }
+}
+
+/// `a <= b`, false when either is NaN (a stroke of a NaN state draws nothing).
+fn in_order(a: f64, b: f64) -> bool {
+    a <= b
 }
