@@ -88,6 +88,17 @@ fn bounds(ws: &Workspace) -> (Vector3<f64>, Vector3<f64>) {
         })
 }
 
+/// Two unit vectors spanning the plane normal to the unit `n`: the world axis least along `n`
+/// made perpendicular to it, and `n` cross that.
+fn plane_basis(n: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let axis = [Vector3::x(), Vector3::y(), Vector3::z()]
+        .into_iter()
+        .min_by(|a, b| a.dot(n).abs().total_cmp(&b.dot(n).abs()))
+        .unwrap_or(Vector3::x());
+    let e1 = (axis - n * n.dot(&axis)).normalize();
+    (e1, n.cross(&e1))
+}
+
 /// A pinhole camera: where it is and what it looks at (m), which way is up, its vertical field
 /// of view (rad).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -121,13 +132,7 @@ impl Camera {
         } else {
             (Vector3::zeros(), 1.0)
         };
-        // a horizontal basis: the world axis least along up, made perpendicular to it
-        let axis = [Vector3::x(), Vector3::y(), Vector3::z()]
-            .into_iter()
-            .min_by(|a, b| a.dot(&up).abs().total_cmp(&b.dot(&up).abs()))
-            .unwrap_or(Vector3::x());
-        let h1 = (axis - up * up.dot(&axis)).normalize();
-        let h2 = up.cross(&h1);
+        let (h1, h2) = plane_basis(&up);
         let (ce, se) = (FRAMING_ELEVATION.cos(), FRAMING_ELEVATION.sin());
         let (ca, sa) = (FRAMING_AZIMUTH.cos(), FRAMING_AZIMUTH.sin());
         let back = (h1 * ca + h2 * sa) * ce + up * se;
@@ -218,12 +223,7 @@ pub fn render_rgb(
         let centre = (lo + hi) * 0.5;
         for ground in &model.grounds {
             let n = ground.normal;
-            let axis = [Vector3::x(), Vector3::y(), Vector3::z()]
-                .into_iter()
-                .min_by(|a, b| a.dot(&n).abs().total_cmp(&b.dot(&n).abs()))
-                .unwrap_or(Vector3::x());
-            let e1 = (axis - n * n.dot(&axis)).normalize();
-            let e2 = n.cross(&e1);
+            let (e1, e2) = plane_basis(&n);
             let o = centre - n * (n.dot(&centre) - ground.offset);
             let steps = (1.5 * size / spacing).ceil() as i64;
             let (s1, s2) = ((o.dot(&e1) / spacing).round(), (o.dot(&e2) / spacing).round());
