@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Step cost of ground contact. 1) A scene without contact (prism3) as before: run this script on
 # two checkouts, or compare with the table in docs/benchmarks.md. 2) The six-bar robot rolling
-# (config/scenes/sixbar.toml: 4000 steps of 1 ms from the scene's pose through its roll) at three
-# friction regularization speeds. Per row: `tensegrity bench steps` (median, mean, largest wall
+# (config/scenes/sixbar.toml: 4000 steps of 1 ms from the scene's pose through its roll) with its
+# stick-slip friction, and with the regularized law at three regularization speeds. Per row: `tensegrity bench steps` (median, mean, largest wall
 # time per step; Newton iterations and factorizations per step), median of 3 runs.
 # Usage: bash benches/contact_steps.sh
 set -euo pipefail
@@ -22,7 +22,8 @@ row() { # label scene steps
 echo "| scene | median us/step | mean | largest | Newton/step | factorizations/step |"
 echo "| --- | ---: | ---: | ---: | ---: | ---: |"
 row "prism3 (no contact)" config/scenes/prism3.toml 5000
+row "sixbar, stick-slip friction, k_t 2e4 N/m (bundled)" config/scenes/sixbar.toml 4000
 for vs in 1e-3 1e-4 1e-5; do
-  sed "s/^mu = 0.8$/mu = 0.8\nstiction_speed = $vs/" config/scenes/sixbar.toml >"$dir/sixbar.toml"
-  row "sixbar, stiction_speed $vs m/s" "$dir/sixbar.toml" 4000
+  sed -e '/^stick_stiffness/d' -e "s/^mu = 0.8$/mu = 0.8\nstiction_speed = $vs/" config/scenes/sixbar.toml >"$dir/sixbar.toml"
+  row "sixbar, regularized friction, stiction_speed $vs m/s" "$dir/sixbar.toml" 4000
 done

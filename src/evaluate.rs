@@ -282,7 +282,8 @@ pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     let mut loss = 0.0;
     for (k, sphere, ground) in model.contact_pair_list() {
         let kin = &ws.points[sphere.point.0];
-        let response = add_contact_force(model, &state.poses, v, ground, sphere, kin, &mut ws.force);
+        let anchor = state.contact_anchors.get(k);
+        let response = add_contact_force(model, &state.poses, v, ground, sphere, kin, anchor, &mut ws.force);
         elastic += response.energy;
         loss += response.loss_power;
         ws.contacts[k] = response;
@@ -347,7 +348,8 @@ pub fn add_tangents<S: TangentSink + ?Sized>(
     }
     for (k, sphere, ground) in model.contact_pair_list() {
         let (poses, v, kin) = (&state.poses, &state.velocities, &points[sphere.point.0]);
-        add_contact_tangents(model, poses, v, ground, sphere, kin, &contacts[k], sink);
+        let anchor = state.contact_anchors.get(k);
+        add_contact_tangents(model, poses, v, ground, sphere, kin, anchor, &contacts[k], sink);
     }
     let first = model.ground_pairs();
     for (i, pair) in model.strut_pairs.iter().enumerate() {

@@ -28,14 +28,32 @@ pub struct State {
     pub segment_rest_lengths: Vec<f64>,
     /// Every winch motor's state, parallel to `Model::winches` (empty without).
     pub winches: Vec<WinchState>,
+    /// Where every ground pair's contact is anchored, parallel to `Model::contact_pair_list`,
+    /// when some ground has stick-slip friction (`Model::has_stick_friction`; empty without):
+    /// from it the next step's sticking and slipping start.
+    pub contact_anchors: Vec<ContactAnchor>,
+}
+
+/// Where one contact of a ground with stick-slip friction is anchored
+/// (`crate::forces::contact`): the material point of the sphere that touched, and the ground
+/// point it stuck to. Its tangential spring's extension is `d = P (r + R lever - anchor)` for the
+/// sphere's centre `r` and the body's rotation `R`, `P` projecting onto the ground.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ContactAnchor {
+    /// From the sphere's centre to its material point that touched, body frame, m (`R^T a` for
+    /// the lowest point `a = -rho n` when the anchor was set).
+    pub lever: Vector3<f64>,
+    /// The ground point the material point is held to, world frame, m.
+    pub anchor: Vector3<f64>,
 }
 
 impl State {
     /// The state at t = 0: initial poses, at rest, initial rest lengths, zero reactions.
     pub fn initial(model: &Model) -> Self {
+        let poses: Vec<Pose> = model.bodies.iter().map(|b| b.initial_pose).collect();
         Self {
             time: 0.0,
-            poses: model.bodies.iter().map(|b| b.initial_pose).collect(),
+            poses: poses.clone(),
             velocities: DVector::zeros(model.dof_count),
             rest_lengths: model.initial_rest_lengths.clone(),
             multipliers: DVector::zeros(model.constraint_count),
@@ -48,6 +66,7 @@ impl State {
                     ..Default::default()
                 })
                 .collect(),
+            contact_anchors: crate::forces::contact::initial_anchors(model, &poses),
         }
     }
 
@@ -60,6 +79,7 @@ impl State {
         self.multipliers.copy_from(&other.multipliers);
         self.segment_rest_lengths.copy_from_slice(&other.segment_rest_lengths);
         self.winches.copy_from_slice(&other.winches);
+        self.contact_anchors.copy_from_slice(&other.contact_anchors);
     }
 
     /// True if every number in the state is finite.
@@ -70,6 +90,10 @@ impl State {
             && self.rest_lengths.iter().all(|v| v.is_finite())
             && self.segment_rest_lengths.iter().all(|v| v.is_finite())
             && self.winches.iter().all(|w| w.speed.is_finite() && w.integral.is_finite())
+            && self
+                .contact_anchors
+                .iter()
+                .all(|a| a.lever.iter().chain(a.anchor.iter()).all(|v| v.is_finite()))
             && self.poses.iter().all(|p| {
                 p.position.iter().all(|v| v.is_finite()) && p.rotation.coords.iter().all(|v| v.is_finite())
             })

@@ -527,3 +527,176 @@ fn rviz_markers_show_the_contact_points_and_their_forces() {
     let plain = MarkerArray::from_state(&prism, &state, &ws, "world").markers;
     assert!(plain.iter().all(|m| !m.ns.starts_with("contact")));
 }
+
+/// The finite-difference scene of `contact_tangents_match_finite_differences` with stick-slip
+/// friction on its ground (`stick`: the ground table's extra lines).
+fn stick_slip_bodies(stick: &str) -> tensegrity::Model {
+    model_from_toml(&format!(
+        r#"
+gravity = [0.0, 0.0, -9.81]
+[[bodies]]
+name = "box"
+kind = "rigid"
+mass = 2.0
+position = [0.0, 0.0, 1.0]
+rotation = [0.1, -0.2, 0.3]
+inertia = [0.02, 0.03, 0.04]
+points = {{ p = [0.1, 0.05, -0.1], q = [-0.1, 0.05, -0.12], r = [0.0, -0.1, -0.09] }}
+contact_radius = 0.02
+contact_points = ["p", "q", "r"]
+[[bodies]]
+name = "bar"
+kind = "bar"
+mass = 1.0
+ends = [[1.0, 0.0, 1.0], [1.3, 0.4, 1.01]]
+contact_radius = 0.01
+[[bodies]]
+name = "bob"
+kind = "node"
+mass = 0.5
+position = [-1.0, 0.0, 1.0]
+contact_radius = 0.01
+[[grounds]]
+normal = [0.05, -0.1, 1.0]
+mu = 0.7
+stiffness = 2e4
+dissipation = 0.8
+{stick}
+"#
+    ))
+}
+
+#[test]
+fn stick_slip_contact_tangents_match_finite_differences() {
+    // every sphere pressed in by half its radius, its anchor set there, then the bodies moved
+    // and turned a little (stuck: the springs pull within the cone) or far (slipping), so that
+    // the held material points are no longer the lowest ones and the levers' terms count
+    for stick in ["stick_stiffness = 3e3\nstick_damping = 40.0", "stick_stiffness = 5e2"] {
+        let model = stick_slip_bodies(stick);
+        let mut state = State::initial(&model);
+        let mut ws = Workspace::new(&model);
+        evaluate(&model, &state, &mut ws, Tangents::None);
+        let ground = &model.grounds[0];
+        for b in 0..model.bodies.len() {
+            let lowest = model
+                .contact_spheres
+                .iter()
+                .zip(&ws.contacts)
+                .filter(|(s, _)| model.points[s.point.0].body.0 == b)
+                .map(|(s, c)| c.gap + 0.5 * s.radius)
+                .fold(f64::INFINITY, f64::min);
+            state.poses[b].position -= ground.normal * lowest;
+        }
+        let anchors = tensegrity::forces::contact::initial_anchors(&model, &state.poses);
+        assert_eq!(anchors.len(), model.ground_pairs());
+        // slipping: the anchors 2 m away along the ground, each in its own direction
+        let across = ground.normal.cross(&Vector3::x()).normalize();
+        let along = ground.normal.cross(&across);
+        for (label, reach, speed, slipping) in [
+            ("stuck", 1e-4, 1e-3, false),
+            ("slipping", 2e-2, 1.0, true),
+            ("at rest, slipping", 2e-2, 0.0, true),
+        ] {
+            let mut moved = state.clone();
+            moved.contact_anchors = anchors.clone();
+            if slipping {
+                for (k, a) in moved.contact_anchors.iter_mut().enumerate() {
+                    let angle = 1.3 * k as f64;
+                    a.anchor += (across * angle.cos() + along * angle.sin()) * 2.0;
+                }
+            }
+            let dq = DVector::from_fn(model.dof_count, |i, _| reach * (0.7 + 0.31 * i as f64).cos());
+            tensegrity::state::retract(&model, &mut moved.poses, &dq, 1.0);
+            moved.velocities =
+                DVector::from_fn(model.dof_count, |i, _| speed * (0.3 + 0.17 * i as f64).sin());
+            evaluate(&model, &moved, &mut ws, Tangents::StiffnessAndDamping);
+            let pressed: Vec<_> = ws.contacts.iter().filter(|c| c.normal_force > 0.0).collect();
+            assert!(pressed.len() >= 3, "{stick} {label}: only {} contacts press in", pressed.len());
+            for c in &pressed {
+                let cone = 0.7 * c.normal_force;
+                let at_cone = (c.friction.norm() - cone).abs() < 1e-9 * cone;
+                assert_eq!(
+                    at_cone,
+                    slipping,
+                    "{stick} {label}: |F_t| {} against mu F_n {cone}",
+                    c.friction.norm()
+                );
+                assert!(
+                    c.friction.dot(&ground.normal).abs() < 1e-12 * cone.max(1.0),
+                    "friction along the normal"
+                );
+            }
+            let k_err = rel_err(&ws.stiffness, &fd_stiffness(&model, &moved, 1e-7), 1.0);
+            let c_err = rel_err(&ws.damping, &fd_damping(&model, &moved, 1e-7), 1.0);
+            assert!(k_err < 1e-6, "{stick} {label}: K differs from finite differences by {k_err:e}");
+            assert!(c_err < 1e-6, "{stick} {label}: C differs from finite differences by {c_err:e}");
+        }
+    }
+}
+
+#[test]
+fn with_stick_slip_friction_a_block_within_its_cone_holds_still_and_one_beyond_slides_at_coulombs_rate() {
+    // 30 degrees, k_t 1e4 N/m. mu 0.6 > tan 30: the block settles (slipping a little at first:
+    // the load is 96 % of the cone) on its spring, stretched by m g sin(30) / k_t = 0.49 mm, and
+    // then does not move at all (the regularized law creeps,
+    // `a_block_on_an_incline_within_its_friction_cone_stays_put`); friction m g sin(30), normal
+    // m g cos(30)
+    let tilt = 30f64.to_radians();
+    let depth = G * tilt.cos() / 1e6;
+    let stuck =
+        block_on_incline(1.0, tilt, -depth / tilt.cos(), "mu = 0.6\nstiffness = 1e6\nstick_stiffness = 1e4");
+    let sim = run(&stuck, 1e-3, 2.0);
+    let at_2 = sim.state().poses[0].position;
+    let sim = run(&stuck, 1e-3, 3.0);
+    let moved = (sim.state().poses[0].position - at_2).norm();
+    let c = &sim.workspace().contacts[0];
+    let deflection = c.stick_extension.norm();
+    println!(
+        "stick-slip on 30 degrees at mu 0.6: deflection {deflection:.4e} m (m g sin / k_t = {:.4e}), moved {moved:.1e} m in the third second",
+        G * tilt.sin() / 1e4
+    );
+    assert!(moved < 1e-12, "moved {moved} m in the third second");
+    assert!(
+        (deflection - G * tilt.sin() / 1e4).abs() < 1e-3 * G * tilt.sin() / 1e4,
+        "deflection {deflection} m"
+    );
+    assert!((c.friction.norm() - G * tilt.sin()).abs() < 1e-9 * G, "friction {} N", c.friction.norm());
+    assert!((c.normal_force - G * tilt.cos()).abs() < 1e-6 * G, "normal {} N", c.normal_force);
+    assert!(c.friction.norm() < 0.6 * c.normal_force, "inside the cone");
+
+    // mu 0.3 < tan 30: a = g (sin 30 - 0.3 cos 30) = 2.356 m/s^2 down the slope, and the
+    // energy account closes (the slip's loss booked as the friction's power)
+    let sliding =
+        block_on_incline(1.0, tilt, -depth / tilt.cos(), "mu = 0.3\nstiffness = 1e6\nstick_stiffness = 1e4");
+    let slope = Vector3::new(0.0, -tilt.cos(), -tilt.sin());
+    let v1 = run(&sliding, 5e-4, 0.5).state().velocities.fixed_rows::<3>(0).dot(&slope);
+    let sim2 = run(&sliding, 5e-4, 1.0);
+    let v2 = sim2.state().velocities.fixed_rows::<3>(0).dot(&slope);
+    let a = (v2 - v1) / 0.5;
+    let expected = G * (tilt.sin() - 0.3 * tilt.cos());
+    println!("stick-slip slide: a = {a:.6} m/s^2, closed form {expected:.6}");
+    assert!((a - expected).abs() < 1e-6 * expected, "a = {a} m/s^2, closed form {expected}");
+    let e = sim2.energy();
+    assert!(
+        e.numerical_loss().abs() < 1e-3 * e.damping_loss,
+        "unexplained {} J of {} J lost",
+        e.numerical_loss(),
+        e.damping_loss
+    );
+}
+
+#[test]
+fn with_stick_slip_friction_statics_finds_the_block_resting_on_an_incline() {
+    // the anchors hold the contact where it stands: an equilibrium with friction m g sin(theta)
+    // and normal m g cos(theta), where frictionless statics has none
+    let tilt = 20f64.to_radians();
+    let model = block_on_incline(2.0, tilt, 0.0, "mu = 0.8\nstiffness = 1e5\nstick_stiffness = 5e3");
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    StaticSolver::new(&model).equilibrate(&model, &mut state, &mut ws, &model.solver).unwrap();
+    let c = &ws.contacts[0];
+    assert!((c.friction.norm() - 2.0 * G * tilt.sin()).abs() < 1e-9 * G, "friction {} N", c.friction.norm());
+    assert!((c.normal_force - 2.0 * G * tilt.cos()).abs() < 1e-9 * G, "normal {} N", c.normal_force);
+    let deflection = c.stick_extension.norm();
+    assert!((deflection - 2.0 * G * tilt.sin() / 5e3).abs() < 1e-9, "spring deflected by {deflection} m");
+}

@@ -36,7 +36,36 @@
 //!   lever's),
 //! - `C = -J_c^T A_v J_c`.
 //!
-//! In statics (`v = 0`) only the spring acts: `K = k J^T n n^T J` plus the geometric terms; the
+//! **Stick-slip friction** (a ground with `StickFriction`, in place of the regularized law): each
+//! contact carries an anchor (`State::contact_anchors`), the material point of the sphere that
+//! touched (its lever `l = R b`, `b` body-fixed) and the ground point it stuck to, `x_a`. With the
+//! material point `x_m = r + l`, its velocity `u_m = rdot + omega x l` (Jacobian `J_m`, the lever
+//! columns as `J_c`'s with `l` for `a`), the spring's extension `d = P (x_m - x_a)` and slip
+//! `u = P u_m`:
+//! - `F_trial = -(k_t d + c_t u)`; stuck while `|F_trial| <= mu F_n`: `F_t = F_trial`; else
+//!   slipping: `F_t = mu F_n t`, `t = F_trial / |F_trial|`;
+//! - `Q = J^T F_n n + J_m^T F_t`: the normal force through the centre (along `n` a lever turns
+//!   nothing, and a lever that turned with the body would make the normal spring do work it
+//!   does not store), the friction at the held material point;
+//! - the extension kept (`ContactResponse::stick_extension`): `d`, shortened while slipping to
+//!   `d mu F_n / (k_t |d|)` where the spring alone pulls beyond the cone (never lengthened, so a
+//!   fast slip's damper leaves no energy in the spring); after an accepted step the anchor
+//!   moves to keep exactly that extension from the new lowest point (`commit_anchors`), so a
+//!   sphere rolls freely and a stuck one never creeps;
+//! - stored energy `k_t |d_kept|^2 / 2`, dissipated power `c_t |u|^2` stuck, `-F_t . u` slipping.
+//!
+//! With `G = dF_t/dF_trial` (`I` stuck, `mu F_n (I - t t^T) / |F_trial|` slipping),
+//! `w = dF/dF_n` (`n` stuck, `n + mu t` slipping), `D` and `D_m = D - R [omega_b x b]x B_r` the
+//! velocity derivatives of the centre and the material point:
+//! `dF_n/dq = a_r n^T J + a_v n^T D`, `dF_n/dv = a_v n^T J`,
+//! `dF_t/dq = (w - n) dF_n/dq - G (k_t P J_m + c_t P D_m)`, `dF_t/dv = (w - n) dF_n/dv - c_t G P J_m`,
+//! `K = -J^T n dF_n/dq - J_m^T dF_t/dq - d(J^T F)/dq - L`, `C = -J^T n dF_n/dv - J_m^T dF_t/dv`,
+//! with the lever's geometric term `L` row by row `(x_c x R^T F_t)^T B_r`, `x_c = b_r,c x b`.
+//! The anchors make the law depend on the path, as the pulleys' return map does; within a step
+//! it is a smooth function of the state but for the kink at the cone, and its stiffness does
+//! not change by orders of magnitude between stick and slip, which is what Newton needs.
+//!
+//! In statics with the regularized law (`v = 0`) only the spring acts: `K = k J^T n n^T J` plus the geometric terms; the
 //! ground holds a structure up but not sideways, so its free sliding and turning on the ground
 //! are zero-stiffness (rigid-body) modes. `tests/contact.rs` checks `K` and `C` against finite
 //! differences of `Q`.
@@ -45,7 +74,8 @@ use nalgebra::{Matrix3, Matrix6, Vector3};
 
 use crate::assembly::{add_vector, TangentSink};
 use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointJacobian, PointKinematics};
-use crate::model::{ContactSphere, GroundModel, Model, Pose};
+use crate::model::{BodyKind, ContactSphere, GroundModel, Model, Pose, StickFriction};
+use crate::state::ContactAnchor;
 use nalgebra::DVector;
 
 /// What one sphere is doing against one ground at one instant.
@@ -73,6 +103,9 @@ pub struct ContactResponse {
     pub energy: f64,
     /// Power dissipated by the normal damping and the friction, W (>= 0).
     pub loss_power: f64,
+    /// Stick-slip friction only (zero otherwise): the tangential spring's extension `d` that
+    /// the anchor keeps after this instant (module docs), world frame, m.
+    pub stick_extension: Vector3<f64>,
 }
 
 impl ContactResponse {
@@ -108,11 +141,23 @@ pub fn contact_point(
     sphere: &ContactSphere,
     kin: &PointKinematics,
 ) -> ContactPoint {
-    let offset = ground.normal * -sphere.radius;
+    lever_point(model, poses, v, ground.normal * -sphere.radius, sphere, kin)
+}
+
+/// The sphere's point at `offset` (world frame, m) from its centre, moving with the body: its
+/// velocity `rdot + omega x offset` and Jacobian (the lever columns `(R b_r) x offset`).
+fn lever_point(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    offset: Vector3<f64>,
+    sphere: &ContactSphere,
+    kin: &PointKinematics,
+) -> ContactPoint {
     let body = &model.bodies[kin.body.0];
     let mut jacobian = kin.jacobian;
     let mut velocity = kin.velocity;
-    if sphere.radius > 0.0 && body.kind != crate::model::BodyKind::Node {
+    if sphere.radius > 0.0 && body.kind != BodyKind::Node {
         let rot = poses[kin.body.0].rotation;
         for c in 0..body.dof_count {
             let b = body.basis.column(c);
@@ -162,11 +207,14 @@ pub fn contact_response(
         normal: *n,
         energy: 0.5 * spring * delta,
         loss_power,
+        stick_extension: Vector3::zeros(),
     }
 }
 
 /// Evaluates one sphere against one ground and adds the generalized force `J_c^T F` into `force`
-/// (length `model.dof_count`); `poses` and `v` are the state's.
+/// (length `model.dof_count`); `poses` and `v` are the state's, `anchor` the pair's
+/// (`State::contact_anchors`; read only when the ground has stick-slip friction).
+#[allow(clippy::too_many_arguments)]
 pub fn add_contact_force(
     model: &Model,
     poses: &[Pose],
@@ -174,8 +222,21 @@ pub fn add_contact_force(
     ground: &GroundModel,
     sphere: &ContactSphere,
     kin: &PointKinematics,
+    anchor: Option<&ContactAnchor>,
     force: &mut DVector<f64>,
 ) -> ContactResponse {
+    if let (Some(stick), Some(anchor)) = (&ground.material.stick, anchor) {
+        let point = anchored_point(model, poses, v, sphere, kin, anchor);
+        let response = stick_response(model, ground, stick, sphere, kin, &point, anchor);
+        if response.normal_force > 0.0 {
+            // the normal force at the centre (its lever along n turns nothing), the friction at
+            // the held material point
+            let q = kin.jacobian.transpose() * (ground.normal * response.normal_force)
+                + point.jacobian.transpose() * response.friction;
+            add_vector(model, kin.body, &q, 1.0, force);
+        }
+        return response;
+    }
     let point = contact_point(model, poses, v, ground, sphere, kin);
     let response = contact_response(ground, sphere, kin, &point);
     if response.normal_force > 0.0 {
@@ -196,11 +257,16 @@ pub fn add_contact_tangents<S: TangentSink + ?Sized>(
     ground: &GroundModel,
     sphere: &ContactSphere,
     kin: &PointKinematics,
+    anchor: Option<&ContactAnchor>,
     response: &ContactResponse,
     sink: &mut S,
 ) {
     let f_n = response.normal_force;
     if f_n <= 0.0 {
+        return;
+    }
+    if let (Some(stick), Some(anchor)) = (&ground.material.stick, anchor) {
+        add_stick_tangents(model, poses, v, ground, stick, sphere, kin, anchor, response, sink);
         return;
     }
     let n = ground.normal;
@@ -222,7 +288,7 @@ pub fn add_contact_tangents<S: TangentSink + ?Sized>(
     let body = kin.body;
     let mut k: Matrix6<f64> = -(j_c.transpose() * a_pos * j);
     let model_body = &model.bodies[body.0];
-    if model_body.kind != crate::model::BodyKind::Node {
+    if model_body.kind != BodyKind::Node {
         let f = response.force();
         let mut d = velocity_derivative(model, poses, v, sphere.point);
         let b_r = model_body.basis.fixed_view::<3, 6>(3, 0);
@@ -243,6 +309,233 @@ pub fn add_contact_tangents<S: TangentSink + ?Sized>(
     }
     sink.stiffness(body, body, &k, 1.0);
     sink.damping(body, body, &(j_c.transpose() * a_vel * j_c), -1.0);
+}
+
+/// The material point an anchor holds (`ContactAnchor::lever`, turned with the body): a node's
+/// or a point sphere's is its centre.
+fn anchored_point(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    sphere: &ContactSphere,
+    kin: &PointKinematics,
+    anchor: &ContactAnchor,
+) -> ContactPoint {
+    let lever = if model.bodies[kin.body.0].kind == BodyKind::Node {
+        Vector3::zeros()
+    } else {
+        poses[kin.body.0].rotation * anchor.lever
+    };
+    lever_point(model, poses, v, lever, sphere, kin)
+}
+
+/// `c_t`, N s/m: the ground's, or critical for the mass `m` of the body the sphere is on,
+/// `2 sqrt(k_t m)`.
+fn stick_damping(model: &Model, stick: &StickFriction, kin: &PointKinematics) -> f64 {
+    stick.damping.unwrap_or_else(|| 2.0 * (stick.stiffness * model.bodies[kin.body.0].mass).sqrt())
+}
+
+/// The stick-slip friction's trial force and what it becomes (module docs): `(F_trial, F_t,
+/// slipping)` for the extension `d`, slip `u`, damping `c_t` and cone `mu F_n`.
+fn stick_slip(
+    stick: &StickFriction,
+    d: &Vector3<f64>,
+    u: &Vector3<f64>,
+    c_t: f64,
+    limit: f64,
+) -> (Vector3<f64>, Vector3<f64>, bool) {
+    let trial = -(d * stick.stiffness + u * c_t);
+    let size = trial.norm();
+    if size <= limit {
+        (trial, trial, false)
+    } else {
+        (trial, trial * (limit / size), true)
+    }
+}
+
+/// `contact_response` for a ground with stick-slip friction: the sphere at its centre `kin`,
+/// its anchored material point `point` (`anchored_point`) and `anchor`.
+fn stick_response(
+    model: &Model,
+    ground: &GroundModel,
+    stick: &StickFriction,
+    sphere: &ContactSphere,
+    kin: &PointKinematics,
+    point: &ContactPoint,
+    anchor: &ContactAnchor,
+) -> ContactResponse {
+    let n = &ground.normal;
+    let m = &ground.material;
+    let height = n.dot(&kin.position);
+    let delta = ground.offset + sphere.radius - height;
+    let position = kin.position - n * (height - ground.offset);
+    if delta.is_nan() || delta <= 0.0 {
+        return ContactResponse { gap: -delta, position, normal: *n, ..Default::default() };
+    }
+    let delta_dot = -n.dot(&kin.velocity);
+    let spring = m.stiffness * delta;
+    let normal_force = (spring * (1.0 + m.dissipation * delta_dot)).max(0.0);
+    let offset = kin.position + point.offset - anchor.anchor;
+    let d = offset - n * n.dot(&offset);
+    let slip = point.velocity - n * n.dot(&point.velocity);
+    let c_t = stick_damping(model, stick, kin);
+    let limit = m.friction * normal_force;
+    let (_, friction, slipping) = stick_slip(stick, &d, &slip, c_t, limit);
+    let (kept, friction_loss) = if limit <= 0.0 {
+        (Vector3::zeros(), 0.0)
+    } else if slipping {
+        // the spring alone shortened to the cone, never stretched: a fast slip's damper must not
+        // leave energy in it
+        let pull = stick.stiffness * d.norm();
+        (if pull > limit { d * (limit / pull) } else { d }, (-friction.dot(&slip)).max(0.0))
+    } else {
+        (d, c_t * slip.norm_squared())
+    };
+    ContactResponse {
+        gap: -delta,
+        penetration_rate: delta_dot,
+        normal_force,
+        friction,
+        slip,
+        position,
+        normal: *n,
+        energy: 0.5 * spring * delta + 0.5 * stick.stiffness * kept.norm_squared(),
+        loss_power: (normal_force - spring) * delta_dot + friction_loss,
+        stick_extension: kept,
+    }
+}
+
+/// `add_contact_tangents` for a ground with stick-slip friction (module docs).
+#[allow(clippy::too_many_arguments)]
+fn add_stick_tangents<S: TangentSink + ?Sized>(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    ground: &GroundModel,
+    stick: &StickFriction,
+    sphere: &ContactSphere,
+    kin: &PointKinematics,
+    anchor: &ContactAnchor,
+    response: &ContactResponse,
+    sink: &mut S,
+) {
+    let n = ground.normal;
+    let m = &ground.material;
+    let f_n = response.normal_force;
+    let delta = -response.gap;
+    let point = anchored_point(model, poses, v, sphere, kin, anchor);
+    let p = Matrix3::identity() - n * n.transpose();
+    let offset = kin.position + point.offset - anchor.anchor;
+    let d = p * offset;
+    let u = response.slip;
+    let c_t = stick_damping(model, stick, kin);
+    let limit = m.friction * f_n;
+    let (trial, _, slipping) = stick_slip(stick, &d, &u, c_t, limit);
+    // G = dF_t/dF_trial and w = dF/dF_n
+    let (g, w) = if limit <= 0.0 {
+        (Matrix3::zeros(), n)
+    } else if slipping {
+        let t = trial / trial.norm();
+        ((Matrix3::identity() - t * t.transpose()) * (limit / trial.norm()), n + t * m.friction)
+    } else {
+        (Matrix3::identity(), n)
+    };
+    let a_r = -m.stiffness * (1.0 + m.dissipation * response.penetration_rate);
+    let a_v = -m.stiffness * m.dissipation * delta;
+    let (j, j_m) = (&kin.jacobian, &point.jacobian);
+    let gp = g * p;
+    let w_t = w - n; // dF_t/dF_n
+    let jn = j.transpose() * n;
+    // the normal force's part, through the centre: dF_n/dv = a_v n^T J, dF_n/dq = a_r n^T J + a_v n^T D
+    let mut c6 = jn * (jn.transpose() * a_v);
+    let mut k: Matrix6<f64> = -(jn * (jn.transpose() * a_r));
+    // the friction's, through the material point: dF_t/dv = w_t a_v n^T J - c_t G P J_m
+    let df_dv = w_t * (n.transpose() * j) * a_v - gp * j_m * c_t;
+    c6 += j_m.transpose() * df_dv;
+    // dF_t/dq at fixed velocities: the normal force's and the tangential spring's and damper's
+    let mut df_dq = w_t * (n.transpose() * j) * a_r - gp * j_m * stick.stiffness;
+    let body = kin.body;
+    let model_body = &model.bodies[body.0];
+    if model_body.kind != BodyKind::Node {
+        let f = response.force();
+        let d_centre = velocity_derivative(model, poses, v, sphere.point);
+        let mut d_m = d_centre;
+        let b_r = model_body.basis.fixed_view::<3, 6>(3, 0);
+        let rot = poses[body.0].rotation.to_rotation_matrix();
+        if sphere.radius > 0.0 {
+            // the lever's part of d(u_m)/dq: -R [omega_b x b]x B_r
+            let local = model_body.local_increment(v.as_slice(), 1.0);
+            let omega = Vector3::new(local[3], local[4], local[5]);
+            d_m -= rot.matrix() * omega.cross(&anchor.lever).cross_matrix() * b_r;
+            // the lever's geometric term: row c is (x_c x R^T F_t)^T B_r, x_c = b_r,c x b
+            let f_b = rot.inverse() * response.friction;
+            for c in 0..model_body.dof_count {
+                let x_c = b_r.column(c).cross(&anchor.lever);
+                let g_c = x_c.cross(&f_b);
+                let mut row = k.row_mut(c);
+                row -= g_c.transpose() * b_r;
+            }
+        }
+        k -= jn * (n.transpose() * d_centre) * a_v;
+        df_dq += w_t * (n.transpose() * d_centre) * a_v - gp * d_m * c_t;
+        k -= force_jacobian_derivative(model, poses, sphere.point, &f);
+    }
+    k -= j_m.transpose() * df_dq;
+    sink.stiffness(body, body, &k, 1.0);
+    sink.damping(body, body, &c6, -1.0);
+}
+
+/// Every ground pair's anchor at `poses` with the tangential springs unstretched: the sphere's
+/// lowest point held where it is (the state at t = 0, and wherever a state is set from
+/// outside). Empty when no ground has stick-slip friction.
+pub fn initial_anchors(model: &Model, poses: &[Pose]) -> Vec<ContactAnchor> {
+    if !model.has_stick_friction() {
+        return Vec::new();
+    }
+    model
+        .contact_pair_list()
+        .map(|(_, sphere, ground)| {
+            let point = &model.points[sphere.point.0];
+            let pose = &poses[point.body.0];
+            let centre = pose.position + pose.rotation * point.local;
+            anchor_at(model, pose, sphere, ground, centre, Vector3::zeros())
+        })
+        .collect()
+}
+
+/// After an accepted step (statics: an accepted equilibrium), at its `poses`, sphere centres
+/// `points` and `contacts` (the workspace's evaluation of exactly that state): every ground
+/// pair's anchor moves to keep the extension the step ended with
+/// (`ContactResponse::stick_extension`) from the sphere's lowest point now, whose material
+/// point becomes the one held (module docs).
+pub fn commit_anchors(
+    model: &Model,
+    poses: &[Pose],
+    points: &[PointKinematics],
+    contacts: &[ContactResponse],
+    anchors: &mut [ContactAnchor],
+) {
+    for ((k, sphere, ground), anchor) in model.contact_pair_list().zip(anchors.iter_mut()) {
+        let kin = &points[sphere.point.0];
+        let pose = &poses[kin.body.0];
+        *anchor = anchor_at(model, pose, sphere, ground, kin.position, contacts[k].stick_extension);
+    }
+}
+
+/// The anchor that holds the lowest point of `sphere` (centre `centre`, body at `pose`) against
+/// `ground` with the extension `extension`.
+fn anchor_at(
+    model: &Model,
+    pose: &Pose,
+    sphere: &ContactSphere,
+    ground: &GroundModel,
+    centre: Vector3<f64>,
+    extension: Vector3<f64>,
+) -> ContactAnchor {
+    let a = ground.normal * -sphere.radius;
+    let body = &model.bodies[model.points[sphere.point.0].body.0];
+    let lever = if body.kind == BodyKind::Node { Vector3::zeros() } else { pose.rotation.inverse() * a };
+    ContactAnchor { lever, anchor: centre + a - extension }
 }
 
 /// Adds to dense `K` and `C` (`n x n`, `n = model.dof_count`) what every contact pair would
@@ -281,8 +574,15 @@ pub fn add_contact_bounds(
                 m.stiffness,
                 stiffness,
             );
-            let c3 = nn * (m.dissipation * load) + p * (m.friction * load / m.stiction_speed);
             let j_c = contact_point(model, poses, &still, ground, sphere, kin).jacobian;
+            let c3 = match &m.stick {
+                None => nn * (m.dissipation * load) + p * (m.friction * load / m.stiction_speed),
+                Some(stick) => {
+                    let jt = j_c.transpose() * p * j_c;
+                    crate::assembly::add_block(model, kin.body, kin.body, &jt, stick.stiffness, stiffness);
+                    nn * (m.dissipation * load) + p * stick_damping(model, stick, kin)
+                }
+            };
             let c6 = j_c.transpose() * c3 * j_c;
             crate::assembly::add_block(model, kin.body, kin.body, &c6, 1.0, damping);
         }

@@ -198,7 +198,7 @@ pub struct PulleyFriction {
 }
 
 /// The contact law of a ground (`crate::forces::contact`): a compliant normal force with
-/// Hunt-Crossley damping and regularized Coulomb friction.
+/// Hunt-Crossley damping and Coulomb friction, regularized or elastic stick-slip.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ContactMaterial {
     /// Penalty stiffness `k`, N/m: a sphere pressed `delta` into the ground feels `k delta`.
@@ -213,6 +213,23 @@ pub struct ContactMaterial {
     /// `-mu F_n u / sqrt(|u|^2 + v_s^2)` for the slip velocity `u`, so a load at a fraction `r`
     /// of the friction limit creeps at `v_s r / sqrt(1 - r^2)`.
     pub stiction_speed: f64,
+    /// Elastic stick-slip friction in place of the regularized law (`None`: regularized). Grounds
+    /// only; `crate::forces::contact` module docs.
+    pub stick: Option<StickFriction>,
+}
+
+/// Elastic stick-slip (spring-slider) friction of a ground: each contact is anchored where it
+/// stuck, a tangential spring and damper pull it back, `F_trial = -(k_t d + c_t u)`, and while
+/// `|F_trial| <= mu F_n` that is the friction (the contact sticks, without creeping); beyond,
+/// the contact slips with `mu F_n` along `F_trial` and its anchor follows
+/// (`crate::forces::contact::commit_anchors`, after each accepted step).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StickFriction {
+    /// Tangential stiffness `k_t`, N/m (> 0).
+    pub stiffness: f64,
+    /// Tangential damping `c_t`, N s/m; `None`: critical for the mass of the sphere's body,
+    /// `2 sqrt(k_t m)`.
+    pub damping: Option<f64>,
 }
 
 /// A half-space the bodies' contact spheres cannot enter: the free side is `n . x >= offset`.
@@ -973,6 +990,21 @@ impl Model {
     /// `s * grounds.len() + g` for sphere `s` and ground `g`.
     pub fn ground_pairs(&self) -> usize {
         self.contact_spheres.len() * self.grounds.len()
+    }
+
+    /// True when some ground has elastic stick-slip friction (`StickFriction`): the state then
+    /// carries an anchor per ground pair (`State::contact_anchors`).
+    pub fn has_stick_friction(&self) -> bool {
+        self.grounds.iter().any(|g| g.material.stick.is_some())
+    }
+
+    /// True when some contact has regularized friction: a ground with spheres on it, friction
+    /// and no `StickFriction`, or strut pairs with friction. Its slope changes by orders of
+    /// magnitude between stick and slip, so generalized-alpha's Newton refactors each iteration.
+    pub fn has_regularized_friction(&self) -> bool {
+        let grounds = !self.contact_spheres.is_empty()
+            && self.grounds.iter().any(|g| g.material.stick.is_none() && g.material.friction > 0.0);
+        grounds || (!self.strut_pairs.is_empty() && self.strut_material.friction > 0.0)
     }
 
     /// Number of contacts of every kind: the ground pairs (`ground_pairs`, first) then the strut

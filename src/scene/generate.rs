@@ -875,7 +875,7 @@ fn one_sixbar(p: &SixbarParams) -> SceneSpec {
             bodies,
             cables,
             actuators,
-            grounds: vec![GroundSpec { name: Some("floor".into()), mu: Some(p.mu), ..Default::default() }],
+            grounds: vec![sixbar_floor(p)],
             ..Default::default()
         };
     }
@@ -910,7 +910,24 @@ fn one_sixbar(p: &SixbarParams) -> SceneSpec {
                 rest_length: round9s(p.roll_fraction * cable_length),
             }],
         }),
-        grounds: vec![GroundSpec { name: Some("floor".into()), mu: Some(p.mu), ..Default::default() }],
+        grounds: vec![sixbar_floor(p)],
+        ..Default::default()
+    }
+}
+
+/// The six-bar robots' tangential contact stiffness, N/m: stick-slip friction
+/// (`crate::model::StickFriction`), of the order of the floor's normal stiffness, so that a foot at the
+/// friction limit gives `mu F_n / k_t`, a few tenths of a millimetre, before it slips. The
+/// robots' feet stick without creeping, and the implicit step keeps its factors through most
+/// steps (docs/benchmarks.md).
+pub const SIXBAR_STICK_STIFFNESS: f64 = 2e4;
+
+/// The floor under the six-bar robots: `mu`, stick-slip friction.
+fn sixbar_floor(p: &SixbarParams) -> GroundSpec {
+    GroundSpec {
+        name: Some("floor".into()),
+        mu: Some(p.mu),
+        stick_stiffness: Some(SIXBAR_STICK_STIFFNESS),
         ..Default::default()
     }
 }

@@ -461,6 +461,25 @@ pub fn scene_fields() -> Vec<FieldDoc> {
             ),
         ),
         f(
+            grounds,
+            "stick_stiffness",
+            "number",
+            "N/m",
+            "none (regularized friction)",
+            format!(
+                "stick-slip friction: each contact sticks where it touched through a tangential spring k_t until it pulls with mu F_n, then slips; no creep, stiction_speed unused; {}",
+                range(limits::STICK_STIFFNESS)
+            ),
+        ),
+        f(
+            grounds,
+            "stick_damping",
+            "number",
+            "N s/m",
+            "2 sqrt(k_t m), m the sphere's body's mass",
+            format!("the stick-slip spring's damper c_t (needs stick_stiffness); {}", range(limits::STICK_DAMPING)),
+        ),
+        f(
             collisions,
             "pairs",
             "\"all\" or [[bar, bar], ...]",

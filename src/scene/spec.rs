@@ -67,6 +67,10 @@ pub mod limits {
     pub const FRICTION: (f64, f64) = (0.0, 100.0);
     /// Friction regularization speed, m/s.
     pub const STICTION_SPEED: (f64, f64) = (1e-9, 1e3);
+    /// Stick-slip friction's tangential stiffness, N/m.
+    pub const STICK_STIFFNESS: (f64, f64) = (1e-6, 1e12);
+    /// Stick-slip friction's tangential damping, N s/m.
+    pub const STICK_DAMPING: (f64, f64) = (0.0, 1e9);
     /// Ramp start and duration, s.
     pub const TIME: (f64, f64) = (0.0, 1e6);
     /// Quasi-static load steps of a deployment.
@@ -331,6 +335,15 @@ pub struct GroundSpec {
     /// `stiction_speed r / sqrt(1 - r^2)`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stiction_speed: Option<f64>,
+    /// Stick-slip friction's tangential stiffness, N/m (default none: regularized friction).
+    /// Given, each contact sticks to where it touched through a spring of this stiffness until
+    /// the spring pulls with `mu F_n`, and then slips (no creep; `stiction_speed` is unused).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stick_stiffness: Option<f64>,
+    /// Stick-slip friction's tangential damping, N s/m (default: critical for the mass of the
+    /// sphere's body, `2 sqrt(stick_stiffness m)`); needs `stick_stiffness`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stick_damping: Option<f64>,
 }
 
 fn is_zero3(v: &[f64; 3]) -> bool {

@@ -1,7 +1,8 @@
 //! The prepare/commit hooks of force elements with memory: before a sub-step the winches'
 //! controllers set their drives; after an accepted one the pulleys' return map and the winches'
-//! drums become the state, and their works go into the energy account. Out of line: a scene
-//! without winches or pulley friction never runs them.
+//! drums become the state, and their works go into the energy account; the stick-slip
+//! contacts' anchors follow the accepted step. Out of line: a scene without winches, pulley
+//! friction or stick-slip friction never runs them.
 
 use crate::model::Model;
 use crate::sim::simulator::Simulator;
@@ -18,6 +19,21 @@ impl Simulator {
             &mut self.ws.friction,
             &mut self.state.segment_rest_lengths,
             h,
+        );
+    }
+
+    /// After an accepted sub-step: the stick-slip contacts' anchors follow what the step ended
+    /// with (`crate::forces::contact::commit_anchors`). Out of line: scenes without stick-slip
+    /// friction never run it.
+    #[cold]
+    #[inline(never)]
+    pub(super) fn commit_contact_anchors(&mut self) {
+        crate::forces::contact::commit_anchors(
+            &self.model,
+            &self.state.poses,
+            &self.ws.points,
+            &self.ws.contacts,
+            &mut self.state.contact_anchors,
         );
     }
 

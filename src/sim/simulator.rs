@@ -98,6 +98,10 @@ impl Simulator {
         }
         let mut dynamics = Dynamics::new(&model, settings.linear);
         model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
+        if state.contact_anchors.len() != if model.has_stick_friction() { model.ground_pairs() } else { 0 } {
+            // a state made for another scene, or by hand: its contacts stick where they stand
+            state.contact_anchors = crate::forces::contact::initial_anchors(&model, &state.poses);
+        }
         // an explicit integrator at a fixed step must stay below its stability limit (with a
         // tolerance the error estimate cuts the step where it would not)
         if settings.integrator.is_explicit() && settings.tolerance.is_none() {

@@ -145,6 +145,9 @@ impl Simulator {
                     if !self.model.winches.is_empty() {
                         self.commit_winches(h_try);
                     }
+                    if !self.state.contact_anchors.is_empty() {
+                        self.commit_contact_anchors();
+                    }
                     stats.newton_iterations += a.iterations;
                     stats.factorizations += a.factorizations;
                     stats.evaluations += a.evaluations;

@@ -152,9 +152,17 @@ pub fn run(scene: &Path) -> Result<(), String> {
             .iter()
             .map(|g| {
                 let m = &g.material;
+                let friction = match &m.stick {
+                    None => format!("stiction speed {:.1e} m/s", m.stiction_speed),
+                    Some(stick) => format!(
+                        "stick-slip friction: k_t {:.3e} N/m, c_t {}",
+                        stick.stiffness,
+                        stick.damping.map_or("critical per body".to_string(), |c| format!("{c} N s/m"))
+                    ),
+                };
                 format!(
-                    "{} (normal [{:.3}, {:.3}, {:.3}], mu {}, stiffness {:.3e} N/m, dissipation {} s/m, stiction speed {:.1e} m/s)",
-                    g.name, g.normal.x, g.normal.y, g.normal.z, m.friction, m.stiffness, m.dissipation, m.stiction_speed
+                    "{} (normal [{:.3}, {:.3}, {:.3}], mu {}, stiffness {:.3e} N/m, dissipation {} s/m, {friction})",
+                    g.name, g.normal.x, g.normal.y, g.normal.z, m.friction, m.stiffness, m.dissipation
                 )
             })
             .collect();

@@ -10,7 +10,7 @@ use super::context::{bounded3, in_range, Ctx};
 use crate::error::{readable_number, SceneError};
 use crate::model::{
     BodyId, BodyKind, BodyModel, ContactMaterial, ContactSphere, GroundModel, JointModel, JointTarget, Model,
-    PointId, PointModel, StrutPair,
+    PointId, PointModel, StickFriction, StrutPair,
 };
 use crate::scene::spec::{self, limits, BodyKindSpec, CollisionPairsSpec, SceneSpec};
 
@@ -119,7 +119,23 @@ pub(super) fn build_grounds(
             None => Vector3::zeros(),
         };
         let law = [g.stiffness, g.dissipation, g.mu, g.stiction_speed];
-        let material = contact_material(law, default_stiffness, 1.0, &e)?;
+        let mut material = contact_material(law, default_stiffness, 1.0, &e)?;
+        material.stick = match (g.stick_stiffness, g.stick_damping) {
+            (None, None) => None,
+            (None, Some(_)) => {
+                return Err(e(
+                    "stick_damping",
+                    "needs stick_stiffness: the damping acts with the stick-slip friction's spring".into(),
+                ))
+            }
+            (Some(k), c) => Some(StickFriction {
+                stiffness: in_range(k, limits::STICK_STIFFNESS, "N/m")
+                    .map_err(|r| e("stick_stiffness", r))?,
+                damping: c
+                    .map(|c| in_range(c, limits::STICK_DAMPING, "N s/m").map_err(|r| e("stick_damping", r)))
+                    .transpose()?,
+            }),
+        };
         grounds.push(GroundModel { name, normal, offset: normal.dot(&point), material });
     }
     Ok(grounds)
@@ -146,6 +162,7 @@ pub(super) fn contact_material(
         dissipation: number(dissipation, 1.0, limits::CONTACT_DISSIPATION, "s/m", "dissipation")?,
         friction: number(mu, default_mu, limits::FRICTION, "", "mu")?,
         stiction_speed: number(stiction_speed, 1e-5, limits::STICTION_SPEED, "m/s", "stiction_speed")?,
+        stick: None,
     })
 }
 

@@ -62,7 +62,10 @@ fn slip_reversal_limit(
     for (k, sphere, ground) in model.contact_pair_list() {
         let c = &ws.contacts[k];
         let v_s = ground.material.stiction_speed;
-        if c.normal_force <= 0.0 || ground.material.friction == 0.0 || c.slip.norm() <= SLIP_LIMIT_ZONE * v_s
+        if c.normal_force <= 0.0
+            || ground.material.friction == 0.0
+            || ground.material.stick.is_some()
+            || c.slip.norm() <= SLIP_LIMIT_ZONE * v_s
         {
             continue;
         }
@@ -144,13 +147,16 @@ impl Dynamics {
         self.trial.rest_lengths.copy_from_slice(rest_next);
         self.trial.segment_rest_lengths.copy_from_slice(&state.segment_rest_lengths);
         self.trial.winches.copy_from_slice(&state.winches);
+        self.trial.contact_anchors.copy_from_slice(&state.contact_anchors);
         let mut stats = AttemptStats::default();
         let coefficients = (beta_p, gamma_p);
-        // with contacts, full Newton: the friction's slope changes by orders of magnitude between
-        // slip and stick, and old factors then point the wrong way (on the six-bar robot's roll
-        // at stiction speeds 1e-3 to 1e-5 m/s, modified Newton had 15 to 92 steps rejected in
-        // 4 s, full Newton none)
-        let contacts = model.contact_pairs() > 0;
+        // with regularized friction, full Newton: its slope changes by orders of magnitude
+        // between slip and stick, and old factors then point the wrong way (on the six-bar
+        // robot's roll at stiction speeds 1e-3 to 1e-5 m/s, modified Newton had 15 to 92 steps
+        // rejected in 4 s, full Newton none). Stick-slip friction's slope stays within its
+        // spring's, and modified Newton keeps its factors through most steps
+        let contacts =
+            model.contact_pairs() > 0 && (model.has_regularized_friction() || !model.has_stick_friction());
         let mut reuse = newton.reuse_factorization
             && !contacts
             && self.factored_for == Some(coefficients)

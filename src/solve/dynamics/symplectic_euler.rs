@@ -33,6 +33,7 @@ impl Dynamics {
         self.trial.rest_lengths.copy_from_slice(rest_now);
         self.trial.segment_rest_lengths.copy_from_slice(&state.segment_rest_lengths);
         self.trial.winches.copy_from_slice(&state.winches);
+        self.trial.contact_anchors.copy_from_slice(&state.contact_anchors);
         // the force at the start sees a winch's cable at its rest length now: its motor moves it
         // over the step, against the tension at the end (`crate::forces::winch`)
         for w in &mut self.trial.winches {
