@@ -700,3 +700,67 @@ fn with_stick_slip_friction_statics_finds_the_block_resting_on_an_incline() {
     let deflection = c.stick_extension.norm();
     assert!((deflection - 2.0 * G * tilt.sin() / 5e3).abs() < 1e-9, "spring deflected by {deflection} m");
 }
+
+#[test]
+fn a_quasi_static_haul_drags_a_stuck_foot_only_once_the_pull_reaches_the_friction_limit() {
+    // a 1 kg block on a level ground (mu 0.5, k_t 2e3 N/m), hauled toward a wall 1 m away by a
+    // horizontal cable (EA 1000 N) whose rest length goes from 1 m to 0.9 m in 40 load steps.
+    // Stuck, the cable and the contact's spring share the haul: T = k_t x with
+    // T = EA (1 - x - L0) / L0; once T reaches mu m g = 4.905 N the foot slips and the pull stays
+    // there: x = 1 - L0 (1 + mu m g / EA). The anchors carry the slip from load step to load step.
+    let (mu, k_t, ea, m) = (0.5, 2e3, 1000.0, 1.0);
+    let k_n = 1e6;
+    let depth = m * G / k_n;
+    let model = model_from_toml(&format!(
+        "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"wall\"\nkind = \"fixed\"\npoints = {{ hook = [1.0, 0.0, {z}] }}\n\
+         [[bodies]]\nname = \"block\"\nkind = \"node\"\nmass = {m}\nposition = [0.0, 0.0, {z}]\ncontact_radius = 0.0\n\
+         [[cables]]\nname = \"haul\"\nroute = [\"block\", \"wall.hook\"]\nea = {ea}\nrest_length = 1.0\n\
+         [[actuators]]\nname = \"winch\"\ncable = \"haul\"\nmin_rest_length = 0.5\nmax_rest_length = 1.5\nmax_rate = 1.0\n\
+         [deployment]\nsteps = 40\n[[deployment.ramps]]\nactuator = \"winch\"\nstart = 0.0\nduration = 1.0\nrest_length = 0.9\n\
+         [[grounds]]\nmu = {mu}\nstiffness = {k_n}\nstick_stiffness = {k_t}\n",
+        z = -depth
+    ));
+    let limit = mu * m * G;
+    let mut state = State::initial(&model);
+    let mut ws = Workspace::new(&model);
+    let mut rows = Vec::new();
+    tensegrity::solve::deploy::deploy_quasi_static(&model, &mut state, &mut ws, |step, s, w| {
+        rows.push((
+            step.time,
+            s.rest_lengths[0],
+            s.poses[1].position.x,
+            w.cables[0].tension,
+            w.contacts[0].friction.x,
+        ));
+    })
+    .unwrap();
+    let mut slipped = false;
+    for &(t, l0, x, tension, friction) in &rows {
+        // the stuck branch: k_t x = EA (1 - x - L0) / L0
+        let stuck_x = ea * (1.0 - l0) / (k_t * l0 + ea);
+        let (want_x, want_t) = if k_t * stuck_x <= limit && !slipped {
+            (stuck_x, k_t * stuck_x)
+        } else {
+            slipped = true;
+            (1.0 - l0 * (1.0 + limit / ea), limit)
+        };
+        assert!((x - want_x).abs() < 1e-9, "t = {t}: foot at {x} m, closed form {want_x} m");
+        assert!((tension - want_t).abs() < 1e-7 * limit, "t = {t}: pull {tension} N, closed form {want_t} N");
+        assert!((friction + tension).abs() < 1e-7 * limit, "t = {t}: friction {friction} N against the pull");
+    }
+    assert!(slipped, "the haul never reached the friction limit");
+    // then the haul eases off (the cable goes slack): the foot comes back by its spring's
+    // stretch only, mu m g / k_t, and stays where it slipped to (the anchor moved with it)
+    let (_, _, x_end, _, _) = *rows.last().unwrap();
+    let mut eased = state.clone();
+    eased.rest_lengths[0] = 0.95;
+    tensegrity::solve::statics::StaticSolver::new(&model)
+        .equilibrate(&model, &mut eased, &mut ws, &model.solver)
+        .unwrap();
+    let pull = (ea * (1.0 - eased.poses[1].position.x - 0.95) / 0.95).max(0.0); // slack here
+    let back = x_end - eased.poses[1].position.x;
+    assert!(
+        (back - (limit - pull) / k_t).abs() < 1e-9,
+        "eased off, the foot came back {back} m: only its spring's"
+    );
+}

@@ -12,11 +12,16 @@ use crate::solve::statics::residual::Residual;
 use crate::state::{retract, State};
 
 /// At an equilibrium found: the pulleys' return map (`crate::forces::pulley`) becomes the
-/// state's segment rest lengths, so the next solve (a deployment's next load step) starts from
-/// the material where this one left it.
+/// state's segment rest lengths, and the stick-slip contacts' anchors follow what slipped
+/// (`crate::forces::contact::commit_anchors`), so the next solve (a deployment's next load
+/// step) starts from the material and the anchors where this one left them.
 pub(crate) fn commit_friction(model: &Model, state: &mut State, ws: &mut Workspace) {
     if !model.pulley_friction.is_empty() {
         crate::forces::pulley::commit(model, &mut ws.friction, &mut state.segment_rest_lengths, 0.0);
+    }
+    if !state.contact_anchors.is_empty() {
+        let (poses, anchors) = (&state.poses, &mut state.contact_anchors);
+        crate::forces::contact::commit_anchors(model, poses, &ws.points, &ws.contacts, anchors);
     }
 }
 
