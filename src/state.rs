@@ -4,6 +4,7 @@
 
 use nalgebra::{DVector, UnitQuaternion, Vector3};
 
+use crate::forces::contact::ContactAnchor;
 use crate::model::{Model, Pose};
 
 /// Everything that changes during a run. Built from a `Model` with `State::initial`
@@ -32,19 +33,6 @@ pub struct State {
     /// when some ground has stick-slip friction (`Model::has_stick_friction`; empty without):
     /// from it the next step's sticking and slipping start.
     pub contact_anchors: Vec<ContactAnchor>,
-}
-
-/// Where one contact of a ground with stick-slip friction is anchored
-/// (`crate::forces::contact`): the material point of the sphere that touched, and the ground
-/// point it stuck to. Its tangential spring's extension is `d = P (r + R lever - anchor)` for the
-/// sphere's centre `r` and the body's rotation `R`, `P` projecting onto the ground.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct ContactAnchor {
-    /// From the sphere's centre to its material point that touched, body frame, m (`R^T a` for
-    /// the lowest point `a = -rho n` when the anchor was set).
-    pub lever: Vector3<f64>,
-    /// The ground point the material point is held to, world frame, m.
-    pub anchor: Vector3<f64>,
 }
 
 impl State {

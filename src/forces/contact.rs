@@ -75,8 +75,20 @@ use nalgebra::{Matrix3, Matrix6, Vector3};
 use crate::assembly::{add_vector, TangentSink};
 use crate::kinematics::{force_jacobian_derivative, velocity_derivative, PointJacobian, PointKinematics};
 use crate::model::{BodyKind, ContactSphere, GroundModel, Model, Pose, StickFriction};
-use crate::state::ContactAnchor;
 use nalgebra::DVector;
+
+/// Where one contact of a ground with stick-slip friction is anchored
+/// (`crate::forces::contact`): the material point of the sphere that touched, and the ground
+/// point it stuck to. Its tangential spring's extension is `d = P (r + R lever - anchor)` for the
+/// sphere's centre `r` and the body's rotation `R`, `P` projecting onto the ground.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ContactAnchor {
+    /// From the sphere's centre to its material point that touched, body frame, m (`R^T a` for
+    /// the lowest point `a = -rho n` when the anchor was set).
+    pub lever: Vector3<f64>,
+    /// The ground point the material point is held to, world frame, m.
+    pub anchor: Vector3<f64>,
+}
 
 /// What one sphere is doing against one ground at one instant.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
