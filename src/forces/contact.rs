@@ -52,7 +52,10 @@
 //!   fast slip's damper leaves no energy in the spring); after an accepted step the anchor
 //!   moves to keep exactly that extension from the new lowest point (`commit_anchors`), so a
 //!   sphere rolls freely and a stuck one never creeps;
-//! - stored energy `k_t |d_kept|^2 / 2`, dissipated power `c_t |u|^2` stuck, `-F_t . u` slipping.
+//! - stored energy `k_t |d|^2 / 2`, dissipated power `-(F_t + k_t d) . u` (the damper's
+//!   `c_t |u|^2` while stuck); the spring energy the shortening to `d_kept` removes,
+//!   `k_t (|d|^2 - |d_kept|^2) / 2`, is booked as lost where the anchors are committed, so the
+//!   energy account closes.
 //!
 //! With `G = dF_t/dF_trial` (`I` stuck, `mu F_n (I - t t^T) / |F_trial|` slipping),
 //! `w = dF/dF_n` (`n` stuck, `n + mu t` slipping), `D` and `D_m = D - R [omega_b x b]x B_r` the
@@ -393,15 +396,17 @@ fn stick_response(
     let c_t = stick_damping(model, stick, kin);
     let limit = m.friction * normal_force;
     let (_, friction, slipping) = stick_slip(stick, &d, &slip, c_t, limit);
-    let (kept, friction_loss) = if limit <= 0.0 {
-        (Vector3::zeros(), 0.0)
-    } else if slipping {
-        // the spring alone shortened to the cone, never stretched: a fast slip's damper must not
-        // leave energy in it
-        let pull = stick.stiffness * d.norm();
-        (if pull > limit { d * (limit / pull) } else { d }, (-friction.dot(&slip)).max(0.0))
+    // the power the friction takes from the bodies beyond what its spring stores,
+    // -(F_t + k_t d) . u: the damper's, c_t |u|^2, while stuck
+    let (kept, spring_energy, friction_loss) = if limit <= 0.0 {
+        (Vector3::zeros(), 0.0, 0.0)
     } else {
-        (d, c_t * slip.norm_squared())
+        let loss = -(friction + d * stick.stiffness).dot(&slip);
+        let pull = stick.stiffness * d.norm();
+        // slipping, the spring alone shortened to the cone, never stretched: a fast slip's
+        // damper must not leave energy in it
+        let kept = if slipping && pull > limit { d * (limit / pull) } else { d };
+        (kept, 0.5 * stick.stiffness * d.norm_squared(), loss)
     };
     ContactResponse {
         gap: -delta,
@@ -411,7 +416,7 @@ fn stick_response(
         slip,
         position,
         normal: *n,
-        energy: 0.5 * spring * delta + 0.5 * stick.stiffness * kept.norm_squared(),
+        energy: 0.5 * spring * delta + spring_energy,
         loss_power: (normal_force - spring) * delta_dot + friction_loss,
         stick_extension: kept,
     }
@@ -520,18 +525,44 @@ pub fn initial_anchors(model: &Model, poses: &[Pose]) -> Vec<ContactAnchor> {
 /// pair's anchor moves to keep the extension the step ended with
 /// (`ContactResponse::stick_extension`) from the sphere's lowest point now, whose material
 /// point becomes the one held (module docs).
+/// Returns what the commit changes in the energy account: the spring energy the slipping
+/// contacts' shortening removed, J (>= 0: friction's loss, `k_t (|d|^2 - |d_kept|^2) / 2` summed,
+/// module docs), and the change of the contacts' dissipated power, W, from the extensions `d` to
+/// the kept ones (at the same slip velocities), so that the next step's power starts from the
+/// committed anchors.
 pub fn commit_anchors(
     model: &Model,
     poses: &[Pose],
     points: &[PointKinematics],
     contacts: &[ContactResponse],
     anchors: &mut [ContactAnchor],
-) {
+) -> (f64, f64) {
+    let (mut removed, mut power) = (0.0, 0.0);
     for ((k, sphere, ground), anchor) in model.contact_pair_list().zip(anchors.iter_mut()) {
         let kin = &points[sphere.point.0];
         let pose = &poses[kin.body.0];
-        *anchor = anchor_at(model, pose, sphere, ground, kin.position, contacts[k].stick_extension);
+        let c = &contacts[k];
+        if let Some(stick) = &ground.material.stick {
+            if c.normal_force > 0.0 && ground.material.friction > 0.0 {
+                let lever = if model.bodies[kin.body.0].kind == BodyKind::Node {
+                    Vector3::zeros()
+                } else {
+                    pose.rotation * anchor.lever
+                };
+                let offset = kin.position + lever - anchor.anchor;
+                let d = offset - ground.normal * ground.normal.dot(&offset);
+                let kept = c.stick_extension;
+                removed += 0.5 * stick.stiffness * (d.norm_squared() - kept.norm_squared());
+                let c_t = stick_damping(model, stick, kin);
+                let (_, friction, _) =
+                    stick_slip(stick, &kept, &c.slip, c_t, ground.material.friction * c.normal_force);
+                power += -(friction + kept * stick.stiffness).dot(&c.slip)
+                    + (c.friction + d * stick.stiffness).dot(&c.slip);
+            }
+        }
+        *anchor = anchor_at(model, pose, sphere, ground, kin.position, c.stick_extension);
     }
+    (removed, power)
 }
 
 /// The anchor that holds the lowest point of `sphere` (centre `centre`, body at `pose`) against

@@ -17,8 +17,9 @@ pub struct EnergyAccount {
     /// (Rayleigh's `beta` included), the contacts, the joints' rotational damping and Rayleigh's
     /// mass-proportional `alpha`.
     pub damping_loss: f64,
-    /// Energy dissipated since the start by friction at the pulleys, booked per accepted step
-    /// (`crate::forces::pulley::commit`).
+    /// Energy dissipated since the start by friction at the pulleys, and by stick-slip contacts
+    /// where their anchors follow a slip, booked per accepted step
+    /// (`crate::forces::pulley::commit`, `crate::forces::contact::commit_anchors`).
     pub friction_loss: f64,
     /// Work of the winch motors' line forces since the start, `sum h F_m v`
     /// (`crate::forces::winch`); 0 without winches.

@@ -23,18 +23,23 @@ impl Simulator {
     }
 
     /// After an accepted sub-step: the stick-slip contacts' anchors follow what the step ended
-    /// with (`crate::forces::contact::commit_anchors`). Out of line: scenes without stick-slip
-    /// friction never run it.
+    /// with (`crate::forces::contact::commit_anchors`), and the spring energy the slipping ones
+    /// gave up is booked as friction's loss (and leaves the workspace's elastic energy and
+    /// contact power, which now describe the committed anchors). Out of line: scenes without stick-slip friction
+    /// never run it.
     #[cold]
     #[inline(never)]
     pub(super) fn commit_contact_anchors(&mut self) {
-        crate::forces::contact::commit_anchors(
+        let (removed, power) = crate::forces::contact::commit_anchors(
             &self.model,
             &self.state.poses,
             &self.ws.points,
             &self.ws.contacts,
             &mut self.state.contact_anchors,
         );
+        self.energy.friction_loss += removed;
+        self.ws.energies.elastic -= removed;
+        self.ws.contact_loss_power += power;
     }
 
     /// Before a sub-step of `h` (s): each winch's controller sets its drive for the sub-step

@@ -130,12 +130,20 @@ pub fn run(args: DeployArgs) -> Result<(), String> {
     bar.finish();
     let path = path.map_err(|e| {
         // a robot on the ground loses its equilibrium where it tips over or slides: statics sees
-        // the grounds' normal springs and no friction
-        let hint = if model.contact_pairs() > 0 && matches!(e, SolveError::NoEquilibrium { .. }) {
-            "; with contacts a structure has no equilibrium once it tips over or slides (statics \
-             sees the normal springs, not friction): follow the deployment with --dynamic"
-        } else {
-            ""
+        // the grounds' normal springs, and friction only where a ground has stick-slip friction
+        let hint = match (
+            model.contact_pairs() > 0 && matches!(e, SolveError::NoEquilibrium { .. }),
+            model.has_stick_friction(),
+        ) {
+            (false, _) => "",
+            (true, false) => {
+                "; with contacts a structure has no equilibrium once it tips over or slides (statics \
+                 sees the normal springs, not the regularized friction): follow the deployment with --dynamic"
+            }
+            (true, true) => {
+                "; with contacts a structure has no equilibrium once it tips over (or slides where a \
+                 ground has no stick-slip friction): follow the deployment with --dynamic"
+            }
         };
         format!("{}: {e}{hint}", scene.display())
     })?;

@@ -21,6 +21,7 @@ pub(crate) fn commit_friction(model: &Model, state: &mut State, ws: &mut Workspa
     }
     if !state.contact_anchors.is_empty() {
         let (poses, anchors) = (&state.poses, &mut state.contact_anchors);
+        // (statics keeps no energy account: what slipping removed goes unbooked)
         crate::forces::contact::commit_anchors(model, poses, &ws.points, &ws.contacts, anchors);
     }
 }
