@@ -371,7 +371,7 @@ pub fn continue_past_limit_points(
             landing.multipliers = &base.multipliers + (&next.multipliers - &base.multipliers) * f;
             landing.time = target;
             model.scheduled_rest_lengths(target, &mut landing.rest_lengths);
-            if let Ok(report) = tracer.solver.equilibrate(model, &mut landing, ws, &settings) {
+            if let Ok(report) = tracer.solver.equilibrate_holding(model, &mut landing, ws, &settings) {
                 if report.stable {
                     *state = landing;
                     return ArcOutcome::Landed { report, limit_time: limit.map(|l| l.0), points };

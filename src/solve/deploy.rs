@@ -187,7 +187,7 @@ pub fn deploy_quasi_static(
                 predicted_move = moved * scale;
             }
             let predicted = trial.poses.clone();
-            let jumped = match solver.equilibrate(model, &mut trial, ws, &settings) {
+            let jumped = match solver.equilibrate_holding(model, &mut trial, ws, &settings) {
                 Ok(r) => {
                     let correction = largest_point_distance(model, &predicted, &trial.poses);
                     if correction <= predicted_move.max(JUMP_FRACTION * length_scale) {
@@ -243,7 +243,7 @@ pub fn deploy_quasi_static(
                         let mut trial = at_limit;
                         trial.multipliers.fill(0.0);
                         model.scheduled_rest_lengths(target, &mut trial.rest_lengths);
-                        match solver.equilibrate(model, &mut trial, ws, &settings) {
+                        match solver.equilibrate_holding(model, &mut trial, ws, &settings) {
                             Ok(r) if r.stable || r.negative_modes == 0 => {
                                 *state = trial;
                                 Some((r, Some(limit_time), false))

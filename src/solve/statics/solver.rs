@@ -243,7 +243,57 @@ impl StaticSolver {
 
     /// Solves for equilibrium from `state` (its rest lengths fixed), updating its poses and
     /// multipliers; velocities are set to zero. On failure the state is restored.
+    ///
+    /// For a structure set down where it stands (a scene's pose, the start of a run or a
+    /// deployment). With stick-slip grounds (`crate::model::StickFriction`) the contacts'
+    /// friction acts only where the structure has no equilibrium without it: the solve is first
+    /// tried with the grounds' normal springs alone, and where it converges the contacts are
+    /// stuck where it puts them (unstretched anchors, `State::contact_anchors`); where it does
+    /// not (a body on an incline) the contacts hold from the state's anchors, sticking and
+    /// slipping, as in `equilibrate_holding`. Along a path (a deployment's load steps) use
+    /// `equilibrate_holding`, which carries the anchors.
     pub fn equilibrate(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        if state.contact_anchors.is_empty() {
+            return self.equilibrate_from(model, state, ws, settings);
+        }
+        let anchors = std::mem::take(&mut state.contact_anchors);
+        let start = state.clone();
+        match self.equilibrate_from(model, state, ws, settings) {
+            Ok(report) => {
+                state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
+                evaluate(model, state, ws, Tangents::None);
+                Ok(report)
+            }
+            Err(_) => {
+                *state = start;
+                state.contact_anchors = anchors;
+                self.equilibrate_from(model, state, ws, settings)
+            }
+        }
+    }
+
+    /// `equilibrate` from a previous equilibrium along a path: stick-slip contacts hold from the
+    /// state's anchors (where the path left them), stick while their springs pull inside the
+    /// friction cone and slip along it beyond, and the equilibrium commits where they slipped to
+    /// (the pulleys' friction likewise). Without stick-slip grounds the same as `equilibrate`.
+    pub fn equilibrate_holding(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        self.equilibrate_from(model, state, ws, settings)
+    }
+
+    /// `equilibrate` with the contacts as the state has them (its anchors, or none).
+    fn equilibrate_from(
         &mut self,
         model: &Model,
         state: &mut State,
