@@ -58,6 +58,9 @@ pub struct StaticSolver {
     /// The stiff cables of a structure held by prestress (`prestressed_stiff_cables`), which
     /// `equilibrate` first solves for as if they could push.
     pub(crate) prestressed: Vec<usize>,
+    /// `equilibrate_holding` found no equilibrium with the contacts held once: the rest of the
+    /// path is solved as structures set down (each failed attempt costs a whole Newton solve).
+    pub(crate) holding_failed: bool,
 }
 
 impl StaticSolver {
@@ -88,6 +91,7 @@ impl StaticSolver {
             stop: StopReason::Converged,
             stiff,
             prestressed,
+            holding_failed: false,
         };
         if large {
             solver = solver.with_sparse_kkt(model, true);
@@ -282,6 +286,10 @@ impl StaticSolver {
     /// state's anchors (where the path left them), stick while their springs pull inside the
     /// friction cone and slip along it beyond, and the equilibrium commits where they slipped to
     /// (the pulleys' friction likewise). Without stick-slip grounds the same as `equilibrate`.
+    /// Newton through the contacts' stick-slip switches does not always converge (the six-bar's
+    /// haul from its first load step): where it does not, the step, and every later one of this
+    /// solver, is solved as `equilibrate` solves a structure set down, its contacts stuck where
+    /// that puts them.
     pub fn equilibrate_holding(
         &mut self,
         model: &Model,
@@ -289,7 +297,21 @@ impl StaticSolver {
         ws: &mut Workspace,
         settings: &SolverSettings,
     ) -> Result<EquilibriumReport, (usize, f64)> {
-        self.equilibrate_from(model, state, ws, settings)
+        if state.contact_anchors.is_empty() {
+            return self.equilibrate_from(model, state, ws, settings);
+        }
+        if self.holding_failed {
+            return self.equilibrate(model, state, ws, settings);
+        }
+        let start = state.clone();
+        match self.equilibrate_from(model, state, ws, settings) {
+            Ok(report) => Ok(report),
+            Err(_) => {
+                self.holding_failed = true;
+                *state = start;
+                self.equilibrate(model, state, ws, settings)
+            }
+        }
     }
 
     /// `equilibrate` with the contacts as the state has them (its anchors, or none).
