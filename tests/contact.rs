@@ -32,39 +32,7 @@ fn contact_tangents_match_finite_differences() {
     // a rigid body with three contact spheres, a bar with its capsule and a node, on a tilted
     // ground with friction and dissipation; every sphere pressed in, slipping fast, slipping at
     // about the regularization speed, or stuck
-    let model = model_from_toml(
-        r#"
-gravity = [0.0, 0.0, -9.81]
-[[bodies]]
-name = "box"
-kind = "rigid"
-mass = 2.0
-position = [0.0, 0.0, 1.0]
-rotation = [0.1, -0.2, 0.3]
-inertia = [0.02, 0.03, 0.04]
-points = { p = [0.1, 0.05, -0.1], q = [-0.1, 0.05, -0.12], r = [0.0, -0.1, -0.09] }
-contact_radius = 0.02
-contact_points = ["p", "q", "r"]
-[[bodies]]
-name = "bar"
-kind = "bar"
-mass = 1.0
-ends = [[1.0, 0.0, 1.0], [1.3, 0.4, 1.01]]
-contact_radius = 0.01
-[[bodies]]
-name = "bob"
-kind = "node"
-mass = 0.5
-position = [-1.0, 0.0, 1.0]
-contact_radius = 0.01
-[[grounds]]
-normal = [0.05, -0.1, 1.0]
-mu = 0.7
-stiffness = 2e4
-dissipation = 0.8
-stiction_speed = 0.05
-"#,
-    );
+    let model = three_bodies_on_a_tilted_ground("stiction_speed = 0.05");
     // lower each body along the normal until its lowest sphere presses in by half its radius
     let mut state = State::initial(&model);
     let mut ws = Workspace::new(&model);
@@ -527,9 +495,10 @@ fn rviz_markers_show_the_contact_points_and_their_forces() {
     assert!(plain.iter().all(|m| !m.ns.starts_with("contact")));
 }
 
-/// The finite-difference scene of `contact_tangents_match_finite_differences` with stick-slip
-/// friction on its ground (`stick`: the ground table's extra lines).
-fn stick_slip_bodies(stick: &str) -> tensegrity::Model {
+/// The finite-difference scene: a rigid body on three spheres, a bar and a node over a tilted
+/// ground (mu 0.7, k 2e4 N/m, dissipation 0.8 s/m) whose table ends with `extra` (its friction
+/// law).
+fn three_bodies_on_a_tilted_ground(extra: &str) -> tensegrity::Model {
     model_from_toml(&format!(
         r#"
 gravity = [0.0, 0.0, -9.81]
@@ -560,7 +529,7 @@ normal = [0.05, -0.1, 1.0]
 mu = 0.7
 stiffness = 2e4
 dissipation = 0.8
-{stick}
+{extra}
 "#
     ))
 }
@@ -571,7 +540,7 @@ fn stick_slip_contact_tangents_match_finite_differences() {
     // and turned a little (stuck: the springs pull within the cone) or far (slipping), so that
     // the held material points are no longer the lowest ones and the levers' terms count
     for stick in ["stick_stiffness = 3e3\nstick_damping = 40.0", "stick_stiffness = 5e2"] {
-        let model = stick_slip_bodies(stick);
+        let model = three_bodies_on_a_tilted_ground(stick);
         let mut state = State::initial(&model);
         let mut ws = Workspace::new(&model);
         evaluate(&model, &state, &mut ws, Tangents::None);

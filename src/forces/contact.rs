@@ -188,6 +188,49 @@ fn lever_point(
     ContactPoint { offset, velocity, jacobian }
 }
 
+/// The normal part of a sphere's contact with a ground (module docs): penetration `delta`, m,
+/// its rate, m/s, the spring's force `k delta` and the normal force, N, and the contact point.
+struct NormalContact {
+    delta: f64,
+    delta_dot: f64,
+    spring: f64,
+    normal_force: f64,
+    position: Vector3<f64>,
+}
+
+impl NormalContact {
+    /// The response of the contact when the sphere does not press in (`delta <= 0` or NaN).
+    fn open(&self, ground: &GroundModel) -> Option<ContactResponse> {
+        if self.delta.is_nan() || self.delta <= 0.0 {
+            Some(ContactResponse {
+                gap: -self.delta,
+                position: self.position,
+                normal: ground.normal,
+                ..Default::default()
+            })
+        } else {
+            None
+        }
+    }
+}
+
+/// The sphere (centre `kin`) against `ground`: the rates and forces are zero where it does not
+/// press in (`NormalContact::open`).
+fn normal_contact(ground: &GroundModel, sphere: &ContactSphere, kin: &PointKinematics) -> NormalContact {
+    let n = &ground.normal;
+    let m = &ground.material;
+    let height = n.dot(&kin.position);
+    let delta = ground.offset + sphere.radius - height;
+    let position = kin.position - n * (height - ground.offset);
+    if delta.is_nan() || delta <= 0.0 {
+        return NormalContact { delta, delta_dot: 0.0, spring: 0.0, normal_force: 0.0, position };
+    }
+    let delta_dot = -n.dot(&kin.velocity);
+    let spring = m.stiffness * delta;
+    let normal_force = (spring * (1.0 + m.dissipation * delta_dot)).max(0.0);
+    NormalContact { delta, delta_dot, spring, normal_force, position }
+}
+
 /// The response of `sphere` (centre kinematics `kin`, contact point `point`) against `ground`;
 /// no allocation.
 pub fn contact_response(
@@ -198,15 +241,11 @@ pub fn contact_response(
 ) -> ContactResponse {
     let n = &ground.normal;
     let m = &ground.material;
-    let height = n.dot(&kin.position);
-    let delta = ground.offset + sphere.radius - height;
-    let position = kin.position - n * (height - ground.offset);
-    if delta.is_nan() || delta <= 0.0 {
-        return ContactResponse { gap: -delta, position, normal: *n, ..Default::default() };
+    let contact = normal_contact(ground, sphere, kin);
+    if let Some(open) = contact.open(ground) {
+        return open;
     }
-    let delta_dot = -n.dot(&kin.velocity);
-    let spring = m.stiffness * delta;
-    let normal_force = (spring * (1.0 + m.dissipation * delta_dot)).max(0.0);
+    let NormalContact { delta, delta_dot, spring, normal_force, position } = contact;
     let slip = point.velocity - n * n.dot(&point.velocity);
     let s = (slip.norm_squared() + m.stiction_speed * m.stiction_speed).sqrt();
     let friction = slip * (-m.friction * normal_force / s);
@@ -381,15 +420,11 @@ fn stick_response(
 ) -> ContactResponse {
     let n = &ground.normal;
     let m = &ground.material;
-    let height = n.dot(&kin.position);
-    let delta = ground.offset + sphere.radius - height;
-    let position = kin.position - n * (height - ground.offset);
-    if delta.is_nan() || delta <= 0.0 {
-        return ContactResponse { gap: -delta, position, normal: *n, ..Default::default() };
+    let contact = normal_contact(ground, sphere, kin);
+    if let Some(open) = contact.open(ground) {
+        return open;
     }
-    let delta_dot = -n.dot(&kin.velocity);
-    let spring = m.stiffness * delta;
-    let normal_force = (spring * (1.0 + m.dissipation * delta_dot)).max(0.0);
+    let NormalContact { delta, delta_dot, spring, normal_force, position } = contact;
     let offset = kin.position + point.offset - anchor.anchor;
     let d = offset - n * n.dot(&offset);
     let slip = point.velocity - n * n.dot(&point.velocity);
