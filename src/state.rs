@@ -39,9 +39,10 @@ impl State {
     /// The state at t = 0: initial poses, at rest, initial rest lengths, zero reactions.
     pub fn initial(model: &Model) -> Self {
         let poses: Vec<Pose> = model.bodies.iter().map(|b| b.initial_pose).collect();
+        let contact_anchors = crate::forces::contact::initial_anchors(model, &poses);
         Self {
             time: 0.0,
-            poses: poses.clone(),
+            poses,
             velocities: DVector::zeros(model.dof_count),
             rest_lengths: model.initial_rest_lengths.clone(),
             multipliers: DVector::zeros(model.constraint_count),
@@ -54,7 +55,7 @@ impl State {
                     ..Default::default()
                 })
                 .collect(),
-            contact_anchors: crate::forces::contact::initial_anchors(model, &poses),
+            contact_anchors,
         }
     }
 

@@ -122,20 +122,25 @@ fn run(model: &tensegrity::Model, dt: f64, seconds: f64) -> Simulator {
     sim
 }
 
+/// A 1 kg block on a 30 degree incline at mu 0.3 (`law`: the ground's friction lines), started at
+/// its normal equilibrium (no bounce): its acceleration down the slope from its speeds at 0.5 s
+/// and 1 s (dt 0.5 ms), the closed form `g (sin 30 - 0.3 cos 30)`, and the run to 1 s.
+fn slide_down_30_degrees(law: &str) -> (f64, f64, Simulator) {
+    let tilt = 30f64.to_radians();
+    let depth = G * tilt.cos() / 1e6;
+    let model =
+        block_on_incline(1.0, tilt, -depth / tilt.cos(), &format!("mu = 0.3\nstiffness = 1e6\n{law}"));
+    let slope = Vector3::new(0.0, -tilt.cos(), -tilt.sin()); // downhill
+    let v1 = run(&model, 5e-4, 0.5).state().velocities.fixed_rows::<3>(0).dot(&slope);
+    let sim = run(&model, 5e-4, 1.0);
+    let v2 = sim.state().velocities.fixed_rows::<3>(0).dot(&slope);
+    ((v2 - v1) / 0.5, G * (tilt.sin() - 0.3 * tilt.cos()), sim)
+}
+
 #[test]
 fn a_block_slides_down_a_steep_incline_at_the_coulomb_acceleration() {
     // 30 degrees, mu 0.3: a = g (sin 30 - 0.3 cos 30) = 2.356 m/s^2 along the slope
-    let tilt = 30f64.to_radians();
-    let depth = G * tilt.cos() / 1e6; // started at its normal equilibrium: no bounce
-    let model =
-        block_on_incline(1.0, tilt, -depth / tilt.cos(), "mu = 0.3\nstiffness = 1e6\nstiction_speed = 1e-4");
-    let slope = Vector3::new(0.0, -tilt.cos(), -tilt.sin()); // downhill
-    let sim = run(&model, 5e-4, 0.5);
-    let v1 = sim.state().velocities.fixed_rows::<3>(0).dot(&slope);
-    let sim2 = run(&model, 5e-4, 1.0);
-    let v2 = sim2.state().velocities.fixed_rows::<3>(0).dot(&slope);
-    let a = (v2 - v1) / 0.5;
-    let expected = G * (tilt.sin() - 0.3 * tilt.cos());
+    let (a, expected, sim2) = slide_down_30_degrees("stiction_speed = 1e-4");
     println!(
         "slide: a = {a:.6} m/s^2, closed form {expected:.6} ({:.1e} relative)",
         (a - expected) / expected
@@ -633,15 +638,9 @@ fn with_stick_slip_friction_a_block_within_its_cone_holds_still_and_one_beyond_s
     assert!(c.friction.norm() < 0.6 * c.normal_force, "inside the cone");
 
     // mu 0.3 < tan 30: a = g (sin 30 - 0.3 cos 30) = 2.356 m/s^2 down the slope, and the
-    // energy account closes (the slip's loss booked as the friction's power)
-    let sliding =
-        block_on_incline(1.0, tilt, -depth / tilt.cos(), "mu = 0.3\nstiffness = 1e6\nstick_stiffness = 1e4");
-    let slope = Vector3::new(0.0, -tilt.cos(), -tilt.sin());
-    let v1 = run(&sliding, 5e-4, 0.5).state().velocities.fixed_rows::<3>(0).dot(&slope);
-    let sim2 = run(&sliding, 5e-4, 1.0);
-    let v2 = sim2.state().velocities.fixed_rows::<3>(0).dot(&slope);
-    let a = (v2 - v1) / 0.5;
-    let expected = G * (tilt.sin() - 0.3 * tilt.cos());
+    // energy account closes (the slip's loss booked as the friction's power and, where the
+    // anchors follow the slip, as the spring energy they give up)
+    let (a, expected, sim2) = slide_down_30_degrees("stick_stiffness = 1e4");
     println!("stick-slip slide: a = {a:.6} m/s^2, closed form {expected:.6}");
     assert!((a - expected).abs() < 1e-6 * expected, "a = {a} m/s^2, closed form {expected}");
     let e = sim2.energy();

@@ -231,13 +231,34 @@ fn normal_contact(ground: &GroundModel, sphere: &ContactSphere, kin: &PointKinem
     NormalContact { delta, delta_dot, spring, normal_force, position }
 }
 
-/// The response of `sphere` (centre kinematics `kin`, contact point `point`) against `ground`;
-/// no allocation.
+/// The response of `sphere` (centre kinematics `kin`, contact point `point`) against `ground`
+/// with regularized friction; no allocation.
 pub fn contact_response(
     ground: &GroundModel,
     sphere: &ContactSphere,
     kin: &PointKinematics,
     point: &ContactPoint,
+) -> ContactResponse {
+    respond(ground, sphere, kin, point, None)
+}
+
+/// What holds a stick-slip contact: the ground's law, the pair's anchor and the damping `c_t`
+/// (`stick_damping`), N s/m.
+struct StickHold<'a> {
+    law: &'a StickFriction,
+    anchor: &'a ContactAnchor,
+    damping: f64,
+}
+
+/// The response of `sphere` (centre `kin`) against `ground`, its friction regularized at the
+/// contact point `point` (`stick` none), or stick-slip at the anchored material point `point`
+/// (`anchored_point`) held by `stick` (module docs).
+fn respond(
+    ground: &GroundModel,
+    sphere: &ContactSphere,
+    kin: &PointKinematics,
+    point: &ContactPoint,
+    stick: Option<StickHold<'_>>,
 ) -> ContactResponse {
     let n = &ground.normal;
     let m = &ground.material;
@@ -247,10 +268,32 @@ pub fn contact_response(
     }
     let NormalContact { delta, delta_dot, spring, normal_force, position } = contact;
     let slip = point.velocity - n * n.dot(&point.velocity);
-    let s = (slip.norm_squared() + m.stiction_speed * m.stiction_speed).sqrt();
-    let friction = slip * (-m.friction * normal_force / s);
-    let loss_power =
-        (normal_force - spring) * delta_dot + m.friction * normal_force * slip.norm_squared() / s;
+    // the friction force, the energy its spring stores, the power it dissipates and the
+    // extension the anchor keeps
+    let (friction, friction_energy, friction_loss, kept) = match stick {
+        None => {
+            let s = (slip.norm_squared() + m.stiction_speed * m.stiction_speed).sqrt();
+            let friction = slip * (-m.friction * normal_force / s);
+            (friction, 0.0, m.friction * normal_force * slip.norm_squared() / s, Vector3::zeros())
+        }
+        Some(StickHold { law, anchor, damping }) => {
+            let d = extension(ground, kin, &point.offset, anchor);
+            let limit = m.friction * normal_force;
+            let (_, friction, slipping) = stick_slip(law, &d, &slip, damping, limit);
+            if limit <= 0.0 {
+                (friction, 0.0, 0.0, Vector3::zeros())
+            } else {
+                // the power the friction takes from the bodies beyond what its spring stores,
+                // -(F_t + k_t d) . u: the damper's, c_t |u|^2, while stuck
+                let loss = -(friction + d * law.stiffness).dot(&slip);
+                let pull = law.stiffness * d.norm();
+                // slipping, the spring alone shortened to the cone, never stretched: a fast
+                // slip's damper must not leave energy in it
+                let kept = if slipping && pull > limit { d * (limit / pull) } else { d };
+                (friction, 0.5 * law.stiffness * d.norm_squared(), loss, kept)
+            }
+        }
+    };
     ContactResponse {
         gap: -delta,
         penetration_rate: delta_dot,
@@ -259,9 +302,9 @@ pub fn contact_response(
         slip,
         position,
         normal: *n,
-        energy: 0.5 * spring * delta,
-        loss_power,
-        stick_extension: Vector3::zeros(),
+        energy: 0.5 * spring * delta + friction_energy,
+        loss_power: (normal_force - spring) * delta_dot + friction_loss,
+        stick_extension: kept,
     }
 }
 
@@ -281,7 +324,8 @@ pub fn add_contact_force(
 ) -> ContactResponse {
     if let (Some(stick), Some(anchor)) = (&ground.material.stick, anchor) {
         let point = anchored_point(model, poses, v, sphere, kin, anchor);
-        let response = stick_response(model, ground, stick, sphere, kin, &point, anchor);
+        let hold = StickHold { law: stick, anchor, damping: stick_damping(model, stick, kin) };
+        let response = respond(ground, sphere, kin, &point, Some(hold));
         if response.normal_force > 0.0 {
             // the normal force at the centre (its lever along n turns nothing), the friction at
             // the held material point
@@ -375,12 +419,28 @@ fn anchored_point(
     kin: &PointKinematics,
     anchor: &ContactAnchor,
 ) -> ContactPoint {
-    let lever = if model.bodies[kin.body.0].kind == BodyKind::Node {
+    lever_point(model, poses, v, held_lever(model, poses, kin, anchor), sphere, kin)
+}
+
+/// The held material point's lever `R lever`, world frame, m (zero on a node).
+fn held_lever(model: &Model, poses: &[Pose], kin: &PointKinematics, anchor: &ContactAnchor) -> Vector3<f64> {
+    if model.bodies[kin.body.0].kind == BodyKind::Node {
         Vector3::zeros()
     } else {
         poses[kin.body.0].rotation * anchor.lever
-    };
-    lever_point(model, poses, v, lever, sphere, kin)
+    }
+}
+
+/// The spring's extension `d = P (r + l - x_a)` of a contact held by `anchor`, its centre at
+/// `kin`, its held lever `lever` (`held_lever`), against `ground`, m.
+fn extension(
+    ground: &GroundModel,
+    kin: &PointKinematics,
+    lever: &Vector3<f64>,
+    anchor: &ContactAnchor,
+) -> Vector3<f64> {
+    let offset = kin.position + lever - anchor.anchor;
+    offset - ground.normal * ground.normal.dot(&offset)
 }
 
 /// `c_t`, N s/m: the ground's, or critical for the mass `m` of the body the sphere is on,
@@ -407,56 +467,6 @@ fn stick_slip(
     }
 }
 
-/// `contact_response` for a ground with stick-slip friction: the sphere at its centre `kin`,
-/// its anchored material point `point` (`anchored_point`) and `anchor`.
-fn stick_response(
-    model: &Model,
-    ground: &GroundModel,
-    stick: &StickFriction,
-    sphere: &ContactSphere,
-    kin: &PointKinematics,
-    point: &ContactPoint,
-    anchor: &ContactAnchor,
-) -> ContactResponse {
-    let n = &ground.normal;
-    let m = &ground.material;
-    let contact = normal_contact(ground, sphere, kin);
-    if let Some(open) = contact.open(ground) {
-        return open;
-    }
-    let NormalContact { delta, delta_dot, spring, normal_force, position } = contact;
-    let offset = kin.position + point.offset - anchor.anchor;
-    let d = offset - n * n.dot(&offset);
-    let slip = point.velocity - n * n.dot(&point.velocity);
-    let c_t = stick_damping(model, stick, kin);
-    let limit = m.friction * normal_force;
-    let (_, friction, slipping) = stick_slip(stick, &d, &slip, c_t, limit);
-    // the power the friction takes from the bodies beyond what its spring stores,
-    // -(F_t + k_t d) . u: the damper's, c_t |u|^2, while stuck
-    let (kept, spring_energy, friction_loss) = if limit <= 0.0 {
-        (Vector3::zeros(), 0.0, 0.0)
-    } else {
-        let loss = -(friction + d * stick.stiffness).dot(&slip);
-        let pull = stick.stiffness * d.norm();
-        // slipping, the spring alone shortened to the cone, never stretched: a fast slip's
-        // damper must not leave energy in it
-        let kept = if slipping && pull > limit { d * (limit / pull) } else { d };
-        (kept, 0.5 * stick.stiffness * d.norm_squared(), loss)
-    };
-    ContactResponse {
-        gap: -delta,
-        penetration_rate: delta_dot,
-        normal_force,
-        friction,
-        slip,
-        position,
-        normal: *n,
-        energy: 0.5 * spring * delta + spring_energy,
-        loss_power: (normal_force - spring) * delta_dot + friction_loss,
-        stick_extension: kept,
-    }
-}
-
 /// `add_contact_tangents` for a ground with stick-slip friction (module docs).
 #[allow(clippy::too_many_arguments)]
 fn add_stick_tangents<S: TangentSink + ?Sized>(
@@ -477,8 +487,7 @@ fn add_stick_tangents<S: TangentSink + ?Sized>(
     let delta = -response.gap;
     let point = anchored_point(model, poses, v, sphere, kin, anchor);
     let p = Matrix3::identity() - n * n.transpose();
-    let offset = kin.position + point.offset - anchor.anchor;
-    let d = p * offset;
+    let d = extension(ground, kin, &point.offset, anchor);
     let u = response.slip;
     let c_t = stick_damping(model, stick, kin);
     let limit = m.friction * f_n;
@@ -579,13 +588,7 @@ pub fn commit_anchors(
         let c = &contacts[k];
         if let Some(stick) = &ground.material.stick {
             if c.normal_force > 0.0 && ground.material.friction > 0.0 {
-                let lever = if model.bodies[kin.body.0].kind == BodyKind::Node {
-                    Vector3::zeros()
-                } else {
-                    pose.rotation * anchor.lever
-                };
-                let offset = kin.position + lever - anchor.anchor;
-                let d = offset - ground.normal * ground.normal.dot(&offset);
+                let d = extension(ground, kin, &held_lever(model, poses, kin, anchor), anchor);
                 let kept = c.stick_extension;
                 removed += 0.5 * stick.stiffness * (d.norm_squared() - kept.norm_squared());
                 let c_t = stick_damping(model, stick, kin);

@@ -98,7 +98,8 @@ impl Simulator {
         }
         let mut dynamics = Dynamics::new(&model, settings.linear);
         model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
-        if state.contact_anchors.len() != if model.has_stick_friction() { model.ground_pairs() } else { 0 } {
+        let anchored_pairs = if model.has_stick_friction() { model.ground_pairs() } else { 0 };
+        if state.contact_anchors.len() != anchored_pairs {
             // a state made for another scene, or by hand: its contacts stick where they stand
             state.contact_anchors = crate::forces::contact::initial_anchors(&model, &state.poses);
         }

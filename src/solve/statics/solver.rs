@@ -266,8 +266,8 @@ impl StaticSolver {
         if state.contact_anchors.is_empty() {
             return self.equilibrate_from(model, state, ws, settings);
         }
+        // (a failed solve leaves the state as it found it)
         let anchors = std::mem::take(&mut state.contact_anchors);
-        let start = state.clone();
         match self.equilibrate_from(model, state, ws, settings) {
             Ok(report) => {
                 state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
@@ -275,7 +275,6 @@ impl StaticSolver {
                 Ok(report)
             }
             Err(_) => {
-                *state = start;
                 state.contact_anchors = anchors;
                 self.equilibrate_from(model, state, ws, settings)
             }
@@ -303,15 +302,11 @@ impl StaticSolver {
         if self.holding_failed {
             return self.equilibrate(model, state, ws, settings);
         }
-        let start = state.clone();
-        match self.equilibrate_from(model, state, ws, settings) {
-            Ok(report) => Ok(report),
-            Err(_) => {
-                self.holding_failed = true;
-                *state = start;
-                self.equilibrate(model, state, ws, settings)
-            }
-        }
+        self.equilibrate_from(model, state, ws, settings).or_else(|_| {
+            // the failed solve left the state as it found it
+            self.holding_failed = true;
+            self.equilibrate(model, state, ws, settings)
+        })
     }
 
     /// `equilibrate` with the contacts as the state has them (its anchors, or none).
