@@ -289,6 +289,31 @@ fn contact_mistakes_are_named() {
         ("contact_radius = 0.0\n[[grounds]]\nstiffness = nan\n", "grounds[0].stiffness", "finite"),
         ("contact_radius = 0.0\n[[grounds]]\nfriction = 0.5\n", "grounds[0]", "unknown field"),
         ("contact_points = [\"x\"]\n[[grounds]]\n", "bodies[0].contact_points", "contact_radius"),
+        (
+            "contact_radius = 0.0\n[[grounds]]\nstick_damping = 5.0\n",
+            "grounds[0].stick_damping",
+            "needs stick_stiffness",
+        ),
+        (
+            "contact_radius = 0.0\n[[grounds]]\nstick_stiffness = 0.0\n",
+            "grounds[0].stick_stiffness",
+            "positive",
+        ),
+        (
+            "contact_radius = 0.0\n[[grounds]]\nstick_stiffness = nan\n",
+            "grounds[0].stick_stiffness",
+            "finite",
+        ),
+        (
+            "contact_radius = 0.0\n[[grounds]]\nstick_stiffness = \"stiff\"\n",
+            "grounds[0].stick_stiffness",
+            "invalid type",
+        ),
+        (
+            "contact_radius = 0.0\n[[grounds]]\nstick_stiffness = 1e4\nstick_damping = -3.0\n",
+            "grounds[0].stick_damping",
+            ">= 0",
+        ),
     ];
     for (extra, field, words) in cases {
         let text = format!("{base}{extra}");
