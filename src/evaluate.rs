@@ -12,7 +12,7 @@ use crate::forces::cable::{self, add_cable_force, add_cable_tangents, CableRespo
 use crate::forces::collision::{add_collision_force, add_collision_tangents, ClosestPoints};
 use crate::forces::contact::{add_contact_force, add_contact_tangents, ContactResponse};
 use crate::forces::pulley::{add_friction_cable_force, add_friction_cable_tangents, FrictionWork};
-use crate::kinematics::{point_kinematics, PointKinematics};
+use crate::kinematics::{point_kinematics_into, PointKinematics};
 use crate::model::{BodyId, CableId, Model, PointId, Pose};
 use crate::state::State;
 
@@ -176,7 +176,7 @@ pub fn evaluate(model: &Model, state: &State, ws: &mut Workspace, tangents: Tang
 pub fn evaluate_forces(model: &Model, state: &State, ws: &mut Workspace) {
     let v = &state.velocities;
     for (i, p) in ws.points.iter_mut().enumerate() {
-        *p = point_kinematics(model, &state.poses, v, PointId(i));
+        point_kinematics_into(model, &state.poses, v, PointId(i), p);
     }
     if ws.poses.capacity() > 0 {
         ws.poses.clear();

@@ -39,17 +39,39 @@ pub struct PointKinematics {
 /// `(b_t, b_r)`: a pure translation column is copied, a rotation column costs one cross product
 /// and one rotation (the same numbers as the product, without the 3 x 6 times 6 x 6 one).
 pub fn point_kinematics(model: &Model, poses: &[Pose], v: &DVector<f64>, pid: PointId) -> PointKinematics {
+    let mut out = PointKinematics {
+        body: model.points[pid.0].body,
+        position: Vector3::zeros(),
+        velocity: Vector3::zeros(),
+        jacobian: PointJacobian::zeros(),
+    };
+    point_kinematics_into(model, poses, v, pid, &mut out);
+    out
+}
+
+/// `point_kinematics` written into `out` (the evaluation's own slot: no copy of the 3 x 6
+/// Jacobian on the way).
+pub fn point_kinematics_into(
+    model: &Model,
+    poses: &[Pose],
+    v: &DVector<f64>,
+    pid: PointId,
+    out: &mut PointKinematics,
+) {
     let point = &model.points[pid.0];
     let body = &model.bodies[point.body.0];
     let pose = &poses[point.body.0];
     let rot = pose.rotation.to_rotation_matrix();
-    let mut jacobian = PointJacobian::zeros();
+    out.body = point.body;
+    out.jacobian.fill(0.0);
     let mut velocity = Vector3::zeros();
+    let jacobian = &mut out.jacobian;
     for_each_jacobian_column(model, &rot, pid, |c, col| {
         jacobian.set_column(c, &col);
         velocity += col * v[body.dof_offset + c];
     });
-    PointKinematics { body: point.body, position: pose.position + rot * point.local, velocity, jacobian }
+    out.velocity = velocity;
+    out.position = pose.position + rot * point.local;
 }
 
 /// `dr/dq_b` of point `pid` at `poses` alone (`PointKinematics::jacobian`, without its position

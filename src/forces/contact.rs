@@ -260,12 +260,20 @@ fn respond(
     point: &ContactPoint,
     stick: Option<StickHold<'_>>,
 ) -> ContactResponse {
+    let contact = normal_contact(ground, sphere, kin);
+    contact.open(ground).unwrap_or_else(|| respond_pressed(ground, kin, contact, point, stick))
+}
+
+/// `respond` for a sphere that presses in (`contact` not `NormalContact::open`).
+fn respond_pressed(
+    ground: &GroundModel,
+    kin: &PointKinematics,
+    contact: NormalContact,
+    point: &ContactPoint,
+    stick: Option<StickHold<'_>>,
+) -> ContactResponse {
     let n = &ground.normal;
     let m = &ground.material;
-    let contact = normal_contact(ground, sphere, kin);
-    if let Some(open) = contact.open(ground) {
-        return open;
-    }
     let NormalContact { delta, delta_dot, spring, normal_force, position } = contact;
     let slip = point.velocity - n * n.dot(&point.velocity);
     // the friction force, the energy its spring stores, the power it dissipates and the
@@ -322,10 +330,15 @@ pub fn add_contact_force(
     anchor: Option<&ContactAnchor>,
     force: &mut DVector<f64>,
 ) -> ContactResponse {
+    // the contact point and its Jacobian only where the sphere presses in
+    let contact = normal_contact(ground, sphere, kin);
+    if let Some(open) = contact.open(ground) {
+        return open;
+    }
     if let (Some(stick), Some(anchor)) = (&ground.material.stick, anchor) {
         let point = anchored_point(model, poses, v, sphere, kin, anchor);
         let hold = StickHold { law: stick, anchor, damping: stick_damping(model, stick, kin) };
-        let response = respond(ground, sphere, kin, &point, Some(hold));
+        let response = respond_pressed(ground, kin, contact, &point, Some(hold));
         if response.normal_force > 0.0 {
             // the normal force at the centre (its lever along n turns nothing), the friction at
             // the held material point
@@ -336,7 +349,7 @@ pub fn add_contact_force(
         return response;
     }
     let point = contact_point(model, poses, v, ground, sphere, kin);
-    let response = contact_response(ground, sphere, kin, &point);
+    let response = respond_pressed(ground, kin, contact, &point, None);
     if response.normal_force > 0.0 {
         let f = response.force();
         add_vector(model, kin.body, &(point.jacobian.transpose() * f), 1.0, force);
