@@ -3,7 +3,8 @@
 `config/scenes/sixbar.toml`, the sanity check runs both through the roll (both must stand on the
 same three strut ends at the start and roll onto the same next face), then per-step cost in one
 interleaved run, rolling (the scene's haul of c05, the first 4 s) and resting (4 s, the winch
-held), generalized-alpha (ours, default settings) against MuJoCo's implicitfast and Euler.
+held), generalized-alpha (ours, at the default Newton tolerance 1e-9 and at `--newton-tol 1e-6`)
+against MuJoCo's implicitfast and Euler.
 
 Not a test and not a test dependency. Set up once (MuJoCo from PyPI):
 
@@ -151,11 +152,15 @@ def mujoco_us_per_step(model, s, steps, rolling):
     return 1e6 * (time.perf_counter() - t0) / steps
 
 
-def ours_run(path, steps):
+# our Newton tolerances: the default, and the looser one a user may choose (`--newton-tol`)
+NEWTON = (("ours", []), ("ours newton 1e-6", ["--newton-tol", "1e-6"]))
+
+
+def ours_run(path, steps, extra=()):
     """Our end heights at the start and after `steps` steps of `path` (deploy --dynamic)."""
     with tempfile.TemporaryDirectory() as tmp:
         csv = os.path.join(tmp, "run.csv")
-        subprocess.run([BIN, "deploy", "--dynamic", path, "--duration", str(steps * DT), "--out", csv],
+        subprocess.run([BIN, "deploy", "--dynamic", path, "--duration", str(steps * DT), "--out", csv, *extra],
                        check=True, capture_output=True)
         with open(csv) as f:
             header = f.readline().strip().split(",")
@@ -166,9 +171,9 @@ def ours_run(path, steps):
     return z(first), z(last)
 
 
-def ours_us_per_step(path, steps):
+def ours_us_per_step(path, steps, extra=()):
     """Our mean and median wall time of a step, us, and Newton iterations per step."""
-    out = subprocess.run([BIN, "bench", "steps", path, "--steps", str(steps)], check=True,
+    out = subprocess.run([BIN, "bench", "steps", path, "--steps", str(steps), *extra], check=True,
                          capture_output=True, text=True).stdout
     median = float(re.search(r"median ([0-9.]+) us/step", out).group(1))
     mean = float(re.search(r"mean ([0-9.]+)", out).group(1))
@@ -197,11 +202,13 @@ def main():
         f.write(text[: text.index("[[deployment.ramps]]")] + text[text.index("[[grounds]]"):])
 
     # sanity: the same three ends on the ground at the start, the same face after the roll
-    ours = ours_run(SCENE, steps)
     twin = mujoco_run(model, s, steps, True)
-    print(f"ours: on the ground at the start {ours[0]}, after {args.seconds} s {ours[1]}")
     print(f"MuJoCo twin: on the ground at the start {twin[0]}, after {args.seconds} s {twin[1]}")
-    same = ours[0] == twin[0] and ours[1] == twin[1] and ours[0] != ours[1]
+    same = True
+    for name, extra in NEWTON:
+        ours = ours_run(SCENE, steps, extra)
+        print(f"{name}: on the ground at the start {ours[0]}, after {args.seconds} s {ours[1]}")
+        same = same and ours[0] == twin[0] and ours[1] == twin[1] and ours[0] != ours[1]
     print("sanity: " + ("both start on the same ends and roll onto the same face" if same else "DIFFERENT"))
     iterations = {"rolling": twin[2], "resting": mujoco_run(model, s, steps, False)[2]}
     if not same:
@@ -210,10 +217,11 @@ def main():
     times = {}
     for _ in range(args.rounds):
         for case, path, rolling in (("rolling", SCENE, True), ("resting", resting, False)):
-            mean, median, newton = ours_us_per_step(path, steps)
-            times.setdefault((case, "ours mean"), []).append(mean)
-            times.setdefault((case, "ours median"), []).append(median)
-            times.setdefault((case, "ours newton"), []).append(newton)
+            for name, extra in NEWTON:
+                mean, median, newton = ours_us_per_step(path, steps, extra)
+                times.setdefault((case, f"{name} mean"), []).append(mean)
+                times.setdefault((case, f"{name} median"), []).append(median)
+                times.setdefault((case, f"{name} newton"), []).append(newton)
             for name, integrator in (("implicitfast", mujoco.mjtIntegrator.mjINT_IMPLICITFAST),
                                      ("Euler", mujoco.mjtIntegrator.mjINT_EULER)):
                 model.opt.integrator = integrator
@@ -221,13 +229,16 @@ def main():
             model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     med = lambda k: statistics.median(times[k])  # noqa: E731
     print(f"\nsix-bar, dt 1 ms, {args.seconds} s, median of {args.rounds} interleaved rounds (us per step)\n")
-    print("| case | ours generalized-alpha, mean | ours, median | Newton/step | MuJoCo implicitfast | "
+    print("| case | ours generalized-alpha | mean | median | Newton/step | MuJoCo implicitfast | "
           "MuJoCo Euler | MuJoCo solver iterations/step | ours mean / implicitfast |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for case in ("rolling", "resting"):
-        print(f"| {case} | {med((case, 'ours mean')):.1f} | {med((case, 'ours median')):.1f} | "
-              f"{med((case, 'ours newton')):.2f} | {med((case, 'implicitfast')):.1f} | {med((case, 'Euler')):.1f} | "
-              f"{iterations[case]:.2f} | {med((case, 'ours mean')) / med((case, 'implicitfast')):.2f} |")
+        for name, extra in NEWTON:
+            label = "Newton 1e-9 (default)" if not extra else "Newton 1e-6 (`--newton-tol 1e-6`)"
+            print(f"| {case} | {label} | {med((case, f'{name} mean')):.1f} | {med((case, f'{name} median')):.1f} | "
+                  f"{med((case, f'{name} newton')):.2f} | {med((case, 'implicitfast')):.1f} | "
+                  f"{med((case, 'Euler')):.1f} | {iterations[case]:.2f} | "
+                  f"{med((case, f'{name} mean')) / med((case, 'implicitfast')):.2f} |")
 
 
 if __name__ == "__main__":

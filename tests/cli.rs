@@ -163,6 +163,11 @@ fn out_of_range_steps_and_durations_are_refused_in_the_numbers_a_person_writes()
         ("--duration", "-1", "--duration must be positive, got -1"),
         ("--rho-inf", "-0.5", "--rho-inf must be in [0, 1], got -0.5"),
         ("--tol", "-1e-6", "--tol must be positive"),
+        ("--newton-tol", "0", "--newton-tol must be in [1e-12, 0.001] (relative to the forces), got 0"),
+        ("--newton-tol", "0.5", "--newton-tol must be in [1e-12, 0.001]"),
+        ("--newton-tol", "-1e-6", "--newton-tol must be in [1e-12, 0.001]"),
+        ("--newton-tol", "nan", "--newton-tol must be in [1e-12, 0.001]"),
+        ("--newton-tol", "inf", "--newton-tol must be in [1e-12, 0.001]"),
     ] {
         let err = deploy(flag, value);
         assert!(err.contains(says) && !err.contains("tip:"), "{flag} {value}: {err}");

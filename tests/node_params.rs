@@ -89,6 +89,10 @@ fn bad_parameters_are_refused_with_a_reason() {
         ("--ros-args -p frame_id:=''", "frame_id must have"),
         ("--ros-args -p physics_dt:=nan", "not finite"),
         ("--ros-args -p rho_inf:=2", "rho_inf"),
+        ("--ros-args -p newton_tolerance:=0", "newton_tolerance must be in [1e-12, 0.001], got 0"),
+        ("--ros-args -p newton_tolerance:=0.1", "newton_tolerance must be in"),
+        ("--ros-args -p newton_tolerance:=nan", "not finite"),
+        ("--ros-args -p newton_tolerance:=fast", "newton_tolerance"),
         ("--ros-args -p warp_speed:=9", "unknown parameter"),
         ("--ros-args -p start_paused:=maybe", "boolean"),
         ("--ros-args -p physics_dt", "name:=value"),
@@ -220,4 +224,23 @@ fn the_node_refuses_a_scene_with_nothing_to_move_as_a_bad_scene() {
     assert_eq!(out.status.code(), Some(3), "{stderr}");
     assert!(stderr.contains("nothing to move"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_newton_tolerance_reaches_the_simulator_and_the_run_record() {
+    let (p, _) = NodeParams::from_args(&args("--ros-args -p newton_tolerance:=1e-6"), no_env).unwrap();
+    assert_eq!(p.newton_tolerance, 1e-6);
+    let model = tensegrity::scene::bundled("prism3").unwrap();
+    let core = tensegrity::io::node::NodeCore::new(model.clone(), p.clone()).unwrap();
+    let settings = core.simulator().settings();
+    assert_eq!(settings.newton.tolerance, 1e-6);
+    // a bag's run record replays with it
+    let run =
+        tensegrity::io::record::run_info(tensegrity::io::record::KIND_NODE, &model, "prism3", settings, &p);
+    assert_eq!(run.get("newton_tolerance").map(String::as_str), Some("1e-6"), "{run:?}");
+    let (again, params) = tensegrity::io::record::settings_of(&run).unwrap();
+    assert_eq!((again.newton.tolerance, params.newton_tolerance), (1e-6, 1e-6));
+    // the default is the library's
+    let (default, _) = NodeParams::from_args(&[], no_env).unwrap();
+    assert_eq!(default.newton_tolerance, tensegrity::solve::dynamics::DEFAULT_NEWTON_TOLERANCE);
 }

@@ -27,29 +27,52 @@ pub struct RunConfig {
     pub tolerance: Option<f64>,
     /// Global error control (`globally_controlled`); its cost counts every run it makes.
     pub global: bool,
+    /// Newton tolerance (`NewtonSettings::tolerance`); `None`: the default.
+    pub newton_tolerance: Option<f64>,
 }
 
 impl RunConfig {
     /// A fixed-step run.
     pub fn fixed(integrator: Integrator, dt: f64) -> Self {
-        Self { integrator, dt: Some(dt), tolerance: None, global: false }
+        Self { integrator, dt: Some(dt), tolerance: None, global: false, newton_tolerance: None }
     }
     /// An error-controlled run.
     pub fn controlled(integrator: Integrator, tolerance: f64) -> Self {
-        Self { integrator, dt: None, tolerance: Some(tolerance), global: false }
+        Self { integrator, dt: None, tolerance: Some(tolerance), global: false, newton_tolerance: None }
     }
     /// A run under global error control.
     pub fn globally_controlled(integrator: Integrator, tolerance: f64) -> Self {
         Self { global: true, ..Self::controlled(integrator, tolerance) }
     }
+    /// The same run with Newton stopped at `tolerance` (relative, `NEWTON_TOLERANCE_RANGE`).
+    pub fn with_newton_tolerance(self, tolerance: f64) -> Self {
+        Self { newton_tolerance: Some(tolerance), ..self }
+    }
     /// Simulator settings with `sample` (s) the output interval of an error-controlled run.
     fn settings(&self, sample: f64) -> SimSettings {
-        SimSettings {
+        let mut settings = SimSettings {
             dt: self.dt.unwrap_or(sample),
             integrator: self.integrator,
             tolerance: self.tolerance,
             ..Default::default()
+        };
+        if let Some(t) = self.newton_tolerance {
+            settings.newton.tolerance = t;
         }
+        settings
+    }
+    /// The row's name: the integrator, `(tol)` or `(global)` when error-controlled, and a Newton
+    /// tolerance other than the default.
+    fn label(&self) -> String {
+        let mut name = match (self.tolerance, self.global) {
+            (Some(_), true) => format!("{} (global)", self.integrator.name()),
+            (Some(_), false) => format!("{} (tol)", self.integrator.name()),
+            (None, _) => self.integrator.name(),
+        };
+        if let Some(t) = self.newton_tolerance {
+            name.push_str(&format!(" newton {t:e}"));
+        }
+        name
     }
 }
 
@@ -175,7 +198,7 @@ pub fn work_precision(
     };
     // errors on all cores
     let accuracy = parallel_map(&runs, jobs, |c| {
-        let (samples, totals) = run(c).map_err(|e| format!("{}: {e}", c.integrator.name()))?;
+        let (samples, totals) = run(c).map_err(|e| format!("{}: {e}", c.label()))?;
         Ok((super::largest_distance(&samples, &reference, free), totals))
     })?;
     // timings one at a time
@@ -189,11 +212,7 @@ pub fn work_precision(
         }
         walls.sort_by(f64::total_cmp);
         rows.push(WorkPrecisionRow {
-            integrator: match (c.tolerance, c.global) {
-                (Some(_), true) => format!("{} (global)", c.integrator.name()),
-                (Some(_), false) => format!("{} (tol)", c.integrator.name()),
-                (None, _) => c.integrator.name(),
-            },
+            integrator: c.label(),
             config: *c,
             dt: c.dt.unwrap_or(0.0),
             error,

@@ -28,6 +28,9 @@ pub enum BenchKind {
         /// Steps timed (after 10 untimed ones).
         #[arg(long, default_value_t = 5000)]
         steps: usize,
+        /// Newton tolerance of generalized-alpha, relative, 1e-12 to 1e-3 (default 1e-9).
+        #[arg(long, allow_hyphen_values = true)]
+        newton_tol: Option<f64>,
     },
     /// Wall time of a software-rendered frame (`tensegrity::render`, Gymnasium's `rgb_array`):
     /// median and largest over `frames` frames of the scene's run from its pose, one frame
@@ -110,7 +113,9 @@ pub enum BenchKind {
 /// Runs one benchmark.
 pub fn run(kind: BenchKind) -> Result<(), String> {
     match kind {
-        BenchKind::Steps { target, integrator, dt, steps } => steps_bench(&target, integrator, dt, steps),
+        BenchKind::Steps { target, integrator, dt, steps, newton_tol } => {
+            steps_bench(&target, integrator, (dt, newton_tol), steps)
+        }
         BenchKind::Machine { period, seconds } => machine(period, seconds),
         BenchKind::Render { scene, width, height, frames } => render(&scene, (width, height), frames),
         BenchKind::Scaling { stages, steps, out } => scaling(&stages, steps, &out),
@@ -134,7 +139,12 @@ pub fn run(kind: BenchKind) -> Result<(), String> {
 }
 
 /// `bench steps`.
-fn steps_bench(target: &str, integrator: IntegratorName, dt: f64, steps: usize) -> Result<(), String> {
+fn steps_bench(
+    target: &str,
+    integrator: IntegratorName,
+    (dt, newton_tol): (f64, Option<f64>),
+    steps: usize,
+) -> Result<(), String> {
     let model = match target.strip_prefix("tower:") {
         Some(rest) => {
             let (family, stages) = rest.split_once(':').ok_or("expected tower:FAMILY:STAGES")?;
@@ -155,9 +165,11 @@ fn steps_bench(target: &str, integrator: IntegratorName, dt: f64, steps: usize) 
         return Err("--steps must be at least 1".into());
     }
     let integrator = integrator.integrator(0.8);
-    let t = study::step_times(&model, SimSettings { dt, integrator, ..Default::default() }, steps)?;
+    let newton = crate::output::newton_settings("--newton-tol", newton_tol)?;
+    let t = study::step_times(&model, SimSettings { dt, integrator, newton, ..Default::default() }, steps)?;
+    let newton_note = newton_tol.map_or(String::new(), |t| format!(" newton {t:e}"));
     say!(
-        "{}: {} dt {dt} s, {} unknowns ({}): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
+        "{}: {}{newton_note} dt {dt} s, {} unknowns ({}): median {:.2} us/step, mean {:.2}, max {:.1}; Newton {:.2}/step, factorizations {:.3}/step",
         model.name,
         integrator.name(),
         t.unknowns,
@@ -272,6 +284,10 @@ struct RunChoice {
     jobs: usize,
 }
 
+/// The looser Newton tolerance `bench work-precision` gives rows of its own (generalized-alpha at
+/// every fixed step): the speed a user may trade for it on a robot on the ground.
+const LOOSE_NEWTON_TOLERANCE: f64 = 1e-6;
+
 /// `bench work-precision`.
 fn work_precision(
     scene: &Path,
@@ -293,6 +309,8 @@ fn work_precision(
     };
     let mut configs = fixed(ga, &steps);
     configs.extend(fixed(Integrator::GeneralizedAlpha { rho_inf: 0.0 }, &steps));
+    // the looser Newton tolerance a user may trade for speed (fewer iterations on the ground)
+    configs.extend(fixed(ga, &steps).into_iter().map(|c| c.with_newton_tolerance(LOOSE_NEWTON_TOLERANCE)));
     configs.extend(fixed(Integrator::SymplecticEuler, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]));
     configs.extend(fixed(Integrator::Rk4, &[1e-2, 5e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
     configs.extend(fixed(Integrator::DormandPrince, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));

@@ -9,7 +9,7 @@ use tensegrity::error::readable_number;
 use tensegrity::report;
 use tensegrity::scene::{self};
 use tensegrity::sim::SimSettings;
-use tensegrity::solve::dynamics::Integrator;
+use tensegrity::solve::dynamics::{Integrator, NewtonSettings, NEWTON_TOLERANCE_RANGE};
 use tensegrity::Model;
 
 use clap::ValueEnum;
@@ -290,6 +290,29 @@ pub(crate) struct DynamicArgs {
     /// dormand-prince).
     #[arg(long, allow_hyphen_values = true)]
     tol: Option<f64>,
+    /// Newton tolerance of generalized-alpha, relative to the forces, 1e-12 to 1e-3 (default
+    /// 1e-9): a looser one takes fewer iterations per step (docs/benchmarks.md).
+    #[arg(long, allow_hyphen_values = true)]
+    newton_tol: Option<f64>,
+}
+
+/// The Newton settings for `--newton-tol` (`flag`) when it lies in `NEWTON_TOLERANCE_RANGE`, else
+/// the reason.
+pub(crate) fn newton_settings(flag: &str, tolerance: Option<f64>) -> Result<NewtonSettings, String> {
+    let mut newton = NewtonSettings::default();
+    if let Some(t) = tolerance {
+        let (lo, hi) = NEWTON_TOLERANCE_RANGE;
+        if !(t.is_finite() && (lo..=hi).contains(&t)) {
+            return Err(format!(
+                "{flag} must be in [{}, {}] (relative to the forces), got {}",
+                readable_number(lo),
+                readable_number(hi),
+                readable_number(t)
+            ));
+        }
+        newton.tolerance = t;
+    }
+    Ok(newton)
 }
 
 #[derive(ValueEnum, Clone, Copy)]
@@ -344,6 +367,7 @@ impl DynamicArgs {
             }
         }
         let integrator = self.integrator.integrator(self.rho_inf);
-        Ok(SimSettings { dt, integrator, tolerance: self.tol, ..Default::default() })
+        let newton = newton_settings("--newton-tol", self.newton_tol)?;
+        Ok(SimSettings { dt, integrator, tolerance: self.tol, newton, ..Default::default() })
     }
 }

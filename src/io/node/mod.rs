@@ -120,7 +120,8 @@ impl NodeCore {
             .ok_or_else(|| CoreError::Params(format!("unknown integrator '{}'", params.integrator)))?;
         let dt = params.physics_dt.or(model.physics_dt).unwrap_or(crate::sim::DEFAULT_PHYSICS_DT);
         let tolerance = (params.tolerance > 0.0).then_some(params.tolerance);
-        let settings = SimSettings { dt, integrator, tolerance, ..Default::default() };
+        let mut settings = SimSettings { dt, integrator, tolerance, ..Default::default() };
+        settings.newton.tolerance = params.newton_tolerance;
         let sim = Simulator::start(model, settings, params.start_from_equilibrium)?;
         Ok(Self::with_simulator(sim, params))
     }

@@ -53,6 +53,9 @@ pub struct NodeParams {
     /// sub-steps inside every `physics_dt`, so publish times stay regular (generalized-alpha
     /// and dormand-prince).
     pub tolerance: f64,
+    /// Newton tolerance of generalized-alpha, relative to the forces (`newton_tolerance`,
+    /// default 1e-9, in `NEWTON_TOLERANCE_RANGE`): a looser one takes fewer iterations per step.
+    pub newton_tolerance: f64,
     /// Follow the scene's deployment schedule (`follow_schedule`, default false: actuators hold
     /// their initial rest lengths until commanded).
     pub follow_schedule: bool,
@@ -171,6 +174,7 @@ impl Default for NodeParams {
             integrator: "generalized-alpha".into(),
             rho_inf: 0.8,
             tolerance: 0.0,
+            newton_tolerance: crate::solve::dynamics::DEFAULT_NEWTON_TOLERANCE,
             follow_schedule: false,
             markers_rate: 30.0,
             sensor_seed: None,
@@ -221,6 +225,11 @@ pub const PARAMETERS: &[(&str, &str, &str)] = &[
     ("integrator", "generalized-alpha", "generalized-alpha, symplectic-euler, rk4 or dormand-prince"),
     ("rho_inf", "0.8", "generalized-alpha spectral radius, 0 to 1"),
     ("tolerance", "0.0", "local error tolerance, m, 0 = fixed steps (generalized-alpha, dormand-prince)"),
+    (
+        "newton_tolerance",
+        "1e-9",
+        "generalized-alpha's Newton tolerance, relative to the forces, 1e-12 to 1e-3; looser is faster",
+    ),
     ("markers_rate", "30.0", "RViz markers per second of sim time, 0 = off"),
     ("sensor_seed", "(scene's)", "seed of the scene's sensor noise, 0 to 2^64 - 1"),
     ("command_timeout", "0.0", "sim-time s without a command before the action, 0 = never"),
@@ -331,6 +340,9 @@ impl NodeParams {
                 self.rho_inf = r;
             }
             "tolerance" => self.tolerance = within(num(value)?, TOLERANCE_RANGE)?,
+            "newton_tolerance" => {
+                self.newton_tolerance = within(num(value)?, crate::solve::dynamics::NEWTON_TOLERANCE_RANGE)?
+            }
             "markers_rate" => self.markers_rate = within(num(value)?, MARKERS_RATE_RANGE)?,
             "sensor_seed" => {
                 let v = text(value);

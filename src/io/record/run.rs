@@ -127,6 +127,7 @@ pub fn settings_of(run: &RunInfo) -> Result<(SimSettings, NodeParams), String> {
         namespace: get("namespace")?.into(),
         real_time_factor: 0.0,
         start_paused: true,
+        newton_tolerance: settings.newton.tolerance,
         ..NodeParams::default()
     };
     for k in [

@@ -20,7 +20,8 @@ use crate::solve::dynamics::tableaus::{self, ExplicitBuffers};
 /// Newton settings of the implicit integrator.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NewtonSettings {
-    /// Converged when `|residual|_inf <= tolerance * force_scale` (or at the round-off floor).
+    /// Converged when `|residual|_inf <= tolerance * force_scale` (or at the round-off floor);
+    /// relative, in `NEWTON_TOLERANCE_RANGE`, default `DEFAULT_NEWTON_TOLERANCE`.
     pub tolerance: f64,
     /// Iterations before the step is rejected.
     pub max_iterations: usize,
@@ -30,6 +31,17 @@ pub struct NewtonSettings {
     /// the step size changes. The convergence test is the same residual test either way.
     pub reuse_factorization: bool,
 }
+
+/// The Newton tolerance by default (`NewtonSettings::tolerance`), relative to the force scale:
+/// on a 1 kg body at dt = 1 ms it moves the step's end by about `1e-9 g dt^2`, 1e-14 m.
+pub const DEFAULT_NEWTON_TOLERANCE: f64 = 1e-9;
+
+/// The Newton tolerances a user may choose (`--newton-tol`, the node's `newton_tolerance`),
+/// relative. A looser one stops Newton sooner: generalized-alpha's step then solves its equations
+/// to that fraction of the forces (fewer iterations per step on a robot on the ground, measured
+/// in docs/benchmarks.md; its own rows in `bench work-precision`); below 1e-12 the round-off of
+/// the residual itself would keep Newton from stopping.
+pub const NEWTON_TOLERANCE_RANGE: (f64, f64) = (1e-12, 1e-3);
 
 /// A reused factorization is replaced when an iteration leaves more than this fraction of the
 /// residual (`|r_k| > REFACTOR_CONTRACTION |r_(k-1)|`).
@@ -53,7 +65,7 @@ pub const SLOW_STEP_ITERATIONS: usize = 4;
 
 impl Default for NewtonSettings {
     fn default() -> Self {
-        Self { tolerance: 1e-9, max_iterations: 15, reuse_factorization: true }
+        Self { tolerance: DEFAULT_NEWTON_TOLERANCE, max_iterations: 15, reuse_factorization: true }
     }
 }
 
