@@ -1,7 +1,9 @@
 //! Invariant: at the extremes the engine either stays stable and finite or refuses with a clear
 //! error, and never lets a NaN into the state: cable stiffness up to EA/L0 = 1e9 N/m at
 //! dt = 1e-3 s (generalized-alpha), a mass bouncing on a cable through thousands of slack/taut
-//! switches without gaining energy, mass ratios of 1e6, and steps from 1e-6 s to 1e-1 s.
+//! switches without gaining energy, mass ratios of 1e6, and steps from 1e-6 s to 1e-1 s. The
+//! first two hold at the default Newton tolerance, at 1e-6 and at the loosest one allowed
+//! (`NEWTON_TOLERANCE_RANGE`; more of the looser tolerance in tests/newton_tolerance.rs).
 
 mod common;
 
@@ -9,28 +11,39 @@ use common::*;
 use std::path::PathBuf;
 use tensegrity::scene::generate::{atwood, AtwoodParams};
 use tensegrity::sim::{SimSettings, Simulator};
-use tensegrity::solve::dynamics::Integrator;
+use tensegrity::solve::dynamics::{Integrator, DEFAULT_NEWTON_TOLERANCE, NEWTON_TOLERANCE_RANGE};
 
 fn ga(rho_inf: f64, dt: f64) -> SimSettings {
     SimSettings { dt, integrator: Integrator::GeneralizedAlpha { rho_inf }, ..Default::default() }
 }
 
+/// The Newton tolerances the slack/taut extremes run at: the default, the one the benchmarks
+/// trade for speed, the loosest.
+const NEWTON_TOLERANCES: [f64; 3] = [DEFAULT_NEWTON_TOLERANCE, 1e-6, NEWTON_TOLERANCE_RANGE.1];
+
+/// `ga` with Newton stopped at `newton` of the forces.
+fn ga_newton(rho_inf: f64, dt: f64, newton: f64) -> SimSettings {
+    let mut s = ga(rho_inf, dt);
+    s.newton.tolerance = newton;
+    s
+}
+
 #[test]
 fn nearly_rigid_cables_stay_stable_at_a_millisecond_step() {
-    for k in [1e2, 1e5, 1e7, 1e9] {
+    for (k, newton) in [1e2, 1e5, 1e7, 1e9].into_iter().flat_map(|k| NEWTON_TOLERANCES.map(|n| (k, n))) {
         let model = model_of(&atwood(&AtwoodParams { stiffness: k, ..Default::default() }));
-        let mut sim = Simulator::new(model, ga(0.8, 1e-3)).unwrap();
+        let mut sim = Simulator::new(model, ga_newton(0.8, 1e-3, newton)).unwrap();
         let t_star = 2.0 * 2.0 * 1.0 * 9.81 / 3.0;
         let mut peak: f64 = 0.0;
         // 0.5 s: the light mass rises 0.41 m, still below its pulley (it would reach it at 0.78 s)
         for _ in 0..500 {
-            let stats = sim.step().unwrap_or_else(|e| panic!("k = {k}: {e}"));
+            let stats = sim.step().unwrap_or_else(|e| panic!("k = {k}, newton {newton}: {e}"));
             assert!(stats.residual.is_finite());
-            assert!(sim.state().is_finite(), "k = {k}");
+            assert!(sim.state().is_finite(), "k = {k}, newton {newton}");
             peak = peak.max(sim.workspace().cables[0].tension);
         }
         // the tension never exceeds twice its static value (the exact peak of T*(1 - cos))
-        assert!(peak <= 2.0 * t_star * 1.01, "k = {k}: peak tension {peak} N");
+        assert!(peak <= 2.0 * t_star * 1.01, "k = {k}, newton {newton}: peak tension {peak} N");
     }
 }
 
@@ -54,25 +67,30 @@ route = ["anchor", "m"]
 ea = 1e4
 rest_length = 1.0
 "#;
-    let model = model_from_toml(text);
-    let mut sim = Simulator::new(model, ga(1.0, 5e-4)).unwrap();
-    let e0 = sim.energy().total();
-    let mut switches = 0;
-    let mut slack = sim.workspace().cables[0].slack;
-    let mut worst_gain: f64 = 0.0;
-    while switches < 2000 {
-        sim.step().unwrap();
-        assert!(sim.state().is_finite());
-        let now = sim.workspace().cables[0].slack;
-        if now != slack {
-            switches += 1;
-            slack = now;
+    for newton in NEWTON_TOLERANCES {
+        let model = model_from_toml(text);
+        let mut sim = Simulator::new(model, ga_newton(1.0, 5e-4, newton)).unwrap();
+        let e0 = sim.energy().total();
+        let mut switches = 0;
+        let mut slack = sim.workspace().cables[0].slack;
+        let mut worst_gain: f64 = 0.0;
+        while switches < 2000 {
+            sim.step().unwrap();
+            assert!(sim.state().is_finite());
+            let now = sim.workspace().cables[0].slack;
+            if now != slack {
+                switches += 1;
+                slack = now;
+            }
+            worst_gain = worst_gain.max(sim.energy().total() - e0);
+            assert!(sim.state().time < 200.0, "newton {newton}: only {switches} switches");
         }
-        worst_gain = worst_gain.max(sim.energy().total() - e0);
-        assert!(sim.state().time < 200.0, "only {switches} switches");
+        // energy scale: the drop's potential energy m g h = 9.81e-3 J
+        assert!(
+            worst_gain <= 0.05 * 9.81e-3,
+            "newton {newton}: energy gained {worst_gain} J over {switches} switches"
+        );
     }
-    // energy scale: the drop's potential energy m g h = 9.81e-3 J
-    assert!(worst_gain <= 0.05 * 9.81e-3, "energy gained {worst_gain} J over {switches} switches");
 }
 
 #[test]

@@ -1,17 +1,14 @@
 //! Invariant: a looser Newton tolerance (`NewtonSettings::tolerance`, `--newton-tol`, the node's
 //! `newton_tolerance`) trades nothing it does not say: the six-bar robot still rolls onto the
-//! same face with its energy account closed, in fewer iterations, and at the extremes (cables at
-//! EA/L0 = 1e9 N/m, thousands of slack/taut switches, an impact on the ground, a cable snapping
-//! slack) the runs stay finite and gain no energy, at 1e-6 and at the loosest tolerance allowed.
+//! same face with its energy account closed, in fewer iterations, and an impact on the ground
+//! and a cable snapping slack stay finite and gain no energy, at 1e-6 and at the loosest
+//! tolerance allowed (stiff cables and slack/taut switches: tests/extremes.rs).
 
 mod common;
 
 use common::*;
-use tensegrity::scene::generate::{atwood, AtwoodParams};
 use tensegrity::sim::{SimSettings, Simulator};
 use tensegrity::solve::dynamics::{DEFAULT_NEWTON_TOLERANCE, NEWTON_TOLERANCE_RANGE};
-
-const G: f64 = 9.81;
 
 /// Generalized-alpha (rho_inf 0.8) at `dt` with Newton stopped at `newton` of the forces.
 fn settings(dt: f64, newton: f64) -> SimSettings {
@@ -22,6 +19,12 @@ fn settings(dt: f64, newton: f64) -> SimSettings {
 
 /// The tolerances the extremes are run at: the one the benchmarks trade for, and the loosest.
 const LOOSE: [f64; 2] = [1e-6, NEWTON_TOLERANCE_RANGE.1];
+
+/// The largest distance between the same point in two simulators, m.
+fn largest_point_distance(a: &Simulator, b: &Simulator) -> f64 {
+    let pairs = a.workspace().points.iter().zip(&b.workspace().points);
+    pairs.map(|(p, q)| (p.position - q.position).norm()).fold(0.0, f64::max)
+}
 
 /// The six-bar's roll (the bundled scene's haul) for 5 s: the face it ends on, the sub-steps
 /// rejected, the Newton iterations, and the simulator at the end.
@@ -57,13 +60,7 @@ fn the_six_bar_rolls_onto_the_same_face_in_fewer_iterations_with_a_loose_newton(
     let lost = e.damping_loss + e.friction_loss;
     assert!(e.numerical_loss().abs() < 2e-3 * lost, "unexplained {} J of {lost} J lost", e.numerical_loss());
     // where it comes to rest: the same place to well under the contact spheres' 2 cm
-    let gap = tight
-        .workspace()
-        .points
-        .iter()
-        .zip(&loose.workspace().points)
-        .map(|(a, b)| (a.position - b.position).norm())
-        .fold(0.0, f64::max);
+    let gap = largest_point_distance(&tight, &loose);
     println!(
         "six-bar roll, 5 s at 1 ms: Newton iterations {tight_iterations} at 1e-9, {loose_iterations} at 1e-6; \
          largest point distance at rest {gap:.2e} m"
@@ -73,57 +70,6 @@ fn the_six_bar_rolls_onto_the_same_face_in_fewer_iterations_with_a_loose_newton(
         (loose_iterations as f64) < 0.85 * tight_iterations as f64,
         "{loose_iterations} iterations at 1e-6 against {tight_iterations} at 1e-9"
     );
-}
-
-#[test]
-fn nearly_rigid_cables_stay_stable_with_a_loose_newton() {
-    for newton in LOOSE {
-        for k in [1e5, 1e7, 1e9] {
-            let model = model_of(&atwood(&AtwoodParams { stiffness: k, ..Default::default() }));
-            let mut sim = Simulator::new(model, settings(1e-3, newton)).unwrap();
-            let t_star = 2.0 * 2.0 * 1.0 * G / 3.0;
-            let mut peak: f64 = 0.0;
-            for _ in 0..500 {
-                let stats = sim.step().unwrap_or_else(|e| panic!("newton {newton}, k = {k}: {e}"));
-                assert!(stats.residual.is_finite());
-                assert!(sim.state().is_finite(), "newton {newton}, k = {k}");
-                peak = peak.max(sim.workspace().cables[0].tension);
-            }
-            // the tension never exceeds twice its static value (the exact peak of T*(1 - cos))
-            assert!(peak <= 2.0 * t_star * 1.01, "newton {newton}, k = {k}: peak tension {peak} N");
-        }
-    }
-}
-
-#[test]
-fn a_mass_bouncing_on_a_cable_gains_no_energy_with_a_loose_newton() {
-    // tests/extremes.rs's bungee: 1 kg dropped 1 mm onto a cable it tightens, no damping, no
-    // numerical dissipation (rho_inf = 1)
-    let text = "gravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"anchor\"\nkind = \"fixed\"\n\
-                [[bodies]]\nname = \"m\"\nkind = \"node\"\nmass = 1.0\nposition = [0.0, 0.0, -0.999]\n\
-                [[cables]]\nname = \"bungee\"\nroute = [\"anchor\", \"m\"]\nea = 1e4\nrest_length = 1.0\n";
-    for newton in LOOSE {
-        let mut s = settings(5e-4, newton);
-        s.integrator = tensegrity::solve::dynamics::Integrator::GeneralizedAlpha { rho_inf: 1.0 };
-        let mut sim = Simulator::new(model_from_toml(text), s).unwrap();
-        let e0 = sim.energy().total();
-        let (mut switches, mut slack, mut worst_gain) = (0, sim.workspace().cables[0].slack, 0.0f64);
-        while switches < 1000 {
-            sim.step().unwrap();
-            assert!(sim.state().is_finite());
-            if sim.workspace().cables[0].slack != slack {
-                switches += 1;
-                slack = !slack;
-            }
-            worst_gain = worst_gain.max(sim.energy().total() - e0);
-            assert!(sim.state().time < 100.0, "newton {newton}: only {switches} switches");
-        }
-        // the drop's potential energy m g h = 9.81e-3 J
-        assert!(
-            worst_gain <= 0.05 * 9.81e-3,
-            "newton {newton}: gained {worst_gain} J over {switches} switches"
-        );
-    }
 }
 
 #[test]
@@ -199,13 +145,7 @@ fn a_cable_snapping_slack_leaves_the_run_finite_with_a_loose_newton() {
     let tight = run(DEFAULT_NEWTON_TOLERANCE);
     for newton in LOOSE {
         let loose = run(newton);
-        let gap = tight
-            .workspace()
-            .points
-            .iter()
-            .zip(&loose.workspace().points)
-            .map(|(a, b)| (a.position - b.position).norm())
-            .fold(0.0, f64::max);
+        let gap = largest_point_distance(&tight, &loose);
         let (e, e_tight) = (loose.energy().total(), tight.energy().total());
         println!(
             "snap, newton {newton:e}: {gap:.2e} m from the default run, energy {e:.6} J against {e_tight:.6}"
