@@ -322,6 +322,19 @@ class TensegrityClient:
         return self.node.service_builder(iox2.ServiceName.new(f"{self.prefix}/{name}"))
 
     def _open(self):
+        # the node creates every service, then its ports: a request sent before its lockstep
+        # server exists, or a command before its subscriber, would be lost, so wait for them
+        ready = (
+            self._service("lockstep").request_response(LockstepRequest, LockstepResponse).open()
+            .dynamic_config.number_of_servers > 0
+            and self._service("actuator_commands").publish_subscribe(CommandSample).open()
+            .dynamic_config.number_of_subscribers > 0
+            and self._service("to_node").event().open().dynamic_config.number_of_listeners > 0
+            and self._service("state").publish_subscribe(StateSample).open()
+            .dynamic_config.number_of_publishers > 0
+        )
+        if not ready:
+            raise RuntimeError("the node's ports are not created yet")
         self.state_sub = (
             self._service("state").publish_subscribe(StateSample).open().subscriber_builder().create()
         )

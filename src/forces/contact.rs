@@ -239,7 +239,8 @@ pub fn contact_response(
     kin: &PointKinematics,
     point: &ContactPoint,
 ) -> ContactResponse {
-    respond(ground, sphere, kin, point, None)
+    let contact = normal_contact(ground, sphere, kin);
+    contact.open(ground).unwrap_or_else(|| respond_pressed(ground, kin, contact, point, None))
 }
 
 /// What holds a stick-slip contact: the ground's law, the pair's anchor and the damping `c_t`
@@ -250,21 +251,10 @@ struct StickHold<'a> {
     damping: f64,
 }
 
-/// The response of `sphere` (centre `kin`) against `ground`, its friction regularized at the
-/// contact point `point` (`stick` none), or stick-slip at the anchored material point `point`
-/// (`anchored_point`) held by `stick` (module docs).
-fn respond(
-    ground: &GroundModel,
-    sphere: &ContactSphere,
-    kin: &PointKinematics,
-    point: &ContactPoint,
-    stick: Option<StickHold<'_>>,
-) -> ContactResponse {
-    let contact = normal_contact(ground, sphere, kin);
-    contact.open(ground).unwrap_or_else(|| respond_pressed(ground, kin, contact, point, stick))
-}
-
-/// `respond` for a sphere that presses in (`contact` not `NormalContact::open`).
+/// The response of a sphere (centre `kin`) that presses into `ground` (`contact`, not
+/// `NormalContact::open`), its friction regularized at the contact point `point` (`stick` none),
+/// or stick-slip at the anchored material point `point` (`anchored_point`) held by `stick`
+/// (module docs).
 fn respond_pressed(
     ground: &GroundModel,
     kin: &PointKinematics,

@@ -120,6 +120,16 @@ impl ShmClient {
             .event()
             .open()
             .map_err(ipc("from_node event"))?;
+        // the node creates every service, then its ports: a request sent before its lockstep
+        // server exists, or a command before its subscriber, would be lost (under load a test's
+        // first lockstep waited out its 10 s). Until they are there, the node is still starting
+        let ports_ready = lockstep.dynamic_config().number_of_servers() > 0
+            && commands.dynamic_config().number_of_subscribers() > 0
+            && to_node.dynamic_config().number_of_listeners() > 0
+            && state.dynamic_config().number_of_publishers() > 0;
+        if !ports_ready {
+            return Err(ShmError::Ipc("the node's ports are not created yet".into()));
+        }
         // the node creates it before the others, so it exists now if the scene has contacts
         let contacts = match node
             .service_builder(&service_name(&names.contacts)?)
