@@ -207,6 +207,11 @@ fn a_flood_costs_each_step_a_bounded_amount_and_the_counts_add_up() {
     assert!(sink.statuses.iter().all(|s| s.message.len() < 400));
     // one application per step boundary: the newest valid command of each step
     assert_eq!(sink.applied.len() as u64, steps);
+    // the longest step's own time, for a real-time period to hold: counted and in /diagnostics
+    assert!(s.longest_step > Duration::ZERO);
+    let reported = sink.statuses.iter().rev().find_map(|st| MemorySink::value(st, "longest_step_us"));
+    let reported: f64 = reported.expect("longest_step_us in /diagnostics").parse().unwrap();
+    assert!(reported > 0.0 && reported <= 1e6 * s.longest_step.as_secs_f64() + 0.05, "{reported} us");
 }
 
 #[test]

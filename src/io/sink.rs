@@ -132,6 +132,9 @@ pub struct NodeStats {
     pub commands_rejected: u64,
     /// Newton iterations of the last step.
     pub last_newton_iterations: usize,
+    /// The longest physics step so far, its simulator work alone (`StepStats::wall_time`, no
+    /// publishing or pacing): what a real-time period must hold.
+    pub longest_step: std::time::Duration,
     /// Rejected step attempts so far.
     pub rejected_attempts: usize,
     /// Times the command timeout fired.

@@ -608,6 +608,7 @@ impl NodeCore {
             Ok(stats) => {
                 self.last_step = stats;
                 self.stats.last_newton_iterations = stats.newton_iterations;
+                self.stats.longest_step = self.stats.longest_step.max(stats.wall_time);
                 self.stats.rejected_attempts += stats.rejected;
             }
             Err(e) => {
@@ -803,6 +804,7 @@ impl NodeCore {
             kv("commands_accepted", s.commands_accepted.to_string()),
             kv("commands_rejected", s.commands_rejected.to_string()),
             kv("newton_iterations_last_step", s.last_newton_iterations.to_string()),
+            kv("longest_step_us", format!("{:.1}", 1e6 * s.longest_step.as_secs_f64())),
             kv("rejected_step_attempts", s.rejected_attempts.to_string()),
             kv("command_timeouts", s.command_timeouts.to_string()),
             kv("malformed_incoming", s.malformed_incoming.to_string()),
