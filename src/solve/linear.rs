@@ -176,6 +176,8 @@ enum Storage {
         perm: Vec<usize>,
         perm_inv: Vec<usize>,
         mem: MemBuffer,
+        /// The permuted right-hand side of `solve_small_lu`, `size` long.
+        work: Vec<f64>,
     },
     Sparse {
         index: Box<SparseIndex>,
@@ -593,6 +595,7 @@ impl KktSystem {
                         perm: vec![0; size],
                         perm_inv: vec![0; size],
                         mem: MemBuffer::new(req),
+                        work: vec![0.0; size],
                     },
                 )
             }
@@ -628,6 +631,7 @@ impl KktSystem {
                     perm: perm.clone(),
                     perm_inv: perm_inv.clone(),
                     mem: MemBuffer::new(req),
+                    work: vec![0.0; size],
                 }
             }
             Storage::Sparse { index, values, symbolic, symmetric, .. } => Storage::Sparse {
@@ -996,7 +1000,7 @@ impl KktSystem {
             return true;
         }
         let ok = match &mut self.storage {
-            Storage::Dense { a, lu, perm, perm_inv, mem } => {
+            Storage::Dense { a, lu, perm, perm_inv, mem, .. } => {
                 lu.copy_from_slice(a);
                 let mut f = MatMut::from_column_major_slice_mut(lu, size, size);
                 dense_lu::factor::lu_in_place(
@@ -1152,6 +1156,9 @@ impl KktSystem {
         }
         let x = MatMut::from_column_major_slice_mut(rhs.as_mut_slice(), size, 1);
         match &mut self.storage {
+            Storage::Dense { lu, perm, work, .. } if size <= SMALL_DENSE_SOLVE => {
+                solve_small_lu(lu, perm, rhs.as_mut_slice(), work);
+            }
             Storage::Dense { lu, perm, perm_inv, mem, .. } => {
                 let f = faer::MatRef::from_column_major_slice(lu, size, size);
                 let p = faer::perm::PermRef::new_checked(perm, perm_inv, size);
@@ -1356,6 +1363,43 @@ impl ThinSvd {
         }
         &self.v * c
     }
+}
+
+/// Dense systems up to this size are solved with held LU factors by `solve_small_lu`, larger
+/// ones by faer's blocked triangular solves. At the six-bar's 30 unknowns faer's dispatch costs
+/// several times the substitutions' own 2 n^2 flops (callgrind, `bench steps`).
+const SMALL_DENSE_SOLVE: usize = 64;
+
+/// Solves `A x = b` in place of `b` with the partial-pivoting factors of faer's
+/// `lu_in_place`: `P A = L U`, `lu` column-major `n x n` holding `U` on and above the diagonal
+/// and the unit lower `L` below it, `(P b)[i] = b[perm[i]]`. Forward then back substitution,
+/// column by column; `work` has `n` entries. Precondition: `U`'s diagonal nonzero (`factor`
+/// checks it).
+fn solve_small_lu(lu: &[f64], perm: &[usize], b: &mut [f64], work: &mut [f64]) {
+    let n = perm.len();
+    for (w, &p) in work.iter_mut().zip(perm) {
+        *w = b[p];
+    }
+    for j in 0..n {
+        let yj = work[j];
+        if yj != 0.0 {
+            let column = &lu[j * n + j + 1..(j + 1) * n];
+            for (y, l) in work[j + 1..].iter_mut().zip(column) {
+                *y -= l * yj;
+            }
+        }
+    }
+    for j in (0..n).rev() {
+        let column = &lu[j * n..j * n + j + 1];
+        let xj = work[j] / column[j];
+        work[j] = xj;
+        if xj != 0.0 {
+            for (y, u) in work[..j].iter_mut().zip(column) {
+                *y -= u * xj;
+            }
+        }
+    }
+    b.copy_from_slice(work);
 }
 
 fn dense_scratch(size: usize) -> StackReq {
