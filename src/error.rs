@@ -67,13 +67,27 @@ impl fmt::Display for SceneError {
 
 impl std::error::Error for SceneError {}
 
+/// `; contact slips: a@g, b@g (beyond its friction cone)` for `SolveError::NoEquilibrium`, or
+/// nothing.
+fn slipping_words(slipping: &[String]) -> String {
+    match slipping {
+        [] => String::new(),
+        [one] => format!("; contact slips: {one} (no equilibrium holds it inside its friction cone)"),
+        many => format!(
+            "; contacts slip: {} (no equilibrium holds them inside their friction cones)",
+            many.join(", ")
+        ),
+    }
+}
+
 /// A solve that did not reach its goal.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SolveError {
     /// Newton did not converge and the load step could not be cut further.
     #[error(
         "equilibrium not found at t = {time} s (load step {load_step}): residual {residual:.3e} N \
-         after {iterations} Newton iterations and {cuts} step cuts"
+         after {iterations} Newton iterations and {cuts} step cuts{}",
+        slipping_words(slipping)
     )]
     NoEquilibrium {
         /// Schedule time of the failing step, s.
@@ -86,6 +100,10 @@ pub enum SolveError {
         iterations: usize,
         /// Number of times the load step was halved.
         cuts: usize,
+        /// The stick-slip contacts (`point@ground`) that slipped at the last iteration: the
+        /// solve stopped because no equilibrium holds them inside their friction cones
+        /// (`StopReason::ContactSlips`). Empty otherwise.
+        slipping: Vec<String>,
     },
     /// A non-finite number appeared; the state was left unchanged.
     #[error("non-finite value in {what} at t = {time} s; state left unchanged")]

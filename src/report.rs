@@ -6,6 +6,7 @@
 use serde::Serialize;
 
 use crate::evaluate::Workspace;
+use crate::forces::contact::FrictionState;
 use crate::model::Model;
 use crate::state::State;
 
@@ -132,13 +133,26 @@ pub struct ContactReport {
     /// Slip speed of the contact point along the ground (of one bar along the other), m/s (0
     /// while rolling on a ground).
     pub slip_speed_m_s: f64,
+    /// What the friction does (`FrictionState::as_str`): `open` (not pressed in),
+    /// `frictionless` (mu = 0), `regularized` (the regularized law: no stuck state, no friction
+    /// in statics), and under stick-slip friction `stick` or `slip`.
+    pub friction_state: &'static str,
+    /// On the cone's edge, stick-slip law: `|F_t|` within 1e-9 of `mu F_n` (a contact that has
+    /// just slipped into an equilibrium sits there; round-off decides whether its return map
+    /// then says `stick` or `slip`), as a pulley's `at_limit`.
+    pub at_limit: bool,
+    /// The friction cone's radius `mu F_n`, N.
+    pub friction_limit_n: f64,
 }
 
 /// Every contact of `model` (`Model::contact_pairs` order: ground pairs sphere-major, then strut
 /// pairs) from the evaluated `ws`.
 pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
     let mut out = Vec::with_capacity(model.contact_pairs());
-    for ((point, ground), c) in model.contact_labels().zip(&ws.contacts) {
+    for (((point, ground), c), mu) in
+        model.contact_labels().zip(&ws.contacts).zip(model.contact_friction_coefficients())
+    {
+        let limit = mu * c.normal_force;
         out.push(ContactReport {
             point: point.to_string(),
             ground: ground.to_string(),
@@ -149,6 +163,11 @@ pub fn contact_reports(model: &Model, ws: &Workspace) -> Vec<ContactReport> {
             normal_force_n: c.normal_force,
             friction_n: c.friction.into(),
             slip_speed_m_s: c.slip.norm(),
+            friction_state: c.friction_state.as_str(),
+            at_limit: matches!(c.friction_state, FrictionState::Stuck | FrictionState::Slipping)
+                && limit > 0.0
+                && (c.friction.norm() - limit).abs() <= 1e-9 * limit,
+            friction_limit_n: limit,
         });
     }
     out

@@ -452,3 +452,50 @@ fn long_work_shows_progress_lines_when_standard_error_is_not_a_terminal() {
     let (_, err) = run(&["bench", "steps", "config/scenes/prism3.toml", "--steps", "600"], Some("0"));
     assert!(err.starts_with("bench: 256/600 steps"), "{err}");
 }
+
+#[test]
+fn statics_on_the_ground_reports_each_contacts_friction_and_says_when_a_contact_slips() {
+    // the six-bar on its face: three ends pressed in and stuck, the rest open (text and JSON)
+    let out = tensegrity(&["statics", "config/scenes/sixbar.toml", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let contacts = v["contacts"].as_array().unwrap();
+    let states: Vec<&str> = contacts.iter().map(|c| c["friction_state"].as_str().unwrap()).collect();
+    assert_eq!(states.iter().filter(|s| **s == "stick").count(), 3, "{states:?}");
+    assert_eq!(states.iter().filter(|s| **s == "open").count(), 9, "{states:?}");
+    for c in contacts {
+        let limit = c["friction_limit_n"].as_f64().unwrap();
+        assert!((limit - 0.8 * c["normal_force_n"].as_f64().unwrap()).abs() <= 1e-12 * limit.max(1.0), "{c}");
+        assert!(!c["at_limit"].as_bool().unwrap());
+    }
+    let text = String::from_utf8(tensegrity(&["statics", "config/scenes/sixbar.toml"]).stdout).unwrap();
+    assert!(text.contains("mu Fn N  friction"), "{text}");
+    assert!(text.lines().any(|l| l.starts_with("x0.b") && l.trim_end().ends_with("stick")), "{text}");
+
+    // a block on 30 degrees at mu 0.3: no equilibrium, and the message names the contact
+    let dir = std::env::temp_dir().join(format!("tensegrity-cli-slope-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("slope.toml");
+    let (s, c) = (30f64.to_radians().sin(), 30f64.to_radians().cos());
+    std::fs::write(
+        &scene,
+        format!(
+            "name = \"slope\"\ngravity = [0.0, 0.0, -9.81]\n[[bodies]]\nname = \"block\"\nkind = \"node\"\nmass = 1.0\n\
+             position = [0.0, 0.0, 0.0]\ncontact_radius = 0.0\n[[grounds]]\nname = \"slope\"\nnormal = [0.0, {}, {c}]\n\
+             mu = 0.3\nstiffness = 1e5\nstick_stiffness = 5e3\n",
+            -s
+        ),
+    )
+    .unwrap();
+    let out = tensegrity(&["statics", scene.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no equilibrium found") && err.contains("(contact slips: block@slope beyond mu F_n;"),
+        "{err}"
+    );
+    let out = tensegrity(&["deploy", "--quasi-static", scene.to_str().unwrap(), "--out", "-"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("contact slips: block@slope"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

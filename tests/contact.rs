@@ -691,6 +691,103 @@ fn with_stick_slip_friction_statics_finds_the_block_resting_on_an_incline() {
 }
 
 #[test]
+fn statics_on_an_incline_steeper_than_the_friction_angle_stops_because_the_contact_slips() {
+    // 1 kg on 30 degrees: tan(30) = 0.577. With mu 0.6 the contact sticks, with friction
+    // m g sin(theta) inside its cone mu m g cos(theta); with mu 0.55 (and a careless 0.0) no
+    // equilibrium exists and the solve says that the contact slips, naming it
+    use tensegrity::forces::contact::FrictionState;
+    use tensegrity::solve::statics::StopReason;
+    let tilt = 30f64.to_radians();
+    for (mu, holds) in [(0.6, true), (0.55, false), (0.3, false)] {
+        let model = block_on_incline(
+            1.0,
+            tilt,
+            0.0,
+            &format!("name = \"slope\"\nmu = {mu}\nstiffness = 1e5\nstick_stiffness = 5e3"),
+        );
+        let mut state = State::initial(&model);
+        let before = state.clone();
+        let mut ws = Workspace::new(&model);
+        let mut solver = StaticSolver::new(&model);
+        let result = solver.equilibrate(&model, &mut state, &mut ws, &model.solver);
+        if holds {
+            result.unwrap();
+            let c = &ws.contacts[0];
+            assert_eq!(c.friction_state, FrictionState::Stuck, "mu {mu}");
+            assert!(
+                (c.friction.norm() - G * tilt.sin()).abs() < 1e-9 * G,
+                "mu {mu}: friction {}",
+                c.friction.norm()
+            );
+            assert!(c.friction.norm() < mu * c.normal_force);
+            let reports = tensegrity::report::contact_reports(&model, &ws);
+            assert_eq!((reports[0].friction_state, reports[0].at_limit), ("stick", false));
+            assert!((reports[0].friction_limit_n - mu * G * tilt.cos()).abs() < 1e-9 * G);
+        } else {
+            assert!(result.is_err(), "mu {mu}: an equilibrium on a slope steeper than atan(mu)");
+            assert_eq!(solver.stop_reason(), StopReason::ContactSlips, "mu {mu}");
+            assert_eq!(solver.slipping_contact_labels(&model), ["block@slope"], "mu {mu}");
+            let words = solver.stop_words(&model);
+            assert!(words.starts_with("contact slips: block@slope"), "mu {mu}: {words}");
+            assert_eq!(state, before, "mu {mu}: a failed solve leaves the state as it found it");
+        }
+    }
+    // a frictionless slope, and one without stick_stiffness (no friction in statics): the
+    // words say why
+    let model = block_on_incline(1.0, tilt, 0.0, "mu = 0.0\nstiffness = 1e5\nstick_stiffness = 5e3");
+    let mut solver = StaticSolver::new(&model);
+    let mut state = State::initial(&model);
+    assert!(solver.equilibrate(&model, &mut state, &mut Workspace::new(&model), &model.solver).is_err());
+    assert!(
+        solver.stop_words(&model).contains("frictionless ground (mu = 0)"),
+        "{}",
+        solver.stop_words(&model)
+    );
+    let model = block_on_incline(1.0, tilt, 0.0, "mu = 0.8\nstiffness = 1e5");
+    let mut solver = StaticSolver::new(&model);
+    let mut state = State::initial(&model);
+    assert!(solver.equilibrate(&model, &mut state, &mut Workspace::new(&model), &model.solver).is_err());
+    assert_ne!(solver.stop_reason(), StopReason::ContactSlips);
+    assert!(
+        solver.stop_words(&model).contains("give a ground stick_stiffness"),
+        "{}",
+        solver.stop_words(&model)
+    );
+}
+
+#[test]
+fn a_quasi_static_deployment_that_starts_on_an_incline_steeper_than_its_friction_angle_names_the_slipping_contact(
+) {
+    // a careless user deploys a block set on 30 degrees at mu 0.3: there is no equilibrium to
+    // start from, and the error says which contact slips (a held block pays out along the slope
+    // instead: each tether length has its equilibrium)
+    let tilt = 30f64.to_radians();
+    let model = block_on_incline(
+        1.0,
+        tilt,
+        0.0,
+        "name = \"slope\"\nmu = 0.3\nstiffness = 1e5\nstick_stiffness = 5e3",
+    );
+    let mut state = State::initial(&model);
+    let before = state.clone();
+    let mut ws = Workspace::new(&model);
+    let err = tensegrity::solve::deploy::deploy_quasi_static(&model, &mut state, &mut ws, |_, _, _| {})
+        .expect_err("no equilibrium on a slope steeper than atan(mu)");
+    match &err {
+        tensegrity::SolveError::NoEquilibrium { slipping, load_step, .. } => {
+            assert_eq!((slipping.as_slice(), *load_step), (&["block@slope".to_string()][..], 0))
+        }
+        other => panic!("expected NoEquilibrium, got {other:?}"),
+    }
+    let words = err.to_string();
+    assert!(
+        words.contains("; contact slips: block@slope (no equilibrium holds it inside its friction cone)"),
+        "{words}"
+    );
+    assert_eq!(state, before, "a failed deployment leaves the state as it found it");
+}
+
+#[test]
 fn a_quasi_static_haul_drags_a_stuck_foot_only_once_the_pull_reaches_the_friction_limit() {
     // a 1 kg block on a level ground (mu 0.5, k_t 2e3 N/m), hauled toward a wall 1 m away by a
     // horizontal cable (EA 1000 N) whose rest length goes from 1 m to 0.9 m in 40 load steps.
@@ -720,11 +817,13 @@ fn a_quasi_static_haul_drags_a_stuck_foot_only_once_the_pull_reaches_the_frictio
             s.poses[1].position.x,
             w.cables[0].tension,
             w.contacts[0].friction.x,
+            tensegrity::report::contact_reports(&model, w).remove(0),
         ));
     })
     .unwrap();
     let mut slipped = false;
-    for &(t, l0, x, tension, friction) in &rows {
+    for (t, l0, x, tension, friction, report) in &rows {
+        let (t, l0, x, tension, friction) = (*t, *l0, *x, *tension, *friction);
         // the stuck branch: k_t x = EA (1 - x - L0) / L0
         let stuck_x = ea * (1.0 - l0) / (k_t * l0 + ea);
         let (want_x, want_t) = if k_t * stuck_x <= limit && !slipped {
@@ -736,11 +835,19 @@ fn a_quasi_static_haul_drags_a_stuck_foot_only_once_the_pull_reaches_the_frictio
         assert!((x - want_x).abs() < 1e-9, "t = {t}: foot at {x} m, closed form {want_x} m");
         assert!((tension - want_t).abs() < 1e-7 * limit, "t = {t}: pull {tension} N, closed form {want_t} N");
         assert!((friction + tension).abs() < 1e-7 * limit, "t = {t}: friction {friction} N against the pull");
+        // stuck inside the cone until the foot slips; from then on each equilibrium sits on
+        // the cone's edge
+        if slipped {
+            assert!(report.at_limit, "t = {t}: {} at {friction} N", report.friction_state);
+        } else {
+            assert_eq!((report.friction_state, report.at_limit), ("stick", false), "t = {t}");
+        }
     }
     assert!(slipped, "the haul never reached the friction limit");
+    assert!(rows.last().unwrap().5.at_limit, "the hauled foot ends at its friction limit");
     // then the haul eases off (the cable goes slack): the foot comes back by its spring's
     // stretch only, mu m g / k_t, and stays where it slipped to (the anchor moved with it)
-    let (_, _, x_end, _, _) = *rows.last().unwrap();
+    let x_end = rows.last().unwrap().2;
     let mut eased = state.clone();
     eased.rest_lengths[0] = 0.95;
     tensegrity::solve::statics::StaticSolver::new(&model)

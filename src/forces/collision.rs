@@ -179,6 +179,11 @@ fn pair_response(
     response.energy = 0.5 * spring * delta;
     response.loss_power =
         (normal_force - spring) * delta_dot + m.friction * normal_force * slip.norm_squared() / s_r;
+    response.friction_state = if m.friction > 0.0 {
+        crate::forces::contact::FrictionState::Regularized
+    } else {
+        crate::forces::contact::FrictionState::Frictionless
+    };
     (response, cp)
 }
 

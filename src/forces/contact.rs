@@ -93,6 +93,37 @@ pub struct ContactAnchor {
     pub anchor: Vector3<f64>,
 }
 
+/// What a contact's friction is doing (`ContactResponse::friction_state`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum FrictionState {
+    /// The sphere does not press in: no force at all.
+    #[default]
+    Open,
+    /// Pressed in, with a friction coefficient of zero.
+    Frictionless,
+    /// Pressed in, under the regularized law (`F_t = -mu F_n u / s`): no stuck state, and no
+    /// friction at rest (statics).
+    Regularized,
+    /// Stick-slip law, inside the cone: `|F_t| <= mu F_n`, the anchor holds.
+    Stuck,
+    /// Stick-slip law, the trial force beyond the cone: `F_t` on it, the contact slides.
+    Slipping,
+}
+
+impl FrictionState {
+    /// `open`, `frictionless`, `regularized`, `stick` or `slip` (the pulleys' words for the last
+    /// two, `crate::report::PulleyReport::state`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FrictionState::Open => "open",
+            FrictionState::Frictionless => "frictionless",
+            FrictionState::Regularized => "regularized",
+            FrictionState::Stuck => "stick",
+            FrictionState::Slipping => "slip",
+        }
+    }
+}
+
 /// What one sphere is doing against one ground at one instant.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ContactResponse {
@@ -121,6 +152,8 @@ pub struct ContactResponse {
     /// Stick-slip friction only (zero otherwise): the tangential spring's extension `d` that
     /// the anchor keeps after this instant (module docs), world frame, m.
     pub stick_extension: Vector3<f64>,
+    /// Whether the friction sticks, slips, or has no such state.
+    pub friction_state: FrictionState,
 }
 
 impl ContactResponse {
@@ -268,18 +301,22 @@ fn respond_pressed(
     let slip = point.velocity - n * n.dot(&point.velocity);
     // the friction force, the energy its spring stores, the power it dissipates and the
     // extension the anchor keeps
-    let (friction, friction_energy, friction_loss, kept) = match stick {
+    let (friction, friction_energy, friction_loss, kept, friction_state) = match stick {
         None => {
             let s = (slip.norm_squared() + m.stiction_speed * m.stiction_speed).sqrt();
             let friction = slip * (-m.friction * normal_force / s);
-            (friction, 0.0, m.friction * normal_force * slip.norm_squared() / s, Vector3::zeros())
+            let state =
+                if m.friction > 0.0 { FrictionState::Regularized } else { FrictionState::Frictionless };
+            (friction, 0.0, m.friction * normal_force * slip.norm_squared() / s, Vector3::zeros(), state)
         }
         Some(StickHold { law, anchor, damping }) => {
             let d = extension(ground, kin, &point.offset, anchor);
             let limit = m.friction * normal_force;
             let (_, friction, slipping) = stick_slip(law, &d, &slip, damping, limit);
             if limit <= 0.0 {
-                (friction, 0.0, 0.0, Vector3::zeros())
+                let state =
+                    if m.friction > 0.0 { FrictionState::Slipping } else { FrictionState::Frictionless };
+                (friction, 0.0, 0.0, Vector3::zeros(), state)
             } else {
                 // the power the friction takes from the bodies beyond what its spring stores,
                 // -(F_t + k_t d) . u: the damper's, c_t |u|^2, while stuck
@@ -288,7 +325,8 @@ fn respond_pressed(
                 // slipping, the spring alone shortened to the cone, never stretched: a fast
                 // slip's damper must not leave energy in it
                 let kept = if slipping && pull > limit { d * (limit / pull) } else { d };
-                (friction, 0.5 * law.stiffness * d.norm_squared(), loss, kept)
+                let state = if slipping { FrictionState::Slipping } else { FrictionState::Stuck };
+                (friction, 0.5 * law.stiffness * d.norm_squared(), loss, kept, state)
             }
         }
     };
@@ -303,6 +341,7 @@ fn respond_pressed(
         energy: 0.5 * spring * delta + friction_energy,
         loss_power: (normal_force - spring) * delta_dot + friction_loss,
         stick_extension: kept,
+        friction_state,
     }
 }
 

@@ -1027,6 +1027,13 @@ impl Model {
         grounds.chain(struts)
     }
 
+    /// The friction coefficient `mu` of every contact pair, in `contact_labels` order: the
+    /// ground's for a sphere, the struts' material's for a pair of struts.
+    pub fn contact_friction_coefficients(&self) -> impl Iterator<Item = f64> + '_ {
+        let grounds = self.contact_pair_list().map(|(_, _, ground)| ground.material.friction);
+        grounds.chain(self.strut_pairs.iter().map(|_| self.strut_material.friction))
+    }
+
     /// Every contact pair, in that order: `(k, sphere, ground)` with `k = s * grounds.len() + g`.
     pub fn contact_pair_list(&self) -> impl Iterator<Item = (usize, &ContactSphere, &GroundModel)> + '_ {
         self.contact_spheres

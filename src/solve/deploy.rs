@@ -134,15 +134,19 @@ pub fn deploy_quasi_static(
     let nc = model.constraint_count;
     let mut solver = StaticSolver::new(model);
     let mut path = QuasiStaticPath::default();
-    let fail = |time, load_step, (iterations, residual): (usize, f64), cuts| SolveError::NoEquilibrium {
-        time,
-        load_step,
-        residual,
-        iterations,
-        cuts,
+    let fail = |time, load_step, (iterations, residual): (usize, f64), cuts, solver: &StaticSolver| {
+        SolveError::NoEquilibrium {
+            time,
+            load_step,
+            residual,
+            iterations,
+            cuts,
+            slipping: solver.slipping_contact_labels(model),
+        }
     };
     model.scheduled_rest_lengths(state.time, &mut state.rest_lengths);
-    let report = solver.equilibrate(model, state, ws, &settings).map_err(|e| fail(state.time, 0, e, 0))?;
+    let report =
+        solver.equilibrate(model, state, ws, &settings).map_err(|e| fail(state.time, 0, e, 0, &solver))?;
     evaluate(model, state, ws, Tangents::None);
     let first = PathStep { index: 0, time: state.time, report, cuts: 0, kind: PathKind::Load };
     on_step(&first, state, ws);
@@ -274,7 +278,7 @@ pub fn deploy_quasi_static(
             }
             cuts += 1;
             if cuts > settings.max_step_cuts {
-                return Err(fail(t_try, s, last_error, cuts - 1));
+                return Err(fail(t_try, s, last_error, cuts - 1, &solver));
             }
             h *= 0.5;
         };

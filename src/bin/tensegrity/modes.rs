@@ -31,7 +31,7 @@ pub fn run(
         format!(
             "{}: no equilibrium found: residual {res:.3e} N after {it} Newton iterations ({})",
             scene.display(),
-            solver.stop_reason().words()
+            solver.stop_words(&model)
         )
     })?;
     let modes = tensegrity::solve::modes::natural_modes(&model, &state).ok_or_else(|| {

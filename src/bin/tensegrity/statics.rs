@@ -57,7 +57,7 @@ pub fn run(scene: &Path, json: bool, progress: crate::output::Progress) -> Resul
             "{}: no equilibrium found: residual {res:.3e} N after {} ({}; residual by iteration {})",
             scene.display(),
             counted(it, "Newton iteration"),
-            solver.stop_reason().words(),
+            solver.stop_words(&model),
             history_words(solver.residual_history())
         )
     })?;
@@ -278,15 +278,23 @@ fn format_statics(
     }
     let contacts = report::contact_reports(model, ws);
     if !contacts.is_empty() {
-        let _ = writeln!(out, "\n{:<20} {:<10} {:>12} {:>14}", "contact", "with", "gap m", "normal force N");
+        let _ = writeln!(
+            out,
+            "\n{:<20} {:<10} {:>12} {:>14} {:>12} {:>12}  friction",
+            "contact", "with", "gap m", "normal force N", "friction N", "mu Fn N"
+        );
         for c in contacts {
+            let friction = c.friction_n.iter().map(|f| f * f).sum::<f64>().sqrt();
             let _ = writeln!(
                 out,
-                "{:<20} {:<10} {:>12.3e} {:>14.6}",
+                "{:<20} {:<10} {:>12.3e} {:>14.6} {:>12.6} {:>12.6}  {}",
                 c.point,
                 c.ground,
                 c.gap_m,
-                Num(c.normal_force_n)
+                Num(c.normal_force_n),
+                Num(friction),
+                Num(c.friction_limit_n),
+                if c.at_limit { "at limit" } else { c.friction_state }
             );
         }
     }

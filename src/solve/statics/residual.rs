@@ -77,10 +77,15 @@ pub enum StopReason {
     Diverged,
     /// The Newton matrix could not be solved even with regularization.
     Singular,
+    /// No equilibrium found while a stick-slip contact slipped at the last iteration: the
+    /// friction its cone allows (`mu F_n`) cannot hold it (`StaticSolver::slipping_contacts`
+    /// names the contacts).
+    ContactSlips,
 }
 
 impl StopReason {
-    /// The reason in words (`converged`, `iteration limit`, `stagnated`, `diverged`, `singular`).
+    /// The reason in words (`converged`, `iteration limit`, `stagnated`, `diverged`, `singular`,
+    /// `contact slips`).
     pub fn words(self) -> &'static str {
         match self {
             StopReason::Converged => "converged",
@@ -88,6 +93,7 @@ impl StopReason {
             StopReason::Stagnated => "stagnated",
             StopReason::Diverged => "diverged",
             StopReason::Singular => "singular",
+            StopReason::ContactSlips => "contact slips",
         }
     }
 

@@ -6,6 +6,7 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::constraints::add_multiplier_hessian;
 use crate::evaluate::{evaluate, evaluate_forces, Tangents, Workspace};
+use crate::forces::contact::FrictionState;
 use crate::model::{BodyId, Model, Pose, SolverSettings};
 use crate::solve::linear::{KktSystem, LinearBackend};
 use crate::solve::stability::{dense_stability, sparse_stability};
@@ -61,6 +62,8 @@ pub struct StaticSolver {
     /// `equilibrate_holding` found no equilibrium with the contacts held once: the rest of the
     /// path is solved as structures set down (each failed attempt costs a whole Newton solve).
     pub(crate) holding_failed: bool,
+    /// `slipping_contacts`.
+    slipping: Vec<usize>,
 }
 
 impl StaticSolver {
@@ -92,6 +95,7 @@ impl StaticSolver {
             stiff,
             prestressed,
             holding_failed: false,
+            slipping: Vec::new(),
         };
         if large {
             solver = solver.with_sparse_kkt(model, true);
@@ -163,6 +167,12 @@ impl StaticSolver {
         }
         let res = residual_of(model, state, ws, &mut self.rhs, self.size);
         self.history.push(res.force);
+        self.slipping.clear();
+        if !state.contact_anchors.is_empty() {
+            let slipping =
+                ws.contacts.iter().enumerate().filter(|(_, c)| c.friction_state == FrictionState::Slipping);
+            self.slipping.extend(slipping.map(|(k, _)| k));
+        }
         crate::progress::report(crate::progress::Report {
             unit: "Newton iterations",
             done: iterations as u64,
@@ -194,6 +204,41 @@ impl StaticSolver {
     /// Why the last `equilibrate` stopped.
     pub fn stop_reason(&self) -> StopReason {
         self.stop
+    }
+
+    /// The contacts (`Model::contact_labels` order) that slipped at the last iteration of the
+    /// last `equilibrate` (stick-slip grounds only): the ones a `StopReason::ContactSlips` names.
+    pub fn slipping_contacts(&self) -> &[usize] {
+        &self.slipping
+    }
+
+    /// Why the last `equilibrate` stopped, in words, naming the slipping contacts for
+    /// `StopReason::ContactSlips` (`contact slips: block@slope, beyond mu F_n`), and saying, for
+    /// a model with contacts whose grounds have no stick-slip friction, that statics holds them
+    /// up but not sideways.
+    pub fn stop_words(&self, model: &Model) -> String {
+        let mut words = self.stop.words().to_string();
+        if self.stop == StopReason::ContactSlips {
+            words = format!("{words}: {} beyond mu F_n", self.slipping_contact_labels(model).join(", "));
+        } else if self.stop != StopReason::Converged && model.contact_pairs() > 0 {
+            let grounds = |f: fn(&crate::model::GroundModel) -> bool| model.grounds.iter().any(f);
+            if grounds(|g| g.material.friction == 0.0) {
+                words.push_str("; a frictionless ground (mu = 0) holds a structure up but not sideways");
+            }
+            if grounds(|g| g.material.friction > 0.0 && g.material.stick.is_none()) {
+                words.push_str(
+                    "; grounds without stick_stiffness hold a structure up but not sideways in statics \
+                     (their regularized friction needs motion): give a ground stick_stiffness for friction at rest",
+                );
+            }
+        }
+        words
+    }
+
+    /// `slipping_contacts` as `point@ground` labels (`Model::contact_labels`).
+    pub fn slipping_contact_labels(&self, model: &Model) -> Vec<String> {
+        let labels: Vec<(&str, &str)> = model.contact_labels().collect();
+        self.slipping.iter().map(|&k| format!("{}@{}", labels[k].0, labels[k].1)).collect()
     }
 
     /// The force residual `|Q - Phi_q^T lambda|_inf` (N) at the start of each Newton iteration of
@@ -309,8 +354,26 @@ impl StaticSolver {
         })
     }
 
-    /// `equilibrate` with the contacts as the state has them (its anchors, or none).
+    /// `equilibrate` with the contacts as the state has them (its anchors, or none). A solve
+    /// that stops without an equilibrium while a stick-slip contact slipped at its last
+    /// iteration stops for `StopReason::ContactSlips`: no equilibrium holds that contact inside
+    /// its friction cone (a block on an incline steeper than `atan(mu)`).
     fn equilibrate_from(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        self.slipping.clear();
+        let result = self.equilibrate_contacts_as_they_are(model, state, ws, settings);
+        if result.is_err() && !self.slipping.is_empty() {
+            self.stop = StopReason::ContactSlips;
+        }
+        result
+    }
+
+    fn equilibrate_contacts_as_they_are(
         &mut self,
         model: &Model,
         state: &mut State,
