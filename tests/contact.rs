@@ -346,16 +346,20 @@ fn the_six_bar_robot_stands_on_a_face_and_its_winch_rolls_it_onto_the_next() {
         on
     };
     assert_eq!(face(&sim), ["x0.b", "y0.b", "z0.b"]);
-    // statics found it without the friction (there is an equilibrium without), and the feet
-    // stick where it put them: no friction at rest
+    // statics holds the feet where the scene set them down: they carry the weight, a third
+    // each (the robot is symmetric about its vertical axis), and stick, the friction that keeps
+    // its bottom triangle from spreading as it settles inside their cones
+    let carried: f64 = sim.workspace().contacts.iter().map(|c| c.normal_force).sum();
+    assert!((carried - weight).abs() < 1e-9 * weight, "{carried} N of {weight} N");
     for c in sim.workspace().contacts.iter().filter(|c| c.in_contact()) {
         assert!(
-            (c.normal_force - weight / 3.0).abs() < 1e-6 * weight,
+            (c.normal_force - weight / 3.0).abs() < 1e-4 * weight,
             "{} N of {}",
             c.normal_force,
             weight / 3.0
         );
-        assert_eq!(c.friction.norm(), 0.0);
+        assert_eq!(c.friction_state, tensegrity::forces::contact::FrictionState::Stuck);
+        assert!(c.friction.norm() < 0.5 * 0.8 * c.normal_force, "friction {} N", c.friction.norm());
     }
     // the winch hauls a bottom edge in: the robot tips over and comes to rest on the next face,
     // with hardly a sub-step retried (5000 steps through its impacts and stick-slip switches)
@@ -513,8 +517,10 @@ fn rviz_markers_show_the_contact_points_and_their_forces() {
     assert_eq!(points.points.len(), 3, "the three ends it stands on");
     assert_eq!(forces.points.len(), 6, "a line per contact");
     for pair in forces.points.chunks(2) {
-        // standing still on a level floor: straight up, the largest a fifth of the robot's size
-        assert!((pair[1].z - pair[0].z) > 0.1 && (pair[1].x - pair[0].x).abs() < 1e-6);
+        // standing still on a level floor: mostly up (the feet's friction is within half their
+        // cones), the largest a fifth of the robot's size
+        let (up, side) = (pair[1].z - pair[0].z, (pair[1].x - pair[0].x).hypot(pair[1].y - pair[0].y));
+        assert!(up > 0.1 && side < 0.4 * up, "up {up}, sideways {side}");
     }
     // a scene without grounds draws none
     let prism = common::bundled("prism3");

@@ -72,8 +72,22 @@ pub enum FormFindingMethod {
 /// `FormFindingMethod::Auto` solves with the dense SVD.
 pub const DENSE_FORM_FINDING_MAX: usize = 400;
 
-/// A form-finding refusal: the cable to blame (index into `Model::cables`), if one is, and why.
-pub type FormFindingError = (Option<usize>, String);
+/// A form-finding refusal: what to blame and why.
+pub type FormFindingError = (Blame, String);
+
+/// What a form-finding refusal blames: the scene field a user changes to fix it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Blame {
+    /// The geometry as a whole (no single element).
+    Geometry,
+    /// No tensions hold the sketched geometry in equilibrium: the targets (prestress, force
+    /// density) asked for tensions it cannot have.
+    Equilibrium,
+    /// A cable or member (index into `Model::cables`).
+    Cable(usize),
+    /// A ground (index into `Model::grounds`) and its field (`mu`, `normal`).
+    Ground(usize, &'static str),
+}
 
 /// The reason `find_rest_lengths` gives for an element whose ends coincide at the initial
 /// geometry (a fault of its route, not of its target).
@@ -90,6 +104,52 @@ pub struct FormFound {
     pub dense: bool,
     /// Entries of the sparse `LDL^T` factor (0 on the dense path or with no unknowns).
     pub factor_entries: usize,
+    /// The reaction of every contact that carries the structure at its sketched pose (a sphere
+    /// within `TOUCHING_GAP` of a ground), in `Model::contact_labels` order. Empty without
+    /// grounds, and when no rest length was to be found.
+    pub reactions: Vec<ContactReaction>,
+    /// True when the structure stands on a ground but has no equilibrium with its weight at the
+    /// sketched pose (a prestress-stable mechanism, as a prism, whose weight works along its
+    /// mechanism): the rest lengths then give the cables' self-stress at the sketched pose
+    /// without the weight and without the grounds, and statics settles the structure onto its
+    /// contacts, which carry the weight, a little way from the sketch. `reactions` is empty.
+    pub settles_under_weight: bool,
+}
+
+/// What one ground contact carries in a form-found equilibrium.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ContactReaction {
+    /// The contact pair (`Model::contact_labels`).
+    pub pair: usize,
+    /// Normal force, N (>= 0 in an accepted result).
+    pub normal: f64,
+    /// Magnitude of the tangential (friction) force, N: zero on grounds without stick-slip
+    /// friction, which hold nothing sideways at rest; at most `mu normal` in an accepted result.
+    pub friction: f64,
+}
+
+/// Two unit tangents `[t, n x t]` of a ground with unit normal `n`.
+fn ground_tangents(n: &nalgebra::Vector3<f64>) -> [nalgebra::Vector3<f64>; 2] {
+    let helper = if n.x.abs() < 0.9 { nalgebra::Vector3::x() } else { nalgebra::Vector3::y() };
+    let t = (helper - n * n.dot(&helper)).normalize();
+    [t, n.cross(&t)]
+}
+
+/// Column `c` of the lever's part of a contact point's Jacobian: `d(R lever_b)/dq_c` for the
+/// world-fixed lever `lever` (the sphere's lowest point from its centre), `R ((B_r e_c) x b)`,
+/// `b = R^T lever`: the lowest point's velocity is the centre's plus `omega x lever`.
+fn lever_column(
+    model: &Model,
+    poses: &[crate::model::Pose],
+    p: &crate::kinematics::PointKinematics,
+    lever: &nalgebra::Vector3<f64>,
+    c: usize,
+) -> nalgebra::Vector3<f64> {
+    let body = &model.bodies[p.body.0];
+    let b_r = body.basis.column(c).fixed_rows::<3>(3).into_owned();
+    let rot = poses[p.body.0].rotation;
+    let local = rot.inverse() * lever;
+    rot * b_r.cross(&local)
 }
 
 /// Rest lengths (m) for every cable, or `(cable index if one is to blame, reason)`.
@@ -110,7 +170,7 @@ pub fn find_rest_lengths_with(
     let lengths: Vec<f64> = ws.cables.iter().map(|c| c.length).collect();
     for (c, l) in lengths.iter().enumerate() {
         if *l <= 1e-12 {
-            return Err((Some(c), ZERO_LENGTH.into()));
+            return Err((Blame::Cable(c), ZERO_LENGTH.into()));
         }
     }
     let resolved: Vec<RestLengthSpec> = specs
@@ -126,22 +186,78 @@ pub fn find_rest_lengths_with(
             .iter()
             .map(|s| if let RestLengthSpec::Given(l) = s { *l } else { unreachable!() })
             .collect();
-        return Ok(FormFound { rest_lengths, unknowns: 0, dense: true, factor_entries: 0 });
+        return Ok(FormFound {
+            rest_lengths,
+            unknowns: 0,
+            dense: true,
+            factor_entries: 0,
+            reactions: Vec::new(),
+            settles_under_weight: false,
+        });
     }
 
-    let sys = EquilibriumSystem::assemble(model, specs, &ws, &lengths, unknown);
+    let contacts = touching_contacts(model, &state, &ws, &lengths);
+    let grounded = !contacts.is_empty() && model.gravity.norm() > 0.0;
+    let sys = EquilibriumSystem::assemble(
+        model,
+        specs,
+        &ws.force,
+        &ws,
+        &lengths,
+        unknown.clone(),
+        (contacts, &state.poses),
+    );
+    let exact = solve_system(model, specs, &sys, &lengths, method);
+    if !grounded || !matches!(exact, Err((Blame::Equilibrium, _))) {
+        return exact;
+    }
+    // a prestress-stable structure standing on a ground (a prism: its twist mechanism moves its
+    // weight) has no equilibrium with its weight at the sketched pose: the cables' self-stress is
+    // found without the weight and without the ground, and statics then settles the structure
+    // onto its contacts, which carry the weight (`FormFound::settles_under_weight`)
+    let mut weightless = model.clone();
+    weightless.gravity = nalgebra::Vector3::zeros();
+    weightless.grounds.clear();
+    let mut free = Workspace::for_forces(&weightless);
+    evaluate_forces(&weightless, &state, &mut free);
+    let sys = EquilibriumSystem::assemble(
+        &weightless,
+        specs,
+        &free.force,
+        &free,
+        &lengths,
+        unknown,
+        (Vec::new(), &state.poses),
+    );
+    match solve_system(&weightless, specs, &sys, &lengths, method) {
+        Ok(found) => Ok(FormFound { settles_under_weight: true, ..found }),
+        Err(_) => exact,
+    }
+}
+
+/// Solves `sys` (the module docs) and turns its tensions into rest lengths, refusing targets it
+/// misses, cables that would push, members beyond their EA and reactions outside the grounds'
+/// cones.
+fn solve_system(
+    model: &Model,
+    specs: &[RestLengthSpec],
+    sys: &EquilibriumSystem,
+    lengths: &[f64],
+    method: FormFindingMethod,
+) -> Result<FormFound, FormFindingError> {
     let dense = match method {
         FormFindingMethod::Auto => sys.n + sys.columns.len() <= DENSE_FORM_FINDING_MAX,
         FormFindingMethod::Dense => true,
         FormFindingMethod::Sparse => false,
     };
-    let (x, factor_entries) = if dense { (solve_dense(model, &sys)?, 0) } else { solve_sparse(model, &sys)? };
+    let (x, factor_entries) = if dense { (solve_dense(model, sys)?, 0) } else { solve_sparse(model, sys)? };
 
     for (col, t) in &sys.targets {
         if (x[*col] - t).abs() > 1e-6 * sys.scale {
-            return Err((Some(sys.unknown[*col]), format!("prestress target {t} N is not compatible with equilibrium at this geometry (nearest equilibrium has {:.6} N)", x[*col])));
+            return Err((Blame::Cable(sys.unknown[*col]), format!("prestress target {t} N is not compatible with equilibrium at this geometry (nearest equilibrium has {:.6} N){}", x[*col], sys.sideways_hint)));
         }
     }
+    sys.check_reactions(model, &x)?;
     let mut out = vec![0.0; specs.len()];
     for (c, spec) in specs.iter().enumerate() {
         if let RestLengthSpec::Given(l) = spec {
@@ -155,7 +271,7 @@ pub fn find_rest_lengths_with(
             // a member: any force whose rest length stays positive and finite
             if ea + t <= 0.0 || t.is_nan() {
                 return Err((
-                    Some(c),
+                    Blame::Cable(c),
                     format!("equilibrium needs a compression of {:.6} N in this member, at least its EA {ea} N: no rest length gives it", -t),
                 ));
             }
@@ -164,17 +280,57 @@ pub fn find_rest_lengths_with(
         }
         if t < -1e-9 * sys.scale {
             return Err((
-                Some(c),
+                Blame::Cable(c),
                 format!("equilibrium needs this cable to push (T = {t:.6} N); a cable can only pull"),
             ));
         }
         out[c] = ea * lengths[c] / (ea + t.max(0.0));
     }
-    Ok(FormFound { rest_lengths: out, unknowns: sys.columns.len(), dense, factor_entries })
+    let reactions = sys.reactions_of(&x);
+    Ok(FormFound {
+        rest_lengths: out,
+        unknowns: sys.columns.len(),
+        dense,
+        factor_entries,
+        reactions,
+        settles_under_weight: false,
+    })
 }
 
+/// The contacts that carry a structure at its sketched pose: every sphere whose surface lies
+/// within `TOUCHING_GAP` of the largest cable length from a ground (or presses into it), as
+/// `(contact pair k, its generalized force at the sketched pose)`. Form finding takes their normal
+/// reactions as unknowns in place of those forces.
+fn touching_contacts(
+    model: &Model,
+    state: &State,
+    ws: &Workspace,
+    lengths: &[f64],
+) -> Vec<(usize, DVector<f64>)> {
+    let reach = lengths.iter().copied().fold(1e-3, f64::max);
+    let mut out = Vec::new();
+    for (k, sphere, ground) in model.contact_pair_list() {
+        if ws.contacts[k].gap > TOUCHING_GAP * reach {
+            continue;
+        }
+        let mut force = DVector::zeros(model.dof_count);
+        let kin = &ws.points[sphere.point.0];
+        let anchor = state.contact_anchors.get(k);
+        let (poses, v) = (&state.poses, &state.velocities);
+        crate::forces::contact::add_contact_force(model, poses, v, ground, sphere, kin, anchor, &mut force);
+        out.push((k, force));
+    }
+    out
+}
+
+/// A contact sphere whose surface lies within this fraction of the structure's largest cable
+/// length from a ground touches it, for form finding (`touching_contacts`).
+pub const TOUCHING_GAP: f64 = 1e-6;
+
 /// The equilibrium equations `A x = b` of form finding, `A` (n x p) kept column by column:
-/// columns `0..nu` are `-g_c` of the cables without a given rest length, the rest `-Phi_q^T`.
+/// columns `0..nu` are `-g_c` of the cables without a given rest length, then `-Phi_q^T` of the
+/// joints, then `J_k^T n_k` of each touching contact (`touching_contacts`: the generalized force
+/// of a unit normal reaction through the sphere's centre, `N_k >= 0`).
 struct EquilibriumSystem {
     /// Rows: generalized coordinates.
     n: usize,
@@ -188,20 +344,34 @@ struct EquilibriumSystem {
     targets: Vec<(usize, f64)>,
     /// Force scale for the tolerances, N.
     scale: f64,
+    /// `; a ground without stick_stiffness ...` when a touching contact's ground has friction
+    /// that holds nothing at rest (the regularized law), else empty: the refusals' hint.
+    sideways_hint: &'static str,
+    /// The contact pair of each reaction column (the last `reactions.len()` columns) and its
+    /// direction: 0 the ground's normal, 1 and 2 its tangents (`ground_tangents`).
+    reactions: Vec<(usize, usize)>,
 }
 
 impl EquilibriumSystem {
+    /// `known`: the generalized force at the sketched pose of everything but the unknowns (the
+    /// forces of the cables with given rest lengths are added here), N.
     fn assemble(
         model: &Model,
         specs: &[RestLengthSpec],
+        known: &DVector<f64>,
         ws: &Workspace,
         lengths: &[f64],
         unknown: Vec<usize>,
+        (contacts, poses): (Vec<(usize, DVector<f64>)>, &[crate::model::Pose]),
     ) -> Self {
         let n = model.dof_count;
         let max_route = model.cables.iter().map(|c| c.route_len).max().unwrap_or(2);
         let mut scratch = CableScratch::new(max_route);
-        let mut b = -&ws.force;
+        let mut b = -known;
+        // the touching contacts' forces at the sketched pose are replaced by their reactions
+        for (_, force) in &contacts {
+            b += force;
+        }
         let mut columns = Vec::with_capacity(unknown.len() + model.constraint_count);
         let mut entries = Vec::new();
         for (c, spec) in specs.iter().enumerate() {
@@ -230,6 +400,38 @@ impl EquilibriumSystem {
                 columns.push(merged(column));
             }
         }
+        let pairs: Vec<_> = model.contact_pair_list().collect();
+        let mut reactions = Vec::new();
+        let sideways_hint = if contacts.iter().any(|(k, _)| {
+            let m = &pairs[*k].2.material;
+            m.friction > 0.0 && m.stick.is_none()
+        }) {
+            "; the ground it stands on holds nothing sideways at rest (its friction is regularized): give the ground stick_stiffness"
+        } else {
+            ""
+        };
+        for (k, _) in &contacts {
+            let (_, sphere, ground) = pairs[*k];
+            let p = &ws.points[sphere.point.0];
+            let body = &model.bodies[p.body.0];
+            let [tangent, binormal] = ground_tangents(&ground.normal);
+            // the normal reaction through the centre; where the ground's friction holds at rest
+            // (stick-slip), two tangential ones at the lowest point (the sphere's lever)
+            let holds = ground.material.friction > 0.0 && ground.material.stick.is_some();
+            let directions = if holds { 3 } else { 1 };
+            for (d, direction) in [ground.normal, tangent, binormal].iter().enumerate().take(directions) {
+                let lever = -ground.normal * sphere.radius;
+                let column = (0..body.dof_count).map(|c| {
+                    let mut along = p.jacobian.column(c).into_owned();
+                    if d > 0 {
+                        along += lever_column(model, poses, p, &lever, c);
+                    }
+                    (body.dof_offset + c, direction.dot(&along))
+                });
+                columns.push(merged(column));
+                reactions.push((*k, d));
+            }
+        }
         let targets: Vec<(usize, f64)> = unknown
             .iter()
             .enumerate()
@@ -240,7 +442,47 @@ impl EquilibriumSystem {
             })
             .collect();
         let scale = targets.iter().map(|t| t.1.abs()).fold(b.amax(), f64::max).max(1e-12);
-        Self { n, columns, b, unknown, targets, scale }
+        Self { n, columns, b, unknown, targets, scale, sideways_hint, reactions }
+    }
+
+    /// Refuses `x` when it needs a ground to pull (a normal reaction below zero) or more
+    /// friction than the cone holds (`|F_t| > mu N`).
+    fn check_reactions(&self, model: &Model, x: &DVector<f64>) -> Result<(), FormFindingError> {
+        let labels: Vec<(&str, &str)> = model.contact_labels().collect();
+        let mu: Vec<f64> = model.contact_friction_coefficients().collect();
+        for r in self.reactions_of(x) {
+            let (point, ground) = labels[r.pair];
+            // pair k = sphere * grounds + ground
+            let g = r.pair % model.grounds.len();
+            if r.normal < -1e-9 * self.scale {
+                return Err((Blame::Ground(g, "normal"), format!("equilibrium at the sketched pose needs the ground `{ground}` to pull {point} down with {:.6} N; a ground only pushes: move the structure, or change its prestress", -r.normal)));
+            }
+            let limit = mu[r.pair] * r.normal.max(0.0);
+            if r.friction > limit + 1e-9 * self.scale {
+                return Err((Blame::Ground(g, "mu"), format!("equilibrium at the sketched pose needs {:.6} N of friction at {point} on `{ground}`, beyond its cone mu N = {limit:.6} N: raise the ground's mu, or move the structure", r.friction)));
+            }
+        }
+        Ok(())
+    }
+
+    /// The reactions of the touching contacts in `x`, one per contact.
+    fn reactions_of(&self, x: &DVector<f64>) -> Vec<ContactReaction> {
+        let first = self.columns.len() - self.reactions.len();
+        let mut out: Vec<ContactReaction> = Vec::new();
+        let mut tangential = [0.0; 2];
+        for (i, &(pair, direction)) in self.reactions.iter().enumerate() {
+            let value = x[first + i];
+            if direction == 0 {
+                out.push(ContactReaction { pair, normal: value, friction: 0.0 });
+                tangential = [0.0; 2];
+            } else {
+                tangential[direction - 1] = value;
+                if let Some(last) = out.last_mut() {
+                    last.friction = (tangential[0] * tangential[0] + tangential[1] * tangential[1]).sqrt();
+                }
+            }
+        }
+        out
     }
 
     /// `|A x - b|_inf`, N.
@@ -258,7 +500,7 @@ impl EquilibriumSystem {
     fn check_equilibrium(&self, x: &DVector<f64>) -> Result<(), FormFindingError> {
         let residual = self.residual(x);
         if residual > 1e-8 * self.scale {
-            return Err((None, format!("the initial geometry is not an equilibrium for any cable tensions (or member forces) (force residual {residual:.3e} N); move the bodies or give rest lengths")));
+            return Err((Blame::Equilibrium, format!("the initial geometry is not an equilibrium for any cable tensions (or member forces) (force residual {residual:.3e} N); move the bodies or give rest lengths{}", self.sideways_hint)));
         }
         Ok(())
     }
@@ -279,9 +521,9 @@ impl EquilibriumSystem {
             names.join(", ")
         };
         if push {
-            return Err((None, format!("form finding cannot determine the forces of {listed}: give one of them a rest_length, or a force ([[members]]) or prestress ([[cables]])")));
+            return Err((Blame::Geometry, format!("form finding cannot determine the forces of {listed}: give one of them a rest_length, or a force ([[members]]) or prestress ([[cables]])")));
         }
-        Err((None, format!("form finding cannot determine the tensions of cables {listed}: give one of them a prestress or a rest_length")))
+        Err((Blame::Geometry, format!("form finding cannot determine the tensions of cables {listed}: give one of them a prestress or a rest_length")))
     }
 }
 
@@ -313,8 +555,12 @@ fn solve_dense(model: &Model, sys: &EquilibriumSystem) -> Result<DVector<f64>, F
     let mut b = DVector::zeros(rows);
     b.rows_mut(0, n).copy_from(&sys.b);
 
-    let failed =
-        || (None, "form finding failed: the singular value decomposition did not converge".to_string());
+    let failed = || {
+        (
+            Blame::Geometry,
+            "form finding failed: the singular value decomposition did not converge".to_string(),
+        )
+    };
     let svd = ThinSvd::new(&a).ok_or_else(failed)?;
     let tol = 1e-10 * svd.s.max().max(1e-300);
     let mut x = svd.solve(&b, tol);
@@ -400,7 +646,7 @@ impl<'a> SaddlePoint<'a> {
         }
         let signs: Vec<i8> = (0..size).map(|i| if i < p { 1 } else { -1 }).collect();
         let lu = SparseLdlt::factor(size, &upper, &signs, eps)
-            .map_err(|e| (None, format!("form finding failed: {e}")))?;
+            .map_err(|e| (Blame::Geometry, format!("form finding failed: {e}")))?;
         Ok(Self { sys, weights, hard_targets, max_steps, lu })
     }
     /// The unregularized product `K0 z`.
