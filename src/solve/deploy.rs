@@ -49,6 +49,12 @@ pub struct PathStep {
     pub cuts: usize,
     /// How the row was reached.
     pub kind: PathKind,
+    /// False once the path's stick-slip contacts could not be held from load step to load step
+    /// (`StaticSolver::equilibrate_holding` did not converge with them sticking and slipping):
+    /// from then on each equilibrium is solved as a structure set down, its contacts stuck
+    /// where the normal springs alone put it, so the path slides where held feet would stick.
+    /// True without stick-slip grounds.
+    pub contacts_held: bool,
 }
 
 /// A snap-through on the path: past a limit point (the largest load the branch carries, where
@@ -148,7 +154,8 @@ pub fn deploy_quasi_static(
     let report =
         solver.equilibrate(model, state, ws, &settings).map_err(|e| fail(state.time, 0, e, 0, &solver))?;
     evaluate(model, state, ws, Tangents::None);
-    let first = PathStep { index: 0, time: state.time, report, cuts: 0, kind: PathKind::Load };
+    let first =
+        PathStep { index: 0, time: state.time, report, cuts: 0, kind: PathKind::Load, contacts_held: true };
     on_step(&first, state, ws);
     path.steps.push(first);
 
@@ -218,6 +225,7 @@ pub fn deploy_quasi_static(
                 let before = state.clone();
                 let from_row = path.steps.len() - 1;
                 let mut traced = 0;
+                let held = !solver.holding_failed;
                 let outcome = crate::solve::continuation::continue_past_limit_points(
                     model,
                     &mut solver,
@@ -233,6 +241,7 @@ pub fn deploy_quasi_static(
                             report: point.report,
                             cuts,
                             kind: PathKind::ArcLength,
+                            contacts_held: held,
                         };
                         on_step(&row, st, w);
                         path.steps.push(row);
@@ -283,7 +292,14 @@ pub fn deploy_quasi_static(
             h *= 0.5;
         };
         evaluate(model, state, ws, Tangents::None);
-        let row = PathStep { index: s, time: state.time, report, cuts, kind };
+        let row = PathStep {
+            index: s,
+            time: state.time,
+            report,
+            cuts,
+            kind,
+            contacts_held: !solver.holding_failed,
+        };
         on_step(&row, state, ws);
         path.steps.push(row);
         let total = Some(steps as u64);

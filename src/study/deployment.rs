@@ -56,13 +56,33 @@ pub struct StudyResult {
     /// Actuation time below which the deviation exceeds 1 % (interpolated in log-log between
     /// the bracketing runs); `None` when no run exceeds 1 %; `Some(inf)` when all do.
     pub threshold: Option<f64>,
+    /// Where the quasi-static path ends before the schedule does (a robot that tips over has no
+    /// equilibrium past its limit point): the fraction of the schedule it reached and why it
+    /// stopped. The runs are then compared up to that fraction of their own schedules, and
+    /// their peaks are taken there. `None` when the path reaches the schedule's end.
+    pub path_end: Option<PathEnd>,
+    /// Schedule time (s) of the first load step at which the quasi-static path could not hold
+    /// its stick-slip contacts (`PathStep::contacts_held`): from there on it slides where the
+    /// dynamic runs' feet stick, and the comparison says more about statics than about the
+    /// actuation speed. `None` when it held them throughout (or has none).
+    pub contacts_released: Option<f64>,
+}
+
+/// Where a study's quasi-static path stopped short of the schedule's end.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PathEnd {
+    /// Fraction of the schedule (time over the schedule's end) at the last equilibrium, in
+    /// (0, 1).
+    pub fraction: f64,
+    /// The solve's error at the next load step.
+    pub reason: String,
 }
 
 impl StudyResult {
     /// Markdown table of the summary.
     pub fn markdown(&self) -> String {
         let mut s = format!(
-            "Quasi-static peak tension {:.4} N, peak displacement of `{}` {:.6} m{}.\n\n| actuation time s | peak tension N | deviation % | peak displacement m | deviation % | within max_rate | wall time s |\n| ---: | ---: | ---: | ---: | ---: | :---: | ---: |\n",
+            "Quasi-static peak tension {:.4} N, peak displacement of `{}` {:.6} m{}.\n\n",
             self.qs_peak_tension,
             self.point,
             self.qs_peak_displacement,
@@ -72,6 +92,21 @@ impl StudyResult {
                 ""
             }
         );
+        if let Some(t) = self.contacts_released {
+            let _ = writeln!(
+                s,
+                "From t = {t} s on, the quasi-static path could not hold its contacts (statics did not converge with them sticking and slipping) and solved each load step with them set down afresh: its feet slide where the dynamic runs' stick, so the deviations from there on are not the actuation speed's.\n"
+            );
+        }
+        if let Some(end) = &self.path_end {
+            let _ = writeln!(
+                s,
+                "The quasi-static path ends at {:.1} % of the schedule ({}): every run is compared with it up to that fraction of its own schedule, and its peaks are taken there.\n",
+                100.0 * end.fraction,
+                end.reason
+            );
+        }
+        s.push_str("| actuation time s | peak tension N | deviation % | peak displacement m | deviation % | within max_rate | wall time s |\n| ---: | ---: | ---: | ---: | ---: | :---: | ---: |\n");
         for r in &self.rows {
             let _ = writeln!(
                 s,
@@ -87,6 +122,10 @@ impl StudyResult {
         }
         let _ = match self.threshold {
             None => writeln!(s, "\nNo run deviates by more than 1 % from the quasi-static path."),
+            Some(t) if t.is_infinite() && self.contacts_released.is_some() => writeln!(
+                s,
+                "\nEvery run deviates by more than 1 % from a quasi-static path whose feet slide (above): this study cannot say how slow is slow enough until statics holds the contacts along the path."
+            ),
             Some(t) if t.is_infinite() => {
                 writeln!(s, "\nEvery run deviates by more than 1 %; slower actuation is needed.")
             }
@@ -178,7 +217,11 @@ pub fn deployment_study(
             now
         }
     };
-    deploy_quasi_static(model, &mut state, &mut ws, |step, st, w| {
+    let mut contacts_released = None;
+    let path = deploy_quasi_static(model, &mut state, &mut ws, |step, st, w| {
+        if !step.contacts_held && contacts_released.is_none() {
+            contacts_released = Some(step.time);
+        }
         let row = report::path_csv_row(model, st, w, step);
         let _ = writeln!(qs_file, "{row}");
         if step.kind == crate::solve::deploy::PathKind::ArcLength {
@@ -195,9 +238,18 @@ pub fn deployment_study(
             qs_disp[i] = qs_disp[i].max((p - start_pos[i]).norm());
         }
         qs_tension.push((st.time / end, t_max));
-    })
-    .map_err(|e| e.to_string())?;
+    });
     qs_file.flush().map_err(|e| e.to_string())?;
+    // a path that stops short (a robot tips over its edge: no equilibrium past the limit
+    // point) is compared up to where it got; one that found no first equilibrium is an error
+    let path_end = match path {
+        Ok(_) => None,
+        Err(e) => match qs_tension.last() {
+            Some(&(fraction, _)) if fraction > 0.0 => Some(PathEnd { fraction, reason: e.to_string() }),
+            _ => return Err(e.to_string()),
+        },
+    };
+    let compared = path_end.as_ref().map_or(f64::INFINITY, |p| p.fraction);
     let pid = match point {
         Some(p) => model.point_id(p).expect("checked above"),
         // the first point (in file order) within 1e-9 of the largest displacement: symmetric
@@ -227,7 +279,10 @@ pub fn deployment_study(
         let mut peak_t: f64 = 0.0;
         let mut peak_d: f64 = 0.0;
         let mut history = Vec::new();
-        let totals = run_dynamic(&m, settings, t_ramp + settle, |sim, stats| {
+        // a path that ends short: the run up to there, and no settling (past the quasi-static
+        // path's end the robot tips over)
+        let duration = if compared.is_finite() { compared * t_ramp } else { t_ramp + settle };
+        let totals = run_dynamic(&m, settings, duration, |sim, stats| {
             writeln!(file, "{}", dynamic_csv_row(sim, stats)).map_err(|e| e.to_string())?;
             let w = sim.workspace();
             let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
@@ -277,6 +332,8 @@ pub fn deployment_study(
         threshold: one_percent_threshold(&times, &worst),
         rows,
         rigid_motion_removed: free,
+        path_end,
+        contacts_released,
     };
 
     let mut summary = create(&out_dir.join("summary.csv"))?;
@@ -306,7 +363,14 @@ pub fn deployment_study(
     };
     plot::write(
         &Chart {
-            title: format!("{}: dynamic vs quasi-static deployment", model.name),
+            title: match &result.path_end {
+                None => format!("{}: dynamic vs quasi-static deployment", model.name),
+                Some(end) => format!(
+                    "{}: dynamic vs quasi-static deployment, up to {:.1} % of the schedule (the path's end)",
+                    model.name,
+                    100.0 * end.fraction
+                ),
+            },
             x_label: "actuation time (s)".into(),
             y_label: "|deviation| (%)".into(),
             log_x: true,
