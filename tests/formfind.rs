@@ -432,3 +432,25 @@ fn a_block_held_by_a_prestressed_tether_is_form_found_with_its_contact_reactions
     assert_eq!(line, text.lines().position(|l| l.starts_with("prestress")).map(|i| i + 1));
     assert!(reason.contains("stick_stiffness"), "{reason}");
 }
+
+#[test]
+fn a_pinned_prism_that_touches_a_floor_keeps_the_rest_lengths_its_pins_give() {
+    // prism3 as bundled (pinned feet, no weight) with its bar ends contact spheres on a floor:
+    // its cables and pins hold it without the floor, so the floor takes no reaction and the rest
+    // lengths are the bundled scene's, bit for bit
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/scenes/prism3.toml");
+    let text =
+        std::fs::read_to_string(&path).unwrap().replace("mass = 2.0\n", "mass = 2.0\ncontact_radius = 0.0\n")
+            + "\n[[grounds]]\nname = \"floor\"\nmu = 0.8\nstiffness = 1e6\nstick_stiffness = 1e5\n";
+    let on_floor = model_from_toml(&text);
+    let pinned = tensegrity::scene::load(&path).unwrap();
+    assert!(on_floor.contact_pairs() > 0);
+    assert_eq!(on_floor.initial_rest_lengths, pinned.initial_rest_lengths);
+    let specs: Vec<RestLengthSpec> = on_floor
+        .cable_names
+        .iter()
+        .map(|n| if n.starts_with("side") { RestLengthSpec::Prestress(100.0) } else { RestLengthSpec::Free })
+        .collect();
+    let found = find_rest_lengths_with(&on_floor, &specs, FormFindingMethod::Auto).unwrap();
+    assert!(found.reactions.is_empty() && !found.settles_under_weight);
+}

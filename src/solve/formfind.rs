@@ -106,7 +106,9 @@ pub struct FormFound {
     pub factor_entries: usize,
     /// The reaction of every contact that carries the structure at its sketched pose (a sphere
     /// within `TOUCHING_GAP` of a ground), in `Model::contact_labels` order. Empty without
-    /// grounds, and when no rest length was to be found.
+    /// grounds, when no rest length was to be found, and when the cables and joints hold the
+    /// structure without the ground (tried first: such a scene keeps the rest lengths it had
+    /// before grounds took reactions).
     pub reactions: Vec<ContactReaction>,
     /// True when the structure stands on a ground but has no equilibrium with its weight at the
     /// sketched pose (a prestress-stable mechanism, as a prism, whose weight works along its
@@ -198,6 +200,23 @@ pub fn find_rest_lengths_with(
 
     let contacts = touching_contacts(model, &state, &ws, &lengths);
     let grounded = !contacts.is_empty() && model.gravity.norm() > 0.0;
+    if !contacts.is_empty() {
+        // a structure that its cables and joints hold without the ground's help keeps the
+        // rest lengths it had before grounds took reactions (all of them zero)
+        let (none, poses) = (Vec::new(), &state.poses[..]);
+        let sys = EquilibriumSystem::assemble(
+            model,
+            specs,
+            &ws.force,
+            &ws,
+            &lengths,
+            unknown.clone(),
+            (none, poses),
+        );
+        if let Ok(found) = solve_system(model, specs, &sys, &lengths, method) {
+            return Ok(found);
+        }
+    }
     let sys = EquilibriumSystem::assemble(
         model,
         specs,
