@@ -346,9 +346,9 @@ fn the_six_bar_robot_stands_on_a_face_and_its_winch_rolls_it_onto_the_next() {
         on
     };
     assert_eq!(face(&sim), ["x0.b", "y0.b", "z0.b"]);
-    // statics holds the feet where the scene set them down: they carry the weight, a third
-    // each (the robot is symmetric about its vertical axis), and stick, the friction that keeps
-    // its bottom triangle from spreading as it settles inside their cones
+    // statics sets it down on its normal springs and sticks the feet where that puts them:
+    // they carry the weight, a third each (the robot is symmetric about its vertical axis), and
+    // stick, their friction inside their cones
     let carried: f64 = sim.workspace().contacts.iter().map(|c| c.normal_force).sum();
     assert!((carried - weight).abs() < 1e-9 * weight, "{carried} N of {weight} N");
     for c in sim.workspace().contacts.iter().filter(|c| c.in_contact()) {

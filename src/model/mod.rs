@@ -851,6 +851,10 @@ pub struct Model {
     pub constraint_count: usize,
     /// Rest lengths at t = 0, m, parallel to `cables` (from the scene or from form finding).
     pub initial_rest_lengths: Vec<f64>,
+    /// Form finding made the sketched pose an equilibrium with friction at stick-slip contacts
+    /// (a foot held sideways by a prestressed cable): statics of the structure set down holds
+    /// its contacts where the scene sets the bodies first (`StaticSolver::equilibrate`).
+    pub friction_holds_sketch: bool,
     /// Cables whose pulleys have friction (none: every pulley is frictionless, and friction
     /// costs nothing).
     pub pulley_friction: Vec<PulleyFriction>,

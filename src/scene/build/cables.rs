@@ -8,7 +8,7 @@ use super::context::{in_range, Ctx};
 use crate::error::SceneError;
 use crate::model::{BodyKind, BodyModel, CableModel, MassCoupling, Model, PointId, PointModel};
 use crate::scene::spec::{self, limits, CableSpec, MassMatrixSpec, SceneSpec};
-use crate::solve::formfind::{find_rest_lengths, Blame, RestLengthSpec};
+use crate::solve::formfind::{find_rest_lengths_with, Blame, FormFindingMethod, RestLengthSpec};
 
 /// Adds half of each member's mass to each of its ends' bodies: nodes take it, fixed bodies
 /// carry it to the ground; a member with mass may not end on a bar or rigid body (its lumped
@@ -244,35 +244,40 @@ pub(super) fn set_rest_lengths(
     spec_cables: usize,
     cx: &Ctx,
 ) -> Result<(), SceneError> {
-    model.initial_rest_lengths = find_rest_lengths(model, rest_specs).map_err(|(blame, reason)| {
-        let route = reason == crate::solve::formfind::ZERO_LENGTH;
-        // a geometry that no tensions hold is named at the first target that asked for them
-        let target = rest_specs
-            .iter()
-            .position(|s| matches!(s, RestLengthSpec::Prestress(_) | RestLengthSpec::ForceDensity(_)));
-        let blame = match (blame, target) {
-            (Blame::Equilibrium, Some(c)) => Blame::Cable(c),
-            (Blame::Equilibrium, None) => Blame::Geometry,
-            (blame, _) => blame,
-        };
-        match blame {
-            Blame::Cable(c) if c >= spec_cables => {
-                let field = if route { "ends" } else { "force" };
-                cx.err("members", c - spec_cables, field, reason)
+    let found =
+        find_rest_lengths_with(model, rest_specs, FormFindingMethod::Auto).map_err(|(blame, reason)| {
+            let route = reason == crate::solve::formfind::ZERO_LENGTH;
+            // a geometry that no tensions hold is named at the first target that asked for them
+            let target = rest_specs
+                .iter()
+                .position(|s| matches!(s, RestLengthSpec::Prestress(_) | RestLengthSpec::ForceDensity(_)));
+            let blame = match (blame, target) {
+                (Blame::Equilibrium, Some(c)) => Blame::Cable(c),
+                (Blame::Equilibrium, None) => Blame::Geometry,
+                (blame, _) => blame,
+            };
+            match blame {
+                Blame::Cable(c) if c >= spec_cables => {
+                    let field = if route { "ends" } else { "force" };
+                    cx.err("members", c - spec_cables, field, reason)
+                }
+                Blame::Cable(c) => {
+                    let field = match rest_specs[c] {
+                        _ if route => "route",
+                        RestLengthSpec::ForceDensity(_) => "force_density",
+                        _ => "prestress",
+                    };
+                    cx.err("cables", c, field, reason)
+                }
+                Blame::Ground(g, field) => cx.err("grounds", g, field, reason),
+                Blame::Geometry | Blame::Equilibrium => cx.top(
+                    if spec_cables == 0 && !model.cables.is_empty() { "members" } else { "cables" },
+                    reason,
+                ),
             }
-            Blame::Cable(c) => {
-                let field = match rest_specs[c] {
-                    _ if route => "route",
-                    RestLengthSpec::ForceDensity(_) => "force_density",
-                    _ => "prestress",
-                };
-                cx.err("cables", c, field, reason)
-            }
-            Blame::Ground(g, field) => cx.err("grounds", g, field, reason),
-            Blame::Geometry | Blame::Equilibrium => cx
-                .top(if spec_cables == 0 && !model.cables.is_empty() { "members" } else { "cables" }, reason),
-        }
-    })?;
+        })?;
+    model.friction_holds_sketch = found.reactions.iter().any(|r| r.friction > 0.0);
+    model.initial_rest_lengths = found.rest_lengths;
     for (c, ratio) in damping_ratios.iter().enumerate() {
         if let Some(zeta) = ratio {
             let inv_m: f64 = model

@@ -71,6 +71,7 @@ pub fn build_model(spec: &SceneSpec, file: &str, text: Option<&str>) -> Result<M
         dof_count: dof,
         constraint_count,
         initial_rest_lengths: vec![1.0; spec.cables.len() + spec.members.len()],
+        friction_holds_sketch: false,
         pulley_friction: Vec::new(),
         initial_segment_rest_lengths: Vec::new(),
         winches,

@@ -294,15 +294,16 @@ impl StaticSolver {
     /// multipliers; velocities are set to zero. On failure the state is restored.
     ///
     /// For a structure set down where it stands (a scene's pose, the start of a run or a
-    /// deployment). With stick-slip grounds (`crate::model::StickFriction`) the contacts hold
-    /// from the state's anchors (for a fresh state, where the scene set the bodies), sticking
-    /// and slipping, as in `equilibrate_holding`: a block on an incline within its cone stays,
-    /// a foot pulled sideways by a prestressed cable keeps the pull. Where that finds no
-    /// equilibrium, the solve is tried with the grounds' normal springs alone, and where it
-    /// converges the contacts are stuck where it puts them (unstretched anchors,
-    /// `State::contact_anchors`); a solve that fails both ways reports the held attempt's stop
-    /// reason (`StopReason::ContactSlips` on an incline beyond its cone). Along a path (a
-    /// deployment's load steps) use `equilibrate_holding`, which carries the anchors.
+    /// deployment). With stick-slip grounds (`crate::model::StickFriction`) the contacts'
+    /// friction acts only where the structure has no equilibrium without it: the solve is first
+    /// tried with the grounds' normal springs alone, and where it converges the contacts are
+    /// stuck where it puts them (unstretched anchors, `State::contact_anchors`); where it does
+    /// not (a body on an incline) the contacts hold from the state's anchors, sticking and
+    /// slipping, as in `equilibrate_holding`. A model whose form finding needed friction
+    /// (`Model::friction_holds_sketch`: a foot pulled sideways by a prestressed cable) is held
+    /// from its anchors first, and set down on its normal springs only where that fails (a
+    /// solve failing both ways reports the held attempt's reason). Along a path (a deployment's
+    /// load steps) use `equilibrate_holding`, which carries the anchors.
     pub fn equilibrate(
         &mut self,
         model: &Model,
@@ -314,6 +315,9 @@ impl StaticSolver {
             return self.equilibrate_from(model, state, ws, settings);
         }
         // (a failed solve leaves the state as it found it)
+        if !model.friction_holds_sketch {
+            return self.equilibrate_set_down(model, state, ws, settings);
+        }
         let held = self.equilibrate_from(model, state, ws, settings);
         let Err(held_error) = held else { return held };
         let (held_stop, held_history, held_slipping) =
@@ -331,6 +335,30 @@ impl StaticSolver {
                 self.history = held_history;
                 self.slipping = held_slipping;
                 Err(held_error)
+            }
+        }
+    }
+
+    /// `equilibrate` of a structure set down without friction in its form finding: the normal
+    /// springs alone first, the contacts stuck where that puts them; where that finds nothing
+    /// (a body on an incline), the contacts held from the state's anchors.
+    fn equilibrate_set_down(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        let anchors = std::mem::take(&mut state.contact_anchors);
+        match self.equilibrate_from(model, state, ws, settings) {
+            Ok(report) => {
+                state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
+                evaluate(model, state, ws, Tangents::None);
+                Ok(report)
+            }
+            Err(_) => {
+                state.contact_anchors = anchors;
+                self.equilibrate_from(model, state, ws, settings)
             }
         }
     }
