@@ -50,7 +50,8 @@ pub struct PathStep {
     /// How the row was reached.
     pub kind: PathKind,
     /// False once the path's stick-slip contacts could not be held from load step to load step
-    /// (`StaticSolver::equilibrate_holding` did not converge with them sticking and slipping):
+    /// (`StaticSolver::equilibrate_holding` found no equilibrium with them sticking and
+    /// slipping, even in the smallest load step; `StaticSolver::release_contacts`):
     /// from then on each equilibrium is solved as a structure set down, its contacts stuck
     /// where the normal springs alone put it, so the path slides where held feet would stick.
     /// True without stick-slip grounds.
@@ -120,8 +121,10 @@ pub const CUTS_BEFORE_CONTINUATION: usize = 2;
 /// Follows the deployment schedule: `model.schedule.steps` output steps over its duration, each
 /// reached from the previous equilibrium by load stepping with a first-order predictor (the
 /// path tangent `StaticSolver::path_tangent`, capped at `PREDICTOR_CAP` of the length scale)
-/// and the Newton corrector of `StaticSolver::equilibrate`. A step that fails is halved (up to
-/// `settings.max_step_cuts` times). Past a limit point load stepping either fails or lands on
+/// and the Newton corrector of `StaticSolver::equilibrate_holding` (stick-slip contacts held
+/// from step to step). A step that fails is halved (up to `settings.max_step_cuts` times); where
+/// contacts are held and even the smallest step fails, the path gives up holding them
+/// (`StaticSolver::release_contacts`) and the step is tried again from its full size. Past a limit point load stepping either fails or lands on
 /// another branch (a correction larger than its prediction and than `JUMP_FRACTION` of the
 /// length scale); then pseudo-arc-length continuation
 /// (`crate::solve::continuation`) traces the path through the limit point and back to the step's
@@ -165,6 +168,7 @@ pub fn deploy_quasi_static(
     let load_step = (t_end - t0) / steps as f64;
     let mut rhs = DVector::zeros(n + nc);
     let mut tangent = solver.path_tangent(model, state, ws);
+    let holds_contacts = !state.contact_anchors.is_empty();
     for s in 1..=steps {
         let target = t0 + (t_end - t0) * s as f64 / steps as f64;
         let mut h = target - state.time;
@@ -286,6 +290,13 @@ pub fn deploy_quasi_static(
                 }
             }
             cuts += 1;
+            if cuts > settings.max_step_cuts && holds_contacts && solver.contacts_held() {
+                // no held equilibrium even in the smallest load step: the rest of the path is
+                // solved as structures set down, this step again from its full size
+                solver.release_contacts();
+                (h, cuts, failures, tried_continuation) = (target - state.time, 0, 0, false);
+                continue;
+            }
             if cuts > settings.max_step_cuts {
                 return Err(fail(t_try, s, last_error, cuts - 1, &solver));
             }

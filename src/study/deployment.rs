@@ -17,8 +17,8 @@ use crate::solve::deploy::deploy_quasi_static;
 use crate::state::State;
 
 use super::{
-    create, dynamic_csv_header, dynamic_csv_row, parallel_map, rigidly_aligned, run_dynamic, scale_schedule,
-    within_rate_limits,
+    create, dynamic_csv_header, dynamic_csv_row, parallel_map, rigidly_aligned, run_dynamic_from,
+    scale_schedule, within_rate_limits,
 };
 
 /// One row of the study summary.
@@ -59,12 +59,14 @@ pub struct StudyResult {
     /// Where the quasi-static path ends before the schedule does (a robot that tips over has no
     /// equilibrium past its limit point): the fraction of the schedule it reached and why it
     /// stopped. The runs are then compared up to that fraction of their own schedules, and
-    /// their peaks are taken there. `None` when the path reaches the schedule's end.
+    /// their peaks are taken there. `None` when the path reaches the schedule's end. A path
+    /// that gave up holding its contacts (`contacts_released`) ends at its last load step that
+    /// held them.
     pub path_end: Option<PathEnd>,
     /// Schedule time (s) of the first load step at which the quasi-static path could not hold
     /// its stick-slip contacts (`PathStep::contacts_held`): from there on it slides where the
-    /// dynamic runs' feet stick, and the comparison says more about statics than about the
-    /// actuation speed. `None` when it held them throughout (or has none).
+    /// dynamic runs' feet stick, so the comparison ends before it (`path_end`). `None` when it
+    /// held them throughout (or has none).
     pub contacts_released: Option<f64>,
 }
 
@@ -95,7 +97,8 @@ impl StudyResult {
         if let Some(t) = self.contacts_released {
             let _ = writeln!(
                 s,
-                "From t = {t} s on, the quasi-static path could not hold its contacts (statics did not converge with them sticking and slipping) and solved each load step with them set down afresh: its feet slide where the dynamic runs' stick, so the deviations from there on are not the actuation speed's.\n"
+                "From t = {} s on, the quasi-static path could not hold its contacts (statics did not converge with them sticking and slipping) and solved each load step with them set down afresh: its feet slide where the dynamic runs' stick, so the study compares up to the last load step that held them.\n",
+                rounded(t)
             );
         }
         if let Some(end) = &self.path_end {
@@ -122,10 +125,6 @@ impl StudyResult {
         }
         let _ = match self.threshold {
             None => writeln!(s, "\nNo run deviates by more than 1 % from the quasi-static path."),
-            Some(t) if t.is_infinite() && self.contacts_released.is_some() => writeln!(
-                s,
-                "\nEvery run deviates by more than 1 % from a quasi-static path whose feet slide (above): this study cannot say how slow is slow enough until statics holds the contacts along the path."
-            ),
             Some(t) if t.is_infinite() => {
                 writeln!(s, "\nEvery run deviates by more than 1 %; slower actuation is needed.")
             }
@@ -218,13 +217,22 @@ pub fn deployment_study(
         }
     };
     let mut contacts_released = None;
+    let mut equilibrium_start: Option<State> = None;
+    // the last load step compared (time, stable)
+    let mut last_held: Option<(f64, bool)> = None;
     let path = deploy_quasi_static(model, &mut state, &mut ws, |step, st, w| {
+        if equilibrium_start.is_none() {
+            equilibrium_start = Some(st.clone());
+        }
         if !step.contacts_held && contacts_released.is_none() {
             contacts_released = Some(step.time);
         }
         let row = report::path_csv_row(model, st, w, step);
         let _ = writeln!(qs_file, "{row}");
-        if step.kind == crate::solve::deploy::PathKind::ArcLength {
+        if step.kind == crate::solve::deploy::PathKind::ArcLength || !step.contacts_held {
+            // points traced through a limit point are not states the structure rests in, and
+            // a path that set its contacts down afresh slides where held feet stick: the
+            // comparison ends at the last load step that held them
             // points traced through a limit point are not states the structure rests in
             return;
         }
@@ -238,15 +246,28 @@ pub fn deployment_study(
             qs_disp[i] = qs_disp[i].max((p - start_pos[i]).norm());
         }
         qs_tension.push((st.time / end, t_max));
+        last_held = Some((st.time, step.report.stable));
     });
     qs_file.flush().map_err(|e| e.to_string())?;
     // a path that stops short (a robot tips over its edge: no equilibrium past the limit
     // point) is compared up to where it got; one that found no first equilibrium is an error
-    let path_end = match path {
-        Ok(_) => None,
-        Err(e) => match qs_tension.last() {
-            Some(&(fraction, _)) if fraction > 0.0 => Some(PathEnd { fraction, reason: e.to_string() }),
-            _ => return Err(e.to_string()),
+    let reason = match (path, contacts_released) {
+        (Ok(_), None) => None,
+        (_, Some(_)) => Some(match last_held {
+            Some((t, stable)) => format!(
+                "past t = {} s statics found no equilibrium holding the stick-slip contacts, even in the smallest load step{}",
+                rounded(t),
+                if stable { "" } else { "; the equilibrium there is unstable: a limit point, where the structure tips" }
+            ),
+            None => "statics found no equilibrium holding the stick-slip contacts".to_string(),
+        }),
+        (Err(e), None) => Some(e.to_string()),
+    };
+    let path_end = match reason {
+        None => None,
+        Some(reason) => match qs_tension.last() {
+            Some(&(fraction, _)) if fraction > 0.0 => Some(PathEnd { fraction, reason }),
+            _ => return Err(format!("the quasi-static path has no load step to compare with: {reason}")),
         },
     };
     let compared = path_end.as_ref().map_or(f64::INFINITY, |p| p.fraction);
@@ -262,12 +283,9 @@ pub fn deployment_study(
     let point = model.points[pid.0].name.as_str();
     let qs_peak_disp = qs_disp[pid.0];
 
-    // every time-scaled run starts from the model's initial state: one start position for all
-    let dynamic_start: Vec<Vector3<f64>> = {
-        let mut s0 = Workspace::new(model);
-        crate::evaluate::evaluate(model, &State::initial(model), &mut s0, crate::evaluate::Tangents::None);
-        s0.points.iter().map(|p| p.position).collect()
-    };
+    // every time-scaled run starts at rest where the quasi-static path starts (its first
+    // equilibrium, with its contacts' anchors): one start position for all
+    let dynamic_start: Vec<Vector3<f64>> = start_pos.clone();
     // one dynamic deployment per actuation time, on `jobs` threads (each run is independent and
     // deterministic: the same rows whatever the thread count)
     let run_one = |&t_ramp: &f64| -> Result<(StudyRow, Series), String> {
@@ -282,7 +300,7 @@ pub fn deployment_study(
         // a path that ends short: the run up to there, and no settling (past the quasi-static
         // path's end the robot tips over)
         let duration = if compared.is_finite() { compared * t_ramp } else { t_ramp + settle };
-        let totals = run_dynamic(&m, settings, duration, |sim, stats| {
+        let totals = run_dynamic_from(&m, equilibrium_start.as_ref(), settings, duration, |sim, stats| {
             writeln!(file, "{}", dynamic_csv_row(sim, stats)).map_err(|e| e.to_string())?;
             let w = sim.workspace();
             let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
@@ -398,4 +416,10 @@ pub fn deployment_study(
         &out_dir.join("histories"),
     )?;
     Ok(result)
+}
+
+/// `t` to 9 decimals, without the round-off digits of a sum of load steps (1.826, not
+/// 1.8260000000000003).
+fn rounded(t: f64) -> f64 {
+    (t * 1e9).round() / 1e9
 }

@@ -2,7 +2,8 @@
 //! step lists, give CSV tables, Markdown summaries and plots (PNG and SVG) in an output directory.
 //!
 //! - `deployment_study`: the quasi-static path and one dynamic deployment per actuation time (the
-//!   whole schedule time-scaled so that it ends at that time, then `settle` seconds at rest); per
+//!   whole schedule time-scaled so that it ends at that time, then `settle` seconds at rest),
+//!   each starting at rest in the path's first equilibrium (its contacts anchored as there); per
 //!   run the peak tension over all cables and the peak displacement of a chosen point, their
 //!   deviation from the quasi-static path, and the actuation time below which the deviation
 //!   exceeds 1 %. For a free-floating structure (`Model::is_free_floating`) displacements are
@@ -140,9 +141,25 @@ pub fn run_dynamic(
     model: &Model,
     settings: SimSettings,
     duration: f64,
+    each: impl FnMut(&Simulator, &StepStats) -> Result<(), String>,
+) -> Result<RunTotals, String> {
+    run_dynamic_from(model, None, settings, duration, each)
+}
+
+/// `run_dynamic` from `start` (a state of `model`, e.g. a static equilibrium; `None`: the
+/// scene's pose at rest, `Simulator::new`).
+pub fn run_dynamic_from(
+    model: &Model,
+    start: Option<&crate::state::State>,
+    settings: SimSettings,
+    duration: f64,
     mut each: impl FnMut(&Simulator, &StepStats) -> Result<(), String>,
 ) -> Result<RunTotals, String> {
-    let mut sim = Simulator::new(model.clone(), settings).map_err(|e| e.to_string())?;
+    let mut sim = match start {
+        Some(state) => Simulator::from_state(model.clone(), state.clone(), settings),
+        None => Simulator::new(model.clone(), settings),
+    }
+    .map_err(|e| e.to_string())?;
     let steps = (duration / settings.dt).round().max(1.0) as usize;
     let mut totals = RunTotals::default();
     for _ in 0..steps {

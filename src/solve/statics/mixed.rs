@@ -225,7 +225,12 @@ impl StaticSolver {
             check_convexity |= merit_now > 0.25 * previous_merit;
             previous_merit = merit_now;
             let mut energy_mode = false;
-            let checked = check_convexity;
+            // not while a contact slips: its friction is not the gradient of an energy (the
+            // tangent's coupling `mu t (dF_n/dq)` is not symmetric, so the symmetric part reads
+            // as indefinite) and a descent step of the energy is no step towards equilibrium
+            // (the spring energy grows as the contact slips along the cone): Newton's own step
+            // on the consistent tangent, judged by the residual
+            let checked = check_convexity && self.slipping.is_empty();
             check_convexity = false;
             if checked {
                 let scales = Residual { force_scale: f_scale, length_scale: l_scale, ..res };

@@ -63,7 +63,7 @@ pub struct StaticSolver {
     /// path is solved as structures set down (each failed attempt costs a whole Newton solve).
     pub(crate) holding_failed: bool,
     /// `slipping_contacts`.
-    slipping: Vec<usize>,
+    pub(crate) slipping: Vec<usize>,
 }
 
 impl StaticSolver {
@@ -118,6 +118,12 @@ impl StaticSolver {
             }
         }
         self
+    }
+
+    /// False once `equilibrate_holding` has given up holding the contacts (the rest of the path
+    /// is solved as structures set down).
+    pub fn contacts_held(&self) -> bool {
+        !self.holding_failed
     }
 
     /// True when this solver's Newton steps are made on the sparse KKT system (`new`).
@@ -367,10 +373,11 @@ impl StaticSolver {
     /// state's anchors (where the path left them), stick while their springs pull inside the
     /// friction cone and slip along it beyond, and the equilibrium commits where they slipped to
     /// (the pulleys' friction likewise). Without stick-slip grounds the same as `equilibrate`.
-    /// Newton through the contacts' stick-slip switches does not always converge (the six-bar's
-    /// haul from its first load step): where it does not, the step, and every later one of this
-    /// solver, is solved as `equilibrate` solves a structure set down, its contacts stuck where
-    /// that puts them.
+    /// While a contact slips, the Newton steps are the consistent tangent's own, judged by the
+    /// residual (no convexity shift: slipping friction is not the gradient of an energy). A
+    /// failed solve leaves the state as it found it; the caller cuts the load step, and where
+    /// that does not help either gives up holding (`release_contacts`), after which this is
+    /// `equilibrate`.
     pub fn equilibrate_holding(
         &mut self,
         model: &Model,
@@ -384,11 +391,15 @@ impl StaticSolver {
         if self.holding_failed {
             return self.equilibrate(model, state, ws, settings);
         }
-        self.equilibrate_from(model, state, ws, settings).or_else(|_| {
-            // the failed solve left the state as it found it
-            self.holding_failed = true;
-            self.equilibrate(model, state, ws, settings)
-        })
+        self.equilibrate_from(model, state, ws, settings)
+    }
+
+    /// Gives up holding the contacts along the path: every later `equilibrate_holding` of this
+    /// solver solves its state as `equilibrate` solves a structure set down, its contacts stuck
+    /// where the normal springs alone put it (`contacts_held` is false from now on). For a path
+    /// whose held solve found no equilibrium even in small load steps.
+    pub fn release_contacts(&mut self) {
+        self.holding_failed = true;
     }
 
     /// `equilibrate` with the contacts as the state has them (its anchors, or none). A solve
@@ -602,7 +613,8 @@ impl StaticSolver {
         // where the reduced tangent is indefinite or singular (hanging masses, slack cables,
         // a structure tilted past a maximum of its energy), shift it by mu M: the step then
         // goes down the potential energy instead of towards the nearest stationary point
-        let correction = if *check_convexity {
+        // not while a contact slips (`equilibrate_mixed` says why): Newton's own step
+        let correction = if *check_convexity && self.slipping.is_empty() {
             let tangent = self.kkt.view((0, 0), (n, n)).into_owned();
             let residual_force = self.rhs.rows(0, n).into_owned();
             convexity_correction(model, &tangent, &ws.constraint_jacobian, &self.mass, res, &residual_force)
