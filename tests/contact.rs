@@ -346,9 +346,19 @@ fn the_six_bar_robot_stands_on_a_face_and_its_winch_rolls_it_onto_the_next() {
         on
     };
     assert_eq!(face(&sim), ["x0.b", "y0.b", "z0.b"]);
-    // statics sets it down on its normal springs and sticks the feet where that puts them:
-    // they carry the weight, a third each (the robot is symmetric about its vertical axis), and
-    // stick, their friction inside their cones
+    // statics holds the feet where the scene stands them (settled on the normal springs, moved
+    // back rigidly onto the anchors, held): they carry the weight, a third each (the robot is
+    // symmetric about its vertical axis), and stick, their friction inside their cones and
+    // their lowest points within the stick springs' stretch of where the scene puts them
+    let sketch = State::initial(&model);
+    let mut ws0 = Workspace::new(&model);
+    evaluate(&model, &sketch, &mut ws0, Tangents::None);
+    for (k, c) in sim.workspace().contacts.iter().enumerate().filter(|(_, c)| c.in_contact()) {
+        let moved = c.position - ws0.contacts[k].position;
+        let in_plane = (moved.x.powi(2) + moved.y.powi(2)).sqrt();
+        assert!(in_plane < 0.8 * c.normal_force / 2e4 + 1e-9, "foot {k} moved {in_plane} m sideways");
+        assert!(c.friction.norm() > 0.1, "foot {k} holds {} N", c.friction.norm());
+    }
     let carried: f64 = sim.workspace().contacts.iter().map(|c| c.normal_force).sum();
     assert!((carried - weight).abs() < 1e-9 * weight, "{carried} N of {weight} N");
     for c in sim.workspace().contacts.iter().filter(|c| c.in_contact()) {

@@ -46,9 +46,11 @@
 //! Files: `solver` (the solver's buffers, the displacement form, the report), `mixed` (the mixed
 //! form), `stiff` (which cables are stiff, their tension unknowns), `residual` (the residual, its
 //! scales, the stop reasons, the report type), `kkt` (the joints' reactions, the convexity shift,
-//! the KKT solves), `line_search` (the one line search both forms use); the stability test is
+//! the KKT solves), `line_search` (the one line search both forms use), `align` (a settled
+//! structure moved rigidly back onto its contacts' anchors); the stability test is
 //! `crate::solve::stability`. This file only gathers them.
 
+mod align;
 pub(crate) mod kkt;
 mod line_search;
 mod mixed;

@@ -10,6 +10,7 @@ use crate::forces::contact::FrictionState;
 use crate::model::{BodyId, Model, Pose, SolverSettings};
 use crate::solve::linear::{KktSystem, LinearBackend};
 use crate::solve::stability::{dense_stability, sparse_stability};
+use crate::solve::statics::align::align_onto_anchors;
 use crate::solve::statics::kkt::{
     assemble_sparse, commit_friction, convexity_correction, least_squares_multipliers, project_onto_joints,
     solve_regularized, solve_sparse, sparse_least_squares_multipliers, MAX_CONVEXITY_CHECK,
@@ -300,12 +301,15 @@ impl StaticSolver {
     /// multipliers; velocities are set to zero. On failure the state is restored.
     ///
     /// For a structure set down where it stands (a scene's pose, the start of a run or a
-    /// deployment). With stick-slip grounds (`crate::model::StickFriction`) the contacts'
-    /// friction acts only where the structure has no equilibrium without it: the solve is first
-    /// tried with the grounds' normal springs alone, and where it converges the contacts are
-    /// stuck where it puts them (unstretched anchors, `State::contact_anchors`); where it does
-    /// not (a body on an incline) the contacts hold from the state's anchors, sticking and
-    /// slipping, as in `equilibrate_holding`. A model whose form finding needed friction
+    /// deployment). With stick-slip grounds (`crate::model::StickFriction`) the contacts hold
+    /// where the bodies stand (the state's anchors, `State::contact_anchors`), sticking and
+    /// slipping as in `equilibrate_holding`. At a sketch the contacts barely touch and carry
+    /// nothing, so the solve first settles the structure on the grounds' normal springs alone,
+    /// moves each free group of bodies rigidly back onto its anchors (`align_onto_anchors`: the
+    /// turn or slide a frictionless settle allows) and holds the contacts from there; the
+    /// iterations of both solves are counted. Where the held solve finds nothing, the contacts
+    /// are stuck where the settle put them (unstretched anchors); where the settle finds nothing
+    /// (a body on an incline), they are held from the state's anchors. A model whose form finding needed friction
     /// (`Model::friction_holds_sketch`: a foot pulled sideways by a prestressed cable) is held
     /// from its anchors first, and set down on its normal springs only where that fails (a
     /// solve failing both ways reports the held attempt's reason). Along a path (a deployment's
@@ -346,8 +350,9 @@ impl StaticSolver {
     }
 
     /// `equilibrate` of a structure set down without friction in its form finding: the normal
-    /// springs alone first, the contacts stuck where that puts them; where that finds nothing
-    /// (a body on an incline), the contacts held from the state's anchors.
+    /// springs alone first, then held from the state's anchors after a rigid alignment onto
+    /// them (or stuck where the settle put them when that finds nothing); where the settle finds
+    /// nothing (a body on an incline), the contacts held from the state's anchors.
     fn equilibrate_set_down(
         &mut self,
         model: &Model,
@@ -358,6 +363,21 @@ impl StaticSolver {
         let anchors = std::mem::take(&mut state.contact_anchors);
         match self.equilibrate_from(model, state, ws, settings) {
             Ok(report) => {
+                // then held where the bodies stood: moved back rigidly onto the anchors, the
+                // contacts stretched only by the structure's own deformation
+                let settled = (state.poses.clone(), state.multipliers.clone());
+                let (stop, history) = (self.stop, self.history.clone());
+                state.contact_anchors = anchors;
+                evaluate_forces(model, state, ws);
+                align_onto_anchors(model, state, ws);
+                if let Ok(mut held) = self.equilibrate_from(model, state, ws, settings) {
+                    held.iterations += report.iterations;
+                    return Ok(held);
+                }
+                // no held equilibrium near: the contacts stuck where the normal springs put them
+                state.poses.copy_from_slice(&settled.0);
+                state.multipliers.copy_from(&settled.1);
+                (self.stop, self.history) = (stop, history);
                 state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
                 evaluate(model, state, ws, Tangents::None);
                 Ok(report)
