@@ -417,6 +417,8 @@ fn the_six_bar_study_converges_to_its_quasi_static_path_up_to_the_tip() {
     let r = tensegrity::study::deployment_study(&model, &times, None, settings, 0.5, 0, &out).unwrap();
     let end = r.path_end.as_ref().expect("the path ends before the schedule");
     assert!(end.fraction > 0.75 && end.fraction < 0.9, "ends at {}", end.fraction);
+    // where the foot y0.b lifts: the summary names it and says the robot tips there
+    assert!(end.reason.contains("`y0.b@floor` carries") && end.reason.contains("tips"), "{}", end.reason);
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(
         summary.contains(&format!(

@@ -218,8 +218,9 @@ pub fn deployment_study(
     };
     let mut contacts_released = None;
     let mut equilibrium_start: Option<State> = None;
-    // the last load step compared (time, stable)
+    // the last load step compared (time, stable), and the contacts it all but lifted
     let mut last_held: Option<(f64, bool)> = None;
+    let mut unloading = String::new();
     let path = deploy_quasi_static(model, &mut state, &mut ws, |step, st, w| {
         if equilibrium_start.is_none() {
             equilibrium_start = Some(st.clone());
@@ -233,7 +234,6 @@ pub fn deployment_study(
             // points traced through a limit point are not states the structure rests in, and
             // a path that set its contacts down afresh slides where held feet stick: the
             // comparison ends at the last load step that held them
-            // points traced through a limit point are not states the structure rests in
             return;
         }
         let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
@@ -247,12 +247,22 @@ pub fn deployment_study(
         }
         qs_tension.push((st.time / end, t_max));
         last_held = Some((st.time, step.report.stable));
+        unloading = unloading_contacts(model, w);
     });
     qs_file.flush().map_err(|e| e.to_string())?;
     // a path that stops short (a robot tips over its edge: no equilibrium past the limit
     // point) is compared up to where it got; one that found no first equilibrium is an error
     let reason = match (path, contacts_released) {
         (Ok(_), None) => None,
+        (result, released) if !unloading.is_empty() => Some(format!(
+            "{}; at its last load step (t = {} s) {unloading}: past it the structure tips over its other contacts",
+            match (result, released) {
+                (_, Some(_)) => "statics found no equilibrium holding the stick-slip contacts, even in the smallest load step".to_string(),
+                (Err(e), None) => e.to_string(),
+                (Ok(_), None) => unreachable!("matched above"),
+            },
+            rounded(last_held.map_or(0.0, |h| h.0))
+        )),
         (_, Some(_)) => Some(match last_held {
             Some((t, stable)) => format!(
                 "past t = {} s statics found no equilibrium holding the stick-slip contacts, even in the smallest load step{}",
@@ -422,4 +432,23 @@ pub fn deployment_study(
 /// 1.8260000000000003).
 fn rounded(t: f64) -> f64 {
     (t * 1e9).round() / 1e9
+}
+
+/// The ground contacts of the evaluated `ws` that carry under 2 % of the most loaded one's
+/// normal force, but something (a foot about to lift: past it a robot tips over its other
+/// feet), as `` `y0.b@floor` carries 0.079 N (the most loaded 11.265 N) ``; empty when none.
+fn unloading_contacts(model: &Model, ws: &Workspace) -> String {
+    let grounds = model.ground_pairs();
+    let most = ws.contacts[..grounds].iter().map(|c| c.normal_force).fold(0.0, f64::max);
+    let labels: Vec<(&str, &str)> = model.contact_labels().take(grounds).collect();
+    let light: Vec<String> = ws.contacts[..grounds]
+        .iter()
+        .zip(&labels)
+        .filter(|(c, _)| c.normal_force > 0.0 && c.normal_force < 0.02 * most)
+        .map(|(c, (point, ground))| format!("`{point}@{ground}` carries {:.3} N", c.normal_force))
+        .collect();
+    if light.is_empty() {
+        return String::new();
+    }
+    format!("{} (the most loaded {most:.3} N)", light.join(", "))
 }
