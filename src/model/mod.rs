@@ -31,6 +31,35 @@ use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
 /// Index of a body in `Model::bodies`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct BodyId(pub usize);
+
+/// Disjoint sets of bodies (union-find with path halving): the groups that the caller's joins
+/// (joints, cables) make of `Model::bodies`, each named by the index of its root body.
+#[derive(Debug, Clone)]
+pub(crate) struct BodyGroups {
+    parent: Vec<usize>,
+}
+
+impl BodyGroups {
+    /// `n` bodies, each its own group.
+    pub(crate) fn new(n: usize) -> Self {
+        Self { parent: (0..n).collect() }
+    }
+
+    /// Puts the group of body `a` into the group of body `b`.
+    pub(crate) fn join(&mut self, a: usize, b: usize) {
+        let (ra, rb) = (self.root(a), self.root(b));
+        self.parent[ra] = rb;
+    }
+
+    /// The root body of body `b`'s group.
+    pub(crate) fn root(&mut self, mut b: usize) -> usize {
+        while self.parent[b] != b {
+            self.parent[b] = self.parent[self.parent[b]];
+            b = self.parent[b];
+        }
+        b
+    }
+}
 /// Index of an attachment point in `Model::points`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct PointId(pub usize);

@@ -218,9 +218,9 @@ pub fn deployment_study(
     };
     let mut contacts_released = None;
     let mut equilibrium_start: Option<State> = None;
-    // the last load step compared (time, stable), and the contacts it all but lifted
+    // the last load step compared (time, stable), and its ground contacts' normal forces
     let mut last_held: Option<(f64, bool)> = None;
-    let mut unloading = String::new();
+    let mut last_normal_forces: Vec<f64> = Vec::new();
     let path = deploy_quasi_static(model, &mut state, &mut ws, |step, st, w| {
         if equilibrium_start.is_none() {
             equilibrium_start = Some(st.clone());
@@ -247,32 +247,33 @@ pub fn deployment_study(
         }
         qs_tension.push((st.time / end, t_max));
         last_held = Some((st.time, step.report.stable));
-        unloading = unloading_contacts(model, w);
+        last_normal_forces.clear();
+        last_normal_forces.extend(w.contacts[..model.ground_pairs()].iter().map(|c| c.normal_force));
     });
     qs_file.flush().map_err(|e| e.to_string())?;
     // a path that stops short (a robot tips over its edge: no equilibrium past the limit
     // point) is compared up to where it got; one that found no first equilibrium is an error
-    let reason = match (path, contacts_released) {
+    let unloading = unloading_contacts(model, &last_normal_forces);
+    let cause = match (path, contacts_released) {
         (Ok(_), None) => None,
-        (result, released) if !unloading.is_empty() => Some(format!(
-            "{}; at its last load step (t = {} s) {unloading}: past it the structure tips over its other contacts",
-            match (result, released) {
-                (_, Some(_)) => "statics found no equilibrium holding the stick-slip contacts, even in the smallest load step".to_string(),
-                (Err(e), None) => e.to_string(),
-                (Ok(_), None) => unreachable!("matched above"),
-            },
-            rounded(last_held.map_or(0.0, |h| h.0))
-        )),
-        (_, Some(_)) => Some(match last_held {
-            Some((t, stable)) => format!(
-                "past t = {} s statics found no equilibrium holding the stick-slip contacts, even in the smallest load step{}",
-                rounded(t),
-                if stable { "" } else { "; the equilibrium there is unstable: a limit point, where the structure tips" }
-            ),
-            None => "statics found no equilibrium holding the stick-slip contacts".to_string(),
-        }),
+        (_, Some(_)) => Some(
+            "statics found no equilibrium holding the stick-slip contacts, even in the smallest load step"
+                .to_string(),
+        ),
         (Err(e), None) => Some(e.to_string()),
     };
+    let reason = cause.map(|cause| match last_held {
+        Some((t, _)) if !unloading.is_empty() => format!(
+            "{cause}; at its last load step (t = {} s) {unloading}: past it the structure tips over its other contacts",
+            rounded(t)
+        ),
+        Some((t, stable)) if contacts_released.is_some() => format!(
+            "past t = {} s {cause}{}",
+            rounded(t),
+            if stable { "" } else { "; the equilibrium there is unstable: a limit point, where the structure tips" }
+        ),
+        _ => cause,
+    });
     let path_end = match reason {
         None => None,
         Some(reason) => match qs_tension.last() {
@@ -295,7 +296,7 @@ pub fn deployment_study(
 
     // every time-scaled run starts at rest where the quasi-static path starts (its first
     // equilibrium, with its contacts' anchors): one start position for all
-    let dynamic_start: Vec<Vector3<f64>> = start_pos.clone();
+    let dynamic_start: &[Vector3<f64>] = &start_pos;
     // one dynamic deployment per actuation time, on `jobs` threads (each run is independent and
     // deterministic: the same rows whatever the thread count)
     let run_one = |&t_ramp: &f64| -> Result<(StudyRow, Series), String> {
@@ -316,7 +317,7 @@ pub fn deployment_study(
             let t_max = w.cables.iter().map(|c| c.tension).fold(0.0, f64::max);
             peak_t = peak_t.max(t_max);
             let d = if free {
-                let now = shape(w.points.iter().map(|p| p.position).collect(), &dynamic_start);
+                let now = shape(w.points.iter().map(|p| p.position).collect(), dynamic_start);
                 (now[pid.0] - dynamic_start[pid.0]).norm()
             } else {
                 (w.points[pid.0].position - dynamic_start[pid.0]).norm()
@@ -434,18 +435,17 @@ fn rounded(t: f64) -> f64 {
     (t * 1e9).round() / 1e9
 }
 
-/// The ground contacts of the evaluated `ws` that carry under 2 % of the most loaded one's
-/// normal force, but something (a foot about to lift: past it a robot tips over its other
-/// feet), as `` `y0.b@floor` carries 0.079 N (the most loaded 11.265 N) ``; empty when none.
-fn unloading_contacts(model: &Model, ws: &Workspace) -> String {
-    let grounds = model.ground_pairs();
-    let most = ws.contacts[..grounds].iter().map(|c| c.normal_force).fold(0.0, f64::max);
-    let labels: Vec<(&str, &str)> = model.contact_labels().take(grounds).collect();
-    let light: Vec<String> = ws.contacts[..grounds]
+/// The ground contacts (`normal_forces` in `Model::contact_labels` order, N) that carry under 2 %
+/// of the most loaded one's normal force, but something (a foot about to lift: past it a robot
+/// tips over its other feet), as `` `y0.b@floor` carries 0.079 N (the most loaded 11.265 N) ``;
+/// empty when none.
+fn unloading_contacts(model: &Model, normal_forces: &[f64]) -> String {
+    let most = normal_forces.iter().copied().fold(0.0, f64::max);
+    let light: Vec<String> = normal_forces
         .iter()
-        .zip(&labels)
-        .filter(|(c, _)| c.normal_force > 0.0 && c.normal_force < 0.02 * most)
-        .map(|(c, (point, ground))| format!("`{point}@{ground}` carries {:.3} N", c.normal_force))
+        .zip(model.contact_labels())
+        .filter(|(f, _)| **f > 0.0 && **f < 0.02 * most)
+        .map(|(f, (point, ground))| format!("`{point}@{ground}` carries {f:.3} N"))
         .collect();
     if light.is_empty() {
         return String::new();

@@ -411,14 +411,7 @@ pub(super) fn joints_independent(
     poses: &[crate::model::Pose],
     kin: &[crate::kinematics::PointKinematics],
 ) -> Result<(), Vec<usize>> {
-    let mut parent: Vec<usize> = (0..model.bodies.len()).collect();
-    fn root(parent: &mut [usize], mut b: usize) -> usize {
-        while parent[b] != b {
-            parent[b] = parent[parent[b]];
-            b = parent[b];
-        }
-        b
-    }
+    let mut groups_of = crate::model::BodyGroups::new(model.bodies.len());
     let body_of = |p: PointId| model.points[p.0].body.0;
     let moving = |b: usize| model.bodies[b].dof_count > 0;
     for joint in &model.joints {
@@ -426,8 +419,7 @@ pub(super) fn joints_independent(
             let (x, y) = (body_of(joint.point), body_of(b));
             // a fixed body has no coordinates: joining through it would merge what is independent
             if moving(x) && moving(y) {
-                let (rx, ry) = (root(&mut parent, x), root(&mut parent, y));
-                parent[rx] = ry;
+                groups_of.join(x, y);
             }
         }
     }
@@ -440,12 +432,12 @@ pub(super) fn joints_independent(
             JointTarget::Point(b) if moving(body_of(b)) => body_of(b),
             _ => return Err(vec![j]), // a joint on fixed bodies alone holds nothing: a zero row
         };
-        let group = root(&mut parent, body);
+        let group = groups_of.root(body);
         groups.entry(group).or_default().0.push(j);
     }
     for b in 0..model.bodies.len() {
         if moving(b) {
-            let group = root(&mut parent, b);
+            let group = groups_of.root(b);
             if let Some((_, bodies)) = groups.get_mut(&group) {
                 bodies.push(b);
             }

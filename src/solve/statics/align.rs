@@ -20,36 +20,25 @@
 use nalgebra::{UnitQuaternion, Vector3};
 
 use crate::evaluate::Workspace;
-use crate::model::{BodyKind, CableId, JointTarget, Model};
+use crate::model::{BodyGroups, BodyKind, CableId, JointTarget, Model};
 use crate::state::State;
 
-/// The group (root body index) of every body: bodies joined by a cable, member or joint share
-/// one.
+/// The group (root body index, `BodyGroups`) of every body: bodies joined by a cable, member
+/// or joint share one.
 fn groups(model: &Model) -> Vec<usize> {
-    fn root(parent: &mut [usize], mut b: usize) -> usize {
-        while parent[b] != b {
-            parent[b] = parent[parent[b]];
-            b = parent[b];
-        }
-        b
-    }
-    let mut parent: Vec<usize> = (0..model.bodies.len()).collect();
-    let join = |parent: &mut Vec<usize>, a: usize, b: usize| {
-        let (ra, rb) = (root(parent, a), root(parent, b));
-        parent[ra] = rb;
-    };
+    let mut groups = BodyGroups::new(model.bodies.len());
     for c in 0..model.cables.len() {
         let route = model.route(CableId(c));
         for pair in route.windows(2) {
-            join(&mut parent, model.points[pair[0].0].body.0, model.points[pair[1].0].body.0);
+            groups.join(model.points[pair[0].0].body.0, model.points[pair[1].0].body.0);
         }
     }
     for joint in &model.joints {
         if let JointTarget::Point(p) = joint.target {
-            join(&mut parent, model.points[joint.point.0].body.0, model.points[p.0].body.0);
+            groups.join(model.points[joint.point.0].body.0, model.points[p.0].body.0);
         }
     }
-    (0..model.bodies.len()).map(|b| root(&mut parent, b)).collect()
+    (0..model.bodies.len()).map(|b| groups.root(b)).collect()
 }
 
 /// Moves every free group of bodies rigidly in its ground's plane so that its touching

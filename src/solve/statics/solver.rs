@@ -309,9 +309,9 @@ impl StaticSolver {
     /// turn or slide a frictionless settle allows) and holds the contacts from there; the
     /// iterations of both solves are counted. Where the held solve finds nothing, the contacts
     /// are stuck where the settle put them (unstretched anchors); where the settle finds nothing
-    /// (a body on an incline), they are held from the state's anchors. A model whose form finding needed friction
-    /// (`Model::friction_holds_sketch`: a foot pulled sideways by a prestressed cable) is held
-    /// from its anchors first, and set down on its normal springs only where that fails (a
+    /// (a body on an incline), they are held from the state's anchors. A model whose form
+    /// finding needed friction (`Model::friction_holds_sketch`: a foot pulled sideways by a
+    /// prestressed cable) is held from its anchors first, and set down on its normal springs only where that fails (a
     /// solve failing both ways reports the held attempt's reason). Along a path (a deployment's
     /// load steps) use `equilibrate_holding`, which carries the anchors.
     pub fn equilibrate(
@@ -332,21 +332,35 @@ impl StaticSolver {
         let Err(held_error) = held else { return held };
         let (held_stop, held_history, held_slipping) =
             (self.stop, self.history.clone(), self.slipping.clone());
-        let anchors = std::mem::take(&mut state.contact_anchors);
-        match self.equilibrate_from(model, state, ws, settings) {
+        match self.settle_unanchored(model, state, ws, settings) {
             Ok(report) => {
-                state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
-                evaluate(model, state, ws, Tangents::None);
+                stick_where_it_stands(model, state, ws);
                 Ok(report)
             }
             Err(_) => {
-                state.contact_anchors = anchors;
                 self.stop = held_stop;
                 self.history = held_history;
                 self.slipping = held_slipping;
                 Err(held_error)
             }
         }
+    }
+
+    /// `equilibrate_from` on the grounds' normal springs alone: the state's contact anchors
+    /// taken out (left empty where it converges, put back where it fails).
+    fn settle_unanchored(
+        &mut self,
+        model: &Model,
+        state: &mut State,
+        ws: &mut Workspace,
+        settings: &SolverSettings,
+    ) -> Result<EquilibriumReport, (usize, f64)> {
+        let anchors = std::mem::take(&mut state.contact_anchors);
+        let settled = self.equilibrate_from(model, state, ws, settings);
+        if settled.is_err() {
+            state.contact_anchors = anchors;
+        }
+        settled
     }
 
     /// `equilibrate` of a structure set down without friction in its form finding: the normal
@@ -360,33 +374,27 @@ impl StaticSolver {
         ws: &mut Workspace,
         settings: &SolverSettings,
     ) -> Result<EquilibriumReport, (usize, f64)> {
-        let anchors = std::mem::take(&mut state.contact_anchors);
-        match self.equilibrate_from(model, state, ws, settings) {
-            Ok(report) => {
-                // then held where the bodies stood: moved back rigidly onto the anchors, the
-                // contacts stretched only by the structure's own deformation
-                let settled = (state.poses.clone(), state.multipliers.clone());
-                let (stop, history) = (self.stop, self.history.clone());
-                state.contact_anchors = anchors;
-                evaluate_forces(model, state, ws);
-                align_onto_anchors(model, state, ws);
-                if let Ok(mut held) = self.equilibrate_from(model, state, ws, settings) {
-                    held.iterations += report.iterations;
-                    return Ok(held);
-                }
-                // no held equilibrium near: the contacts stuck where the normal springs put them
-                state.poses.copy_from_slice(&settled.0);
-                state.multipliers.copy_from(&settled.1);
-                (self.stop, self.history) = (stop, history);
-                state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
-                evaluate(model, state, ws, Tangents::None);
-                Ok(report)
-            }
-            Err(_) => {
-                state.contact_anchors = anchors;
-                self.equilibrate_from(model, state, ws, settings)
-            }
+        let anchors = state.contact_anchors.clone();
+        let Ok(report) = self.settle_unanchored(model, state, ws, settings) else {
+            return self.equilibrate_from(model, state, ws, settings);
+        };
+        // then held where the bodies stood: moved back rigidly onto the anchors, the contacts
+        // stretched only by the structure's own deformation
+        let settled = (state.poses.clone(), state.multipliers.clone());
+        let (stop, history) = (self.stop, self.history.clone());
+        state.contact_anchors = anchors;
+        evaluate_forces(model, state, ws);
+        align_onto_anchors(model, state, ws);
+        if let Ok(mut held) = self.equilibrate_from(model, state, ws, settings) {
+            held.iterations += report.iterations;
+            return Ok(held);
         }
+        // no held equilibrium near: the contacts stuck where the normal springs put them
+        state.poses.copy_from_slice(&settled.0);
+        state.multipliers.copy_from(&settled.1);
+        (self.stop, self.history) = (stop, history);
+        stick_where_it_stands(model, state, ws);
+        Ok(report)
     }
 
     /// `equilibrate` from a previous equilibrium along a path: stick-slip contacts hold from the
@@ -682,6 +690,13 @@ impl StaticSolver {
             potential_energy: ws.energies.elastic + ws.energies.gravitational,
         }
     }
+}
+
+/// Sticks every contact of `state` unstretched where it stands (`initial_anchors`) and
+/// evaluates `ws` there.
+fn stick_where_it_stands(model: &Model, state: &mut State, ws: &mut Workspace) {
+    state.contact_anchors = crate::forces::contact::initial_anchors(model, &state.poses);
+    evaluate(model, state, ws, Tangents::None);
 }
 
 /// The sparse displacement form's first Levenberg-Marquardt shift, 1/s^2: the curvature of the
