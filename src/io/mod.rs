@@ -7,7 +7,8 @@
 //! - `node` (the transport-free core, its parameters and the loop that runs it with transports);
 //! - the transports, behind cargo features: `ros2` (DDS) and `shm` (shared memory), and `python`
 //!   (the in-process Python extension `tensegrity_native`, which needs `shm`'s payloads);
-//! - `record` (bags: the recorder, offline runs, replay, the MCAP reader and writer).
+//! - `record` (bags: the recorder, offline runs, replay, the MCAP reader and writer);
+//! - `view` (the browser viewer: its HTTP server, and frames of a scene, a bag or a running node).
 //!
 //! Nothing outside this module, `testing` and the binaries imports a transport crate.
 
@@ -26,6 +27,7 @@ pub mod shm;
 
 #[cfg(feature = "python")]
 pub mod python;
+pub mod view;
 
 use crate::io::node::params::{NodeParams, TransportKind};
 use crate::io::node::runner::{SimNode, Transport};

@@ -1,6 +1,6 @@
 //! `tensegrity`: command-line front end of the library: argument parsing and dispatch only; each
 //! subcommand lives in its own module (`check`, `statics`, `modes`, `deploy`, `study`, `bench`,
-//! `bag`, `generate`, `fields`), what they share in `output`.
+//! `bag`, `generate`, `fields`, `view`), what they share in `output`.
 
 mod bag;
 mod bench;
@@ -12,6 +12,7 @@ mod modes;
 mod output;
 mod statics;
 mod study;
+mod view;
 
 use output::Progress;
 
@@ -122,6 +123,9 @@ enum Command {
         #[command(subcommand)]
         kind: BenchKind,
     },
+    /// Watch a scene (its equilibrium, or its modes), a recorded bag or a running node in the
+    /// browser: serves a page on 127.0.0.1 and prints its address.
+    View(view::ViewArgs),
     /// Write a generated scene as TOML.
     Generate {
         #[command(subcommand)]
@@ -183,5 +187,6 @@ fn run(cli: Cli) -> Result<(), String> {
             result
         }
         Command::Generate { kind, out } => generate::run(kind, out),
+        Command::View(args) => view::run(args),
     }
 }

@@ -37,6 +37,27 @@ pub struct Structure {
     pub contact_names: Vec<(String, String)>,
 }
 
+/// The owned `Structure` of a structure sample.
+pub(super) fn structure_of(s: &StructureSample) -> Structure {
+    let names = |fields: &[[u8; NAME_BYTES]], n: u32| -> Vec<String> {
+        fields[..n as usize].iter().map(|f| read_name(f).unwrap_or("").to_string()).collect()
+    };
+    Structure {
+        scene_name: read_name(&s.scene_name).unwrap_or("").to_string(),
+        physics_dt: s.physics_dt,
+        body_names: names(&s.body_names, s.body_count),
+        cable_names: names(&s.cable_names, s.cable_count),
+        actuator_names: names(&s.actuator_names, s.actuator_count),
+        actuator_cable: s.actuator_cable[..s.actuator_count as usize].iter().map(|c| *c as usize).collect(),
+        contact_names: (0..s.contact_count as usize)
+            .map(|i| {
+                let name = |f: &[u8; NAME_BYTES]| read_name(f).unwrap_or("").to_string();
+                (name(&s.contact_point[i]), name(&s.contact_with[i]))
+            })
+            .collect(),
+    }
+}
+
 /// A controller's connection to a node over shared memory: state, structure, commands and
 /// lockstep, waking on the node's events (after a short poll, `set_spin`).
 pub struct ShmClient {
@@ -208,27 +229,7 @@ impl ShmClient {
                 None => return Err(ShmError::Timeout(self.prefix.clone(), timeout)),
             }
         };
-        let s = sample.payload();
-        let names = |fields: &[[u8; NAME_BYTES]], n: u32| -> Vec<String> {
-            fields[..n as usize].iter().map(|f| read_name(f).unwrap_or("").to_string()).collect()
-        };
-        Ok(Structure {
-            scene_name: read_name(&s.scene_name).unwrap_or("").to_string(),
-            physics_dt: s.physics_dt,
-            body_names: names(&s.body_names, s.body_count),
-            cable_names: names(&s.cable_names, s.cable_count),
-            actuator_names: names(&s.actuator_names, s.actuator_count),
-            actuator_cable: s.actuator_cable[..s.actuator_count as usize]
-                .iter()
-                .map(|c| *c as usize)
-                .collect(),
-            contact_names: (0..s.contact_count as usize)
-                .map(|i| {
-                    let name = |f: &[u8; NAME_BYTES]| read_name(f).unwrap_or("").to_string();
-                    (name(&s.contact_point[i]), name(&s.contact_with[i]))
-                })
-                .collect(),
-        })
+        Ok(structure_of(sample.payload()))
     }
 
     /// The next state sample in arrival order, waiting up to `timeout`; `None` on timeout.

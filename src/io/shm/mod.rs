@@ -1,6 +1,7 @@
 //! The shared-memory transport (feature `shm`, iceoryx2 0.10): takes `NodeParams` and the model,
 //! gives `ShmTransport` (the node's zero-copy face in the node's loop, `io::node::runner`) and
-//! `ShmClient` (a controller's side, in Rust); the payloads are fixed-size `#[repr(C)]` types
+//! `ShmClient` (a controller's side, in Rust) and `ShmObserver` (a watcher that the node never
+//! waits on or wakes: the live viewer); the payloads are fixed-size `#[repr(C)]` types
 //! that the Python client (`python/tensegrity_testing/shm.py`) mirrors with `ctypes`.
 //!
 //! Services, named under the node's namespace and name like its ROS topics (`<ns>/<node>/...`
@@ -27,11 +28,13 @@
 //! hold the service's slots. Only one node can serve a namespace: a second fails to start.
 
 mod client;
+mod observer;
 mod payload;
 mod server;
 mod service;
 
 pub use client::*;
+pub use observer::*;
 pub use payload::*;
 pub use server::*;
 pub use service::*;
