@@ -302,6 +302,39 @@ fn a_live_node_is_followed_in_a_browser_and_its_stop_is_said() {
     assert!(strut_pixels(&a) > 1500 && strut_pixels(&b) > 1500);
     assert!(changed(&a, &b) > 0.002, "the live picture did not change as the node rolled on");
 
+    // a viewer frozen (SIGSTOP) and then killed holds nothing up: the node goes on stepping,
+    // as the first viewer sees
+    let frozen = Viewer::start(&[
+        &format!("node:{prefix}"),
+        "--scene",
+        "config/scenes/sixbar.toml",
+        "--serve-for",
+        "300",
+    ]);
+    let newest_step = |url: &str| -> u64 {
+        let next = serde_json::from_str::<serde_json::Value>(&get(url, "/frames?max=1")).unwrap()["next"]
+            .as_u64()
+            .unwrap();
+        let d: serde_json::Value =
+            serde_json::from_str(&get(url, &format!("/frames?from={}", next - 1))).unwrap();
+        d["frames"][0]["step"].as_u64().unwrap()
+    };
+    let signal = |sig: &str, pid: u32| {
+        assert!(Command::new("kill").args([sig, &pid.to_string()]).status().unwrap().success())
+    };
+    signal("-STOP", frozen.child.id());
+    let before = newest_step(&viewer.url);
+    std::thread::sleep(Duration::from_millis(1500));
+    let after = newest_step(&viewer.url);
+    assert!(
+        after >= before + 500,
+        "with a frozen viewer the node went from step {before} to {after} in 1.5 s"
+    );
+    drop(frozen);
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(node.try_wait().unwrap().is_none(), "the node stopped with a viewer");
+    assert!(newest_step(&viewer.url) > after);
+
     // killed without a word: the viewer says so on its terminal and on the page, and goes on
     // serving what it has
     node.kill().unwrap();

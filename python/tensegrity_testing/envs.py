@@ -35,6 +35,10 @@ the extension (`pip install ./python/native`).
 """
 
 import math
+import os
+import sys
+import time
+import webbrowser
 from functools import partial
 
 import gymnasium as gym
@@ -76,20 +80,27 @@ class TensegrityEnv(gym.Env):
     terminated(state): your task instead; params: node parameters; node_timeout: seconds;
     backend: "inprocess", "node" or "auto" (module docs; `self.backend` says which it is);
     render_mode: "rgb_array" (in process) for `render()` frames of `render_size` (width, height)
-    pixels, or None.
+    pixels; "human" (in process) to watch the episode in the browser viewer (`tensegrity
+    view`'s page, served from this process on 127.0.0.1:`viewer_port`, 0 for a free port; its
+    address is printed and opened in the browser unless TENSEGRITY_NO_BROWSER is set; steps are
+    paced to real time); or None.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 30}
 
     def __init__(self, scene=None, action="rate", normalize=True, actuators=None, action_period=10,
                  max_episode_steps=200, observation=("cable_tension", "actuator_rest_length"),
                  measured=False, target_tension=None, reward=None, terminated=None, params=None,
-                 node_timeout=30.0, backend="auto", render_mode=None, render_size=(320, 240)):
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+                 node_timeout=30.0, backend="auto", render_mode=None, render_size=(320, 240),
+                 viewer_port=0):
+        if render_mode not in (None, "rgb_array", "human"):
+            raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
         if render_mode is not None and backend == "node":
-            raise ValueError("render_mode='rgb_array' draws the simulator in this process: use "
-                             "backend='inprocess' (the default)")
+            raise ValueError(f"render_mode={render_mode!r} draws the simulator in this process: use "
+                             "backend='inprocess' (the default), or watch a node with `tensegrity view node`")
+        if not (isinstance(viewer_port, int) and 0 <= viewer_port <= 65535):
+            raise ValueError(f"viewer_port must be a port number, 0 to 65535, got {viewer_port!r}")
+        self.viewer_port, self.viewer_url, self._pace = viewer_port, None, None
         width, height = (int(x) for x in render_size)
         if not (1 <= width <= 4096 and 1 <= height <= 4096):
             raise ValueError(f"render_size must be (width, height) in 1 to 4096 pixels, got {render_size}")
@@ -223,6 +234,9 @@ class TensegrityEnv(gym.Env):
         self._steps = 0
         self._observation = self.observe(self._state)
         self._last_info = self._info(self._state)
+        if self.render_mode == "human":
+            self._pace = None
+            self._show()
         return self._observation, dict(self._last_info)
 
     def command_values(self, action):
@@ -237,7 +251,29 @@ class TensegrityEnv(gym.Env):
 
     def step(self, action):
         """Applies `action` (clipped to the action space) for `action_period` physics steps."""
-        return self.step_end(self.step_begin(action), action)
+        result = self.step_end(self.step_begin(action), action)
+        if self.render_mode == "human":
+            self._show()
+        return result
+
+    def _show(self):
+        """`render_mode="human"`: the current state to the browser viewer (started at the first
+        call), then waits until as much wall time has passed since the reset as simulated time."""
+        sim = self.node.sim
+        if self.viewer_url is None:
+            self.viewer_url = sim.start_viewer(self.viewer_port)
+            print(f"tensegrity viewer at {self.viewer_url}", file=sys.stderr)
+            if not os.environ.get("TENSEGRITY_NO_BROWSER"):
+                webbrowser.open(self.viewer_url)
+        else:  # starting it handed over the current state already
+            sim.view_frame()
+        t = float(self._last_info.get("time", 0.0))
+        now = time.monotonic()
+        if self._pace is None:
+            self._pace = (now, t)
+        wait = (t - self._pace[1]) - (now - self._pace[0])
+        if wait > 0:
+            time.sleep(wait)
 
     def step_begin(self, action):
         """`step`'s request, sent to the node without waiting for it (several environments then
@@ -306,8 +342,12 @@ class TensegrityEnv(gym.Env):
         """With `render_mode="rgb_array"`: the current state as a `(height, width, 3)` uint8 array
         (`render_size`; the library's software renderer: struts grey, cables blue to red by
         tension, slack ones pale, contacts green, the ground's grid; the camera frames the
-        structure). The same state gives the same pixels. None without a render mode."""
+        structure). The same state gives the same pixels. With "human": the state to the browser
+        viewer (done at every reset and step already), None. None without a render mode."""
         if self.render_mode is None:
+            return None
+        if self.render_mode == "human":
+            self._show()
             return None
         return self.node.sim.render(*self.render_size)
 

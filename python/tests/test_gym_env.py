@@ -424,7 +424,9 @@ def test_rgb_array_frames_show_the_robot_and_record_a_video(tmp_path):
     assert env.render().shape == (48, 64, 3)
     assert TensegrityEnv().render() is None
     env.close()
-    for bad in ({"render_mode": "human"}, {"render_size": (0, 10)}, {"render_mode": "rgb_array", "backend": "node"}):
+    for bad in ({"render_mode": "window"}, {"render_size": (0, 10)}, {"render_mode": "rgb_array", "backend": "node"},
+                {"render_mode": "human", "backend": "node"}, {"render_mode": "human", "viewer_port": -1},
+                {"render_mode": "human", "viewer_port": 8080.5}):
         with pytest.raises(ValueError):
             TensegrityEnv(**bad)
     pytest.importorskip("moviepy")
@@ -440,3 +442,42 @@ def test_rgb_array_frames_show_the_robot_and_record_a_video(tmp_path):
     env.close()
     videos = list((tmp_path / "video").glob("*.mp4"))
     assert len(videos) == 1 and videos[0].stat().st_size > 1000, videos
+
+
+def test_human_mode_serves_the_episode_to_the_browser_viewer(monkeypatch):
+    # render_mode="human": the viewer's page served from this process, following every step in
+    # real time; its address printed (the browser is not opened under TENSEGRITY_NO_BROWSER)
+    import json
+    import time
+    import urllib.request
+
+    monkeypatch.setenv("TENSEGRITY_NO_BROWSER", "1")
+    env = gym.make("tensegrity/SixbarRoll-v0", render_mode="human", max_episode_steps=5)
+    try:
+        start = time.monotonic()
+        env.reset(seed=2)
+        url = env.unwrapped.viewer_url
+        assert url.startswith("http://127.0.0.1:")
+        for _ in range(5):
+            env.step(env.action_space.sample())
+        elapsed = time.monotonic() - start
+        simulated = env.unwrapped._last_info["time"]
+        assert elapsed >= 0.9 * simulated, f"{elapsed} s of wall time for {simulated} s simulated: not paced"
+        assert env.render() is None
+        scene = json.load(urllib.request.urlopen(url + "scene.json", timeout=10))
+        assert len(scene["struts"]) == 6 and len(scene["cables"]) == 24 and scene["source"] == "node"
+        got = json.load(urllib.request.urlopen(url + "frames?from=0", timeout=10))
+        assert got["status"]["state"] == "playing"
+        assert len(got["frames"]) == 7, "the reset, five steps and the render"
+        times = [f["t"] for f in got["frames"]]
+        assert times == sorted(times) and times[-1] > times[0]
+        assert "viewer.js" in urllib.request.urlopen(url, timeout=10).read().decode()
+        # a second environment gets a port of its own
+        other = TensegrityEnv(scene="bundled:prism3", render_mode="human")
+        other.reset(seed=0)
+        assert other.viewer_url != url
+        other.close()
+    finally:
+        env.close()
+    with pytest.raises(OSError):
+        urllib.request.urlopen(url + "scene.json", timeout=2), "closed with the environment"

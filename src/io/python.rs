@@ -134,6 +134,26 @@ pub struct Simulator {
     observation: Vec<f64>,
     /// Scratch of `render`: the frame's RGB bytes.
     frame: Vec<u8>,
+    /// The browser viewer of this simulator (`start_viewer`), if started.
+    viewer: Option<InProcessViewer>,
+}
+
+/// A browser viewer serving a simulator's frames from a thread of its own (`io::view`).
+struct InProcessViewer {
+    url: String,
+    geometry: crate::io::view::ViewGeometry,
+    store: std::sync::Arc<crate::io::view::FrameStore>,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    serving: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Drop for InProcessViewer {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(t) = self.serving.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 impl Simulator {
@@ -204,6 +224,7 @@ impl Simulator {
             action: Vec::new(),
             observation: Vec::new(),
             frame: Vec::new(),
+            viewer: None,
         })
     }
 
@@ -348,9 +369,56 @@ impl Simulator {
         Some(payload_bytes(py, &*s))
     }
 
+    /// Serves the browser viewer of this simulator (`tensegrity view`'s page) on
+    /// 127.0.0.1:`port` (0: a free port) from a thread of its own, and returns its address; the
+    /// page shows the current state, then follows the frames `view_frame` hands it (the newest
+    /// 3600 of them). Once started,
+    /// later calls return the same address. A port in use is an `OSError`.
+    #[pyo3(signature = (port=0))]
+    fn start_viewer(&mut self, port: u16) -> PyResult<String> {
+        use crate::io::view::{FrameStore, ViewGeometry, ViewServer, ViewSource, ViewStatus};
+        if let Some(v) = &self.viewer {
+            return Ok(v.url.clone());
+        }
+        let sim = self.core.simulator();
+        let model = sim.model();
+        let geometry = ViewGeometry::new(model);
+        let scene =
+            geometry.scene_json(model, &sim.state().poses, ViewSource::Node, "in-process simulator (Python)");
+        let status = ViewStatus { state: "waiting".into(), message: String::new() };
+        let store = std::sync::Arc::new(FrameStore::new(3600, status));
+        let server = ViewServer::bind(port, scene, store.clone())
+            .map_err(|e| pyo3::exceptions::PyOSError::new_err(e.to_string()))?;
+        let url = server.url();
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let serving = {
+            let stop = stop.clone();
+            std::thread::spawn(move || server.serve_until(&stop))
+        };
+        self.viewer =
+            Some(InProcessViewer { url: url.clone(), geometry, store, stop, serving: Some(serving) });
+        self.view_frame()?;
+        Ok(url)
+    }
+
+    /// Hands the current state to the browser viewer as its newest frame (nothing before
+    /// `start_viewer`). The page says `faulted` while a physics failure holds the simulator.
+    fn view_frame(&mut self) -> PyResult<()> {
+        let Some(v) = &self.viewer else { return Ok(()) };
+        let sim = self.core.simulator();
+        let frame = crate::io::view::Frame::of_state(sim.model(), &v.geometry, sim.state(), sim.workspace());
+        v.store.push(&frame);
+        match self.core.fault() {
+            Some(why) => v.store.set_status("faulted", &format!("{why} (held until reset)")),
+            None => v.store.set_status("playing", ""),
+        }
+        Ok(())
+    }
+
     /// Closes the bag being recorded (with `record`), which is complete from then on; later
-    /// steps are not recorded. Also done when the simulator is dropped.
+    /// steps are not recorded. Also done when the simulator is dropped. Stops the viewer.
     fn close(&mut self) -> PyResult<()> {
+        self.viewer = None;
         if let Some(r) = self.out.recorder.take() {
             let r = r.into_inner().unwrap_or_else(|e| e.into_inner());
             r.finish().map_err(|e| PyRuntimeError::new_err(e.to_string()))?;

@@ -33,6 +33,7 @@
   let lastTick = null;
   let connected = true;
   let drawCount = 0;
+  let drawMs = 0;            // a draw's wall time, ms (moving average)
 
   // camera: orbit about `target`, `up` the scene's (against gravity)
   const cam = { az: -0.9, el: 0.28, dist: 3, target: [0, 0, 0], fov: 45 * Math.PI / 180 };
@@ -141,6 +142,13 @@
   }
 
   function draw() {
+    const began = performance.now();
+    drawScene();
+    const took = performance.now() - began;
+    drawMs = drawCount > 1 ? 0.9 * drawMs + 0.1 * took : took;
+  }
+
+  function drawScene() {
     const dpr = window.devicePixelRatio || 1;
     const w = canvas.clientWidth, h = canvas.clientHeight;
     if (canvas.width !== Math.round(w * dpr) || canvas.height !== Math.round(h * dpr)) {
@@ -351,6 +359,7 @@
       state: connected ? status.state : "error",
       playing: playing || following,
       draws: drawCount,
+      drawMs: drawMs.toFixed(2),
       errors: errors.length,
     };
     for (const [k, v] of Object.entries(d)) g.dataset[k] = String(v);
