@@ -52,6 +52,7 @@ pub mod sim;
 pub mod solve;
 pub mod state;
 pub mod study;
+pub mod summary;
 pub mod task;
 pub mod testing;
 

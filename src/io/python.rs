@@ -1,7 +1,8 @@
 //! The Python extension `tensegrity_native` (feature `python`, pyo3 + numpy, built by maturin from
 //! `python/native/`): takes a scene and node parameters from Python, gives `Simulator`, the node
 //! core (`NodeCore`) stepped in the caller's process, so a learning loop pays no round trip
-//! between processes.
+//! between processes; and `statics_json` / `modes_json`, a scene's equilibrium and modes as the
+//! command line's JSON (`crate::summary`), with `SceneError` and `NoEquilibrium` exceptions.
 //!
 //! It is the shared-memory lockstep without the transport: the same core, the same command
 //! checks (`shm::check_command`, `commands::check_entry`), the same seeded resets, sensors and
@@ -687,6 +688,98 @@ impl PyTask {
     }
 }
 
+pyo3::create_exception!(
+    tensegrity_native,
+    SceneError,
+    PyValueError,
+    "A scene that cannot be read or is invalid: `file`, `line` (or None), `field` and `reason`."
+);
+pyo3::create_exception!(
+    tensegrity_native,
+    NoEquilibrium,
+    PyRuntimeError,
+    "The static solver stopped without an equilibrium: `iterations`, `residual_n`, `stop_reason`."
+);
+
+/// The model of `scene` (a file, `bundled:NAME`, or None for the bundled prism3) or of the TOML
+/// `text` (named `file` in its errors), as a Python `SceneError` when it cannot be had.
+fn model_of(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<Model> {
+    let loaded = match (scene, text) {
+        (Some(_), Some(_)) => return Err(PyValueError::new_err("give a scene or its text, not both")),
+        (None, Some(t)) => crate::scene::from_toml(t, "<text>"),
+        (Some(s), None) => match s.strip_prefix("bundled:") {
+            Some(name) => crate::scene::bundled(name),
+            None => crate::scene::load(std::path::Path::new(s)),
+        },
+        (None, None) => crate::scene::bundled("prism3"),
+    };
+    loaded.map_err(|e| {
+        let err = SceneError::new_err(e.to_string());
+        let value = err.value(py);
+        let _ = value.setattr("file", &e.file);
+        let _ = value.setattr("line", e.line);
+        let _ = value.setattr("field", &e.field);
+        let _ = value.setattr("reason", &e.reason);
+        err
+    })
+}
+
+/// A model the static solver can take: every body held.
+fn held_model(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<Model> {
+    let model = model_of(py, scene, text)?;
+    match crate::report::unheld_bodies_note(&model) {
+        Some(note) => Err(PyValueError::new_err(format!("{}: {note}", scene.unwrap_or("<text>")))),
+        None => Ok(model),
+    }
+}
+
+fn no_equilibrium(py: Python<'_>, f: crate::summary::NoEquilibrium) -> PyErr {
+    let err = NoEquilibrium::new_err(format!(
+        "no equilibrium found: residual {:.3e} N after {} Newton iterations ({})",
+        f.residual, f.iterations, f.stop_words
+    ));
+    let value = err.value(py);
+    let _ = value.setattr("iterations", f.iterations);
+    let _ = value.setattr("residual_n", f.residual);
+    let _ = value.setattr("stop_reason", f.stop_words);
+    err
+}
+
+/// `statics_json(scene=None, *, text=None)`: the equilibrium of the scene at its initial rest
+/// lengths, as the JSON text `tensegrity statics --json` prints (the same numbers to the bit).
+/// The solve runs without the GIL.
+#[pyfunction]
+#[pyo3(signature = (scene=None, *, text=None))]
+fn statics_json(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<String> {
+    let model = held_model(py, scene, text)?;
+    let solved = py.detach(|| crate::summary::statics(&model)).map_err(|f| no_equilibrium(py, f))?;
+    serde_json::to_string(&solved.summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
+/// `modes_json(scene=None, count=10, *, text=None)`: the natural modes at the equilibrium, as the
+/// JSON text `tensegrity modes --json --count COUNT` prints (every zero-frequency mode, then the
+/// lowest `count` others).
+#[pyfunction]
+#[pyo3(signature = (scene=None, count=10, *, text=None))]
+fn modes_json(py: Python<'_>, scene: Option<&str>, count: usize, text: Option<&str>) -> PyResult<String> {
+    let model = held_model(py, scene, text)?;
+    if model.dof_count == 0 {
+        return Err(PyValueError::new_err(format!(
+            "{}: {}",
+            scene.unwrap_or("<text>"),
+            crate::sim::StepError::NothingToMove
+        )));
+    }
+    let (_, _, modes) = py.detach(|| crate::summary::modes(&model)).map_err(|f| match f {
+        crate::summary::ModesFailure::NoEquilibrium(f) => no_equilibrium(py, f),
+        crate::summary::ModesFailure::SingularMass => {
+            PyRuntimeError::new_err("the mass matrix is singular on the joints' null space")
+        }
+    })?;
+    serde_json::to_string(&crate::summary::mode_summaries(&model, &modes, count))
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
 /// The module `tensegrity_native`.
 #[pymodule]
 fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -695,6 +788,10 @@ fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(pyo3::wrap_pyfunction!(observation_fields, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(act_all, m)?)?;
     m.add("PhysicsFailure", m.py().get_type::<PhysicsFailure>())?;
+    m.add("SceneError", m.py().get_type::<SceneError>())?;
+    m.add("NoEquilibrium", m.py().get_type::<NoEquilibrium>())?;
+    m.add_function(pyo3::wrap_pyfunction!(statics_json, m)?)?;
+    m.add_function(pyo3::wrap_pyfunction!(modes_json, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

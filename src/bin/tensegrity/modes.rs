@@ -3,11 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Serialize;
-use tensegrity::evaluate::Workspace;
 use tensegrity::report::Num;
-use tensegrity::solve::statics::{EquilibriumReport, StaticSolver};
-use tensegrity::{Model, State};
+use tensegrity::solve::statics::EquilibriumReport;
+use tensegrity::summary::ModesFailure;
+use tensegrity::Model;
 
 use crate::output::*;
 
@@ -22,20 +21,19 @@ pub fn run(
 ) -> Result<(), String> {
     let model = load_for_statics(scene)?;
     crate::output::refuse_nothing_to_move(&model, scene)?;
-    let mut state = State::initial(&model);
-    let mut ws = Workspace::new(&model);
-    let mut solver = StaticSolver::new(&model);
-    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver);
+    let solved = tensegrity::summary::modes(&model);
     progress.finish();
-    let r = r.map_err(|(it, res)| {
-        format!(
-            "{}: no equilibrium found: residual {res:.3e} N after {it} Newton iterations ({})",
+    let (state, r, modes) = solved.map_err(|f| match f {
+        ModesFailure::NoEquilibrium(f) => format!(
+            "{}: no equilibrium found: residual {:.3e} N after {} Newton iterations ({})",
             scene.display(),
-            solver.stop_words(&model)
-        )
-    })?;
-    let modes = tensegrity::solve::modes::natural_modes(&model, &state).ok_or_else(|| {
-        format!("{}: the mass matrix is singular on the joints' null space", scene.display())
+            f.residual,
+            f.iterations,
+            f.stop_words
+        ),
+        ModesFailure::SingularMass => {
+            format!("{}: the mass matrix is singular on the joints' null space", scene.display())
+        }
     })?;
     emit(&format_modes(&model, &r, &modes, count, json)?);
     if let Some(base) = plot {
@@ -58,17 +56,6 @@ pub fn run(
     Ok(())
 }
 
-#[derive(Serialize)]
-struct ModeJson {
-    index: usize,
-    frequency_hz: f64,
-    omega_squared: f64,
-    zero_frequency: bool,
-    kinetic_share: Vec<(String, f64)>,
-    cable_stretch_m: Vec<(String, f64)>,
-    largest_segment_change_m: Vec<(String, f64)>,
-}
-
 /// The `modes` output: a table (or JSON) of the zero-frequency modes and the lowest `count`
 /// others, each with its largest kinetic-energy shares and the cables it stretches.
 fn format_modes(
@@ -80,29 +67,9 @@ fn format_modes(
 ) -> Result<String, String> {
     use std::fmt::Write as _;
     let zero: Vec<usize> = (0..modes.len()).filter(|&i| modes[i].zero).collect();
-    let listed: Vec<usize> =
-        zero.iter().copied().chain((0..modes.len()).filter(|&i| !modes[i].zero).take(count)).collect();
-    let named =
-        |v: &[f64], names: &mut dyn Iterator<Item = String>| names.zip(v.iter().copied()).collect::<Vec<_>>();
+    let listed = tensegrity::summary::listed_modes(modes, count);
     if json {
-        let out: Vec<ModeJson> = listed
-            .iter()
-            .map(|&i| {
-                let m = &modes[i];
-                ModeJson {
-                    index: i + 1,
-                    frequency_hz: m.frequency_hz,
-                    omega_squared: m.omega_squared,
-                    zero_frequency: m.zero,
-                    kinetic_share: named(&m.kinetic_share, &mut model.bodies.iter().map(|b| b.name.clone())),
-                    cable_stretch_m: named(&m.cable_stretch, &mut model.cable_names.iter().cloned()),
-                    largest_segment_change_m: named(
-                        &m.segment_change,
-                        &mut model.cable_names.iter().cloned(),
-                    ),
-                }
-            })
-            .collect();
+        let out = tensegrity::summary::mode_summaries(model, modes, count);
         return serde_json::to_string_pretty(&out).map(|s| s + "\n").map_err(|e| e.to_string());
     }
     let mut out = String::new();

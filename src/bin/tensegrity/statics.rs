@@ -2,108 +2,43 @@
 
 use std::path::Path;
 
-use serde::Serialize;
-use tensegrity::evaluate::{evaluate, Tangents, Workspace};
+use tensegrity::evaluate::Workspace;
 use tensegrity::report;
 use tensegrity::report::Num;
-use tensegrity::solve::statics::{EquilibriumReport, StaticSolver};
+use tensegrity::solve::statics::EquilibriumReport;
+use tensegrity::summary::NO_FREE_MOTION;
 use tensegrity::{Model, State};
 
 use crate::output::*;
-
-#[derive(Serialize)]
-struct StaticsJson {
-    scene: String,
-    iterations: usize,
-    stop_reason: &'static str,
-    residual_n: f64,
-    residual_history_n: Vec<f64>,
-    force_scale_n: f64,
-    stable: bool,
-    negative_stiffness_modes: usize,
-    zero_stiffness_modes: usize,
-    /// Left out where it does not exist (no free motion): `not_computed` says why.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    min_stiffness_eigenvalue: Option<f64>,
-    /// The quantities left out of this report, each with the reason (docs/cli.md, "JSON").
-    #[serde(skip_serializing_if = "std::collections::BTreeMap::is_empty")]
-    not_computed: std::collections::BTreeMap<&'static str, &'static str>,
-    potential_energy_j: f64,
-    largest_move_from_scene_m: f64,
-    bodies: Vec<report::BodyReport>,
-    points: Vec<(String, [f64; 3])>,
-    cables: Vec<report::CableReport>,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
-    contacts: Vec<report::ContactReport>,
-    joints: Vec<report::JointReport>,
-}
-
-/// Why a structure whose joints hold every coordinate has no reduced stiffness to report.
-const NO_FREE_MOTION: &str = "no free motion: the joints hold every coordinate";
 
 /// Runs `statics` on `scene`, as JSON when `json`.
 /// `progress` shows the Newton iterations of a long solve and is finished before any output.
 pub fn run(scene: &Path, json: bool, progress: crate::output::Progress) -> Result<(), String> {
     let model = load_for_statics(scene)?;
-    let mut state = State::initial(&model);
-    let mut ws = Workspace::for_forces(&model);
-    evaluate(&model, &state, &mut ws, Tangents::None);
-    let reference = report::all_pulley_coordinates(&model, &state, &ws);
-    let mut solver = StaticSolver::new(&model);
-    let r = solver.equilibrate(&model, &mut state, &mut ws, &model.solver);
+    let solved = tensegrity::summary::statics(&model);
     progress.finish();
-    let r = r.map_err(|(it, res)| {
+    let solved = solved.map_err(|f| {
         format!(
-            "{}: no equilibrium found: residual {res:.3e} N after {} ({}; residual by iteration {})",
+            "{}: no equilibrium found: residual {:.3e} N after {} ({}; residual by iteration {})",
             scene.display(),
-            counted(it, "Newton iteration"),
-            solver.stop_words(&model),
-            history_words(solver.residual_history())
+            f.residual,
+            counted(f.iterations, "Newton iteration"),
+            f.stop_words,
+            history_words(&f.history)
         )
     })?;
-    evaluate(&model, &state, &mut ws, Tangents::None);
-    let cables = report::cable_reports(&model, &state, &ws, &reference);
-    // how far the equilibrium lies from the pose the scene sketched, and where
-    let sketched = State::initial(&model);
-    let largest_move = model
-        .points
-        .iter()
-        .map(|p| {
-            let at = |s: &State| s.poses[p.body.0].transform_point(&p.local);
-            ((at(&state) - at(&sketched)).norm(), p.name.as_str())
-        })
-        .fold((0.0, ""), |a, b| if b.0 > a.0 { b } else { a });
     if json {
-        let out = StaticsJson {
-            scene: model.name.clone(),
-            iterations: r.iterations,
-            stop_reason: solver.stop_reason().words(),
-            residual_n: r.residual,
-            residual_history_n: solver.residual_history().to_vec(),
-            force_scale_n: r.force_scale,
-            stable: r.stable,
-            negative_stiffness_modes: r.negative_modes,
-            zero_stiffness_modes: r.zero_modes,
-            min_stiffness_eigenvalue: r
-                .min_stiffness_eigenvalue
-                .is_finite()
-                .then_some(r.min_stiffness_eigenvalue),
-            not_computed: if r.min_stiffness_eigenvalue.is_finite() {
-                Default::default()
-            } else {
-                [("min_stiffness_eigenvalue", NO_FREE_MOTION)].into()
-            },
-            potential_energy_j: r.potential_energy,
-            largest_move_from_scene_m: largest_move.0,
-            bodies: report::body_reports(&model, &state),
-            points: report::point_positions(&model, &ws),
-            cables,
-            contacts: report::contact_reports(&model, &ws),
-            joints: report::joint_reports(&model, &state),
-        };
-        emit(&(serde_json::to_string_pretty(&out).map_err(|e| e.to_string())? + "\n"));
+        emit(&(serde_json::to_string_pretty(&solved.summary).map_err(|e| e.to_string())? + "\n"));
     } else {
-        emit(&format_statics(&model, &state, &ws, &r, &cables, largest_move));
+        let (moved, point) = &solved.largest_move;
+        emit(&format_statics(
+            &model,
+            &solved.state,
+            &solved.ws,
+            &solved.report,
+            &solved.summary.cables,
+            (*moved, point.as_str()),
+        ));
     }
     Ok(())
 }
