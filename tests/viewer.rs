@@ -259,6 +259,7 @@ fn a_recorded_six_bar_roll_plays_in_a_browser() {
 
 /// A `tensegrity_node` serving shared memory only under `prefix`, rolling the six-bar by its
 /// schedule in real time.
+#[cfg(feature = "shm")]
 fn rolling_node(prefix: &str) -> Child {
     let mut cmd = Command::new(env!("CARGO_BIN_EXE_tensegrity_node"));
     tensegrity::testing::die_with_parent(&mut cmd);
@@ -273,6 +274,7 @@ fn rolling_node(prefix: &str) -> Child {
 }
 
 #[test]
+#[cfg(feature = "shm")]
 fn a_live_node_is_followed_in_a_browser_and_its_stop_is_said() {
     let Some(browser) = chromium() else { return };
     let dir = common::scratch("viewer-live");
@@ -412,9 +414,10 @@ fn careless_targets_get_a_message_and_a_failing_exit() {
         "--port",
         "0",
     ]);
-    assert!(err.contains("nobody_is_here") && err.contains("no node"), "{err}");
+    let why = if cfg!(feature = "shm") { "no node" } else { "without shared memory" };
+    assert!(err.contains("nobody_is_here") && err.contains(why), "{err}");
     let err = view_fails(&["node:nobody_is_here", "--port", "0"]);
-    assert!(err.contains("--scene"), "{err}");
+    assert!(err.contains(if cfg!(feature = "shm") { "--scene" } else { "without shared memory" }), "{err}");
 
     // a port in use
     let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
