@@ -41,6 +41,7 @@ fn chromium() -> Option<PathBuf> {
 struct Viewer {
     child: Child,
     url: String,
+    #[cfg_attr(not(feature = "shm"), allow(dead_code))]
     stderr: mpsc::Receiver<String>,
 }
 
@@ -84,6 +85,7 @@ impl Viewer {
     }
 
     /// Waits up to `timeout` for a standard-error line containing `text`.
+    #[cfg_attr(not(feature = "shm"), allow(dead_code))]
     fn said(&self, text: &str, timeout: Duration) -> Option<String> {
         let end = Instant::now() + timeout;
         while let Some(left) = end.checked_duration_since(Instant::now()) {
