@@ -1,6 +1,7 @@
-"""The library from Python, arrays out: a scene's static equilibrium (`statics`) and its natural
-modes (`modes`), with the numbers `tensegrity statics --json` and `tensegrity modes --json` print,
-to the bit (both call the library's `tensegrity::summary`). Needs the extension
+"""The library from Python, arrays out: a scene's static equilibrium (`statics`), its natural
+modes (`modes`) and its quasi-static deployment path (`quasi_static`), with the numbers
+`tensegrity statics --json`, `modes --json` and `deploy --quasi-static` write, to the bit (they
+call the same library code). Needs the extension
 (`pip install ./python/native`).
 
 A scene is a file path, `"bundled:NAME"`, None (the bundled prism3), or TOML text given as
@@ -22,7 +23,7 @@ import numpy as np
 import tensegrity_native as _native
 from tensegrity_native import NoEquilibrium, SceneError
 
-__all__ = ["statics", "modes", "Statics", "Modes", "SceneError", "NoEquilibrium"]
+__all__ = ["statics", "modes", "quasi_static", "Statics", "Modes", "QuasiStaticPath", "SceneError", "NoEquilibrium"]
 
 
 def _scene_arg(scene):
@@ -120,3 +121,55 @@ def modes(scene=None, count=10, *, text=None):
     if text is not None and not isinstance(text, str):
         raise TypeError(f"text must be the scene's TOML as a str, got {type(text).__name__}")
     return Modes(json.loads(_native.modes_json(_scene_arg(scene), int(count), text=text)))
+
+
+class QuasiStaticPath:
+    """The equilibrium path along a scene's deployment schedule, one row per load step (and per
+    point traced by arc length past a limit point): `csv` (the text `tensegrity deploy
+    --quasi-static --out -` writes, byte for byte), `columns` (the CSV's header names) and
+    `data` (column name -> numpy array: float64 for numbers, str for the `point` column, which
+    says `load`, `arc` or `snap`). `path["time_s"]` is `path.data["time_s"]`; `to_pandas()` is a
+    DataFrame (with pandas installed)."""
+
+    def __init__(self, csv_text):
+        self.csv = csv_text
+        lines = csv_text.splitlines()
+        self.columns = lines[0].split(",")
+        rows = [line.split(",") for line in lines[1:]]
+        self.data = {}
+        for k, name in enumerate(self.columns):
+            values = [r[k] for r in rows]
+            try:
+                self.data[name] = np.array([float(v) for v in values], dtype=np.float64)
+            except ValueError:
+                self.data[name] = np.array(values, dtype=str)
+
+    def __getitem__(self, column):
+        try:
+            return self.data[column]
+        except KeyError:
+            raise KeyError(f"no column {column!r} (columns: {', '.join(self.columns)})") from None
+
+    def __len__(self):
+        return len(self.csv.splitlines()) - 1
+
+    def to_pandas(self):
+        """The path as a pandas DataFrame (pandas must be installed)."""
+        import pandas as pd
+
+        return pd.DataFrame({name: self.data[name] for name in self.columns})
+
+    def __repr__(self):
+        return f"QuasiStaticPath({len(self)} rows, {len(self.columns)} columns)"
+
+
+def quasi_static(scene=None, steps=None, *, text=None):
+    """The quasi-static deployment of `scene` (or of the TOML `text`) along its schedule, in
+    `steps` load steps (default the scene's): a `QuasiStaticPath`. A path that ends without an
+    equilibrium (a robot tipping over) raises `NoEquilibrium`."""
+    if steps is not None and (isinstance(steps, bool) or not isinstance(steps, (int, np.integer))):
+        raise TypeError(f"steps must be an int, got {steps!r}")
+    if text is not None and not isinstance(text, str):
+        raise TypeError(f"text must be the scene's TOML as a str, got {type(text).__name__}")
+    return QuasiStaticPath(_native.quasi_static_csv(_scene_arg(scene), None if steps is None else int(steps),
+                                                   text=text))

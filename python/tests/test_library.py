@@ -87,4 +87,26 @@ def test_the_docs_examples_run(capsys):
     for block in blocks:
         exec(compile(block, "docs/python.md", "exec"), {})
     out = capsys.readouterr().out
-    assert "Statics('prism3'" in out and "no/such/scene.toml" in out
+    assert "Statics('prism3'" in out and "no/such/scene.toml" in out and "QuasiStaticPath(21 rows" in out
+
+
+@pytest.mark.parametrize("name", ("prism3", "tbar", "tower"))
+def test_the_quasi_static_path_is_the_command_lines_csv_byte_for_byte(name):
+    from tensegrity_testing.library import quasi_static
+
+    path = str(ROOT / "config" / "scenes" / f"{name}.toml")
+    exe = Path(find_executable()).with_name("tensegrity")
+    out = subprocess.run([str(exe), "deploy", path, "--quasi-static", "--steps", "20", "--out", "-"],
+                         capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    got = quasi_static(path, steps=20)
+    assert got.csv == out
+    assert len(got) == out.count("\n") - 1 and got["time_s"].dtype == np.float64
+    assert set(got["point"]) <= {"load", "arc", "snap"}
+    assert got["time_s"][0] == 0.0 and np.all(np.diff(got["time_s"]) >= 0) or "arc" in got["point"]
+    with pytest.raises(KeyError, match="time_s"):
+        got["no_such_column"]
+    for steps in (0, 10**9):
+        with pytest.raises(ValueError, match="steps"):
+            quasi_static(path, steps=steps)
+    with pytest.raises(TypeError):
+        quasi_static(path, steps=2.5)

@@ -1,8 +1,9 @@
 //! The Python extension `tensegrity_native` (feature `python`, pyo3 + numpy, built by maturin from
 //! `python/native/`): takes a scene and node parameters from Python, gives `Simulator`, the node
 //! core (`NodeCore`) stepped in the caller's process, so a learning loop pays no round trip
-//! between processes; and `statics_json` / `modes_json`, a scene's equilibrium and modes as the
-//! command line's JSON (`crate::summary`), with `SceneError` and `NoEquilibrium` exceptions.
+//! between processes; and `statics_json`, `modes_json` and `quasi_static_csv`, a scene's
+//! equilibrium, modes and quasi-static path as the command line writes them (`crate::summary`,
+//! `crate::report`), with the exceptions `SceneError` and `NoEquilibrium`.
 //!
 //! It is the shared-memory lockstep without the transport: the same core, the same command
 //! checks (`shm::check_command`, `commands::check_entry`), the same seeded resets, sensors and
@@ -780,6 +781,40 @@ fn modes_json(py: Python<'_>, scene: Option<&str>, count: usize, text: Option<&s
         .map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
+/// `quasi_static_csv(scene=None, steps=None, *, text=None)`: the equilibrium path along the
+/// scene's deployment schedule (`steps` load steps, default the scene's), as the CSV text
+/// `tensegrity deploy --quasi-static --out -` writes (the same header, rows and digits). The
+/// solve runs without the GIL; a path that ends without an equilibrium raises `NoEquilibrium`.
+#[pyfunction]
+#[pyo3(signature = (scene=None, steps=None, *, text=None))]
+fn quasi_static_csv(
+    py: Python<'_>,
+    scene: Option<&str>,
+    steps: Option<usize>,
+    text: Option<&str>,
+) -> PyResult<String> {
+    let mut model = held_model(py, scene, text)?;
+    if let Some(n) = steps {
+        let max = crate::scene::limits::MAX_LOAD_STEPS;
+        if n == 0 || n > max {
+            return Err(PyValueError::new_err(format!("steps must be in [1, {max}], got {n}")));
+        }
+        model.schedule.steps = n;
+    }
+    let mut csv = crate::report::path_csv_header(&model);
+    csv.push('\n');
+    let path = py.detach(|| {
+        let mut state = crate::State::initial(&model);
+        let mut ws = crate::evaluate::Workspace::new(&model);
+        crate::solve::deploy::deploy_quasi_static(&model, &mut state, &mut ws, |step, st, w| {
+            csv.push_str(&crate::report::path_csv_row(&model, st, w, step));
+            csv.push('\n');
+        })
+    });
+    path.map_err(|e| NoEquilibrium::new_err(e.to_string()))?;
+    Ok(csv)
+}
+
 /// The module `tensegrity_native`.
 #[pymodule]
 fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -792,6 +827,7 @@ fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("NoEquilibrium", m.py().get_type::<NoEquilibrium>())?;
     m.add_function(pyo3::wrap_pyfunction!(statics_json, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(modes_json, m)?)?;
+    m.add_function(pyo3::wrap_pyfunction!(quasi_static_csv, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
