@@ -23,7 +23,7 @@ import numpy as np
 import tensegrity_native as _native
 from tensegrity_native import NoEquilibrium, SceneError
 
-__all__ = ["statics", "modes", "quasi_static", "Statics", "Modes", "QuasiStaticPath", "SceneError", "NoEquilibrium"]
+__all__ = ["statics", "modes", "quasi_static", "field_reference", "Statics", "Modes", "QuasiStaticPath", "SceneError", "NoEquilibrium"]
 
 
 def _scene_arg(scene):
@@ -173,3 +173,9 @@ def quasi_static(scene=None, steps=None, *, text=None):
         raise TypeError(f"text must be the scene's TOML as a str, got {type(text).__name__}")
     return QuasiStaticPath(_native.quasi_static_csv(_scene_arg(scene), None if steps is None else int(steps),
                                                    text=text))
+
+
+def field_reference():
+    """The scene-file field reference (every table and field: format, unit, default, range) as
+    the Markdown table `tensegrity fields` prints."""
+    return _native.field_reference()

@@ -110,3 +110,12 @@ def test_the_quasi_static_path_is_the_command_lines_csv_byte_for_byte(name):
             quasi_static(path, steps=steps)
     with pytest.raises(TypeError):
         quasi_static(path, steps=2.5)
+
+
+def test_the_field_reference_is_the_command_lines():
+    from tensegrity_testing.library import field_reference
+
+    exe = Path(find_executable()).with_name("tensegrity")
+    out = subprocess.run([str(exe), "fields"], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+    text = field_reference()
+    assert text.strip() == out.strip() and "| `(top level)` | `name` |" in text

@@ -3,7 +3,8 @@
 //! core (`NodeCore`) stepped in the caller's process, so a learning loop pays no round trip
 //! between processes; and `statics_json`, `modes_json` and `quasi_static_csv`, a scene's
 //! equilibrium, modes and quasi-static path as the command line writes them (`crate::summary`,
-//! `crate::report`), with the exceptions `SceneError` and `NoEquilibrium`.
+//! `crate::report`), with the exceptions `SceneError` and `NoEquilibrium`, and the scene-file
+//! `field_reference`.
 //!
 //! It is the shared-memory lockstep without the transport: the same core, the same command
 //! checks (`shm::check_command`, `commands::check_entry`), the same seeded resets, sensors and
@@ -815,6 +816,13 @@ fn quasi_static_csv(
     Ok(csv)
 }
 
+/// `field_reference()`: the scene-file field reference (every table and field: format, unit,
+/// default, range) as the Markdown table `tensegrity fields` prints.
+#[pyfunction]
+fn field_reference() -> String {
+    crate::scene::reference::markdown()
+}
+
 /// The module `tensegrity_native`.
 #[pymodule]
 fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
@@ -828,6 +836,7 @@ fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(pyo3::wrap_pyfunction!(statics_json, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(modes_json, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(quasi_static_csv, m)?)?;
+    m.add_function(pyo3::wrap_pyfunction!(field_reference, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
