@@ -276,11 +276,7 @@ impl ShmClient {
     /// that answer's step (the node publishes the contacts first).
     pub fn latest_contacts(&self) -> Result<Option<ContactsRef>, ShmError> {
         let Some(contacts) = &self.contacts else { return Ok(None) };
-        let mut newest = None;
-        while let Some(s) = contacts.receive().map_err(ipc("contacts"))? {
-            newest = Some(s);
-        }
-        Ok(newest)
+        newest_sample(contacts, "contacts")
     }
 
     /// The newest sensors sample received so far (older ones are released), or None when none
@@ -288,11 +284,7 @@ impl ShmClient {
     /// is that answer's step (the node publishes it before the answer).
     pub fn latest_measured(&self) -> Result<Option<MeasuredRef>, ShmError> {
         let Some(measured) = &self.measured else { return Ok(None) };
-        let mut newest = None;
-        while let Some(s) = measured.receive().map_err(ipc("measured"))? {
-            newest = Some(s);
-        }
-        Ok(newest)
+        newest_sample(measured, "measured")
     }
 
     /// Sends one command message (applied at the node's next step boundary, or rejected whole:

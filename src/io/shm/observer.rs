@@ -111,22 +111,14 @@ impl ShmObserver {
 
     /// The newest state sample received since the last call (older ones are released), or None.
     pub fn newest_state(&self) -> Result<Option<StateRef>, ShmError> {
-        let mut newest = None;
-        while let Some(s) = self.state.receive().map_err(ipc("state"))? {
-            newest = Some(s);
-        }
-        Ok(newest)
+        newest_sample(&self.state, "state")
     }
 
     /// The newest contacts sample received since the last call, or None (also for a scene
     /// without contacts).
     pub fn newest_contacts(&self) -> Result<Option<ContactsRef>, ShmError> {
         let Some(contacts) = &self.contacts else { return Ok(None) };
-        let mut newest = None;
-        while let Some(s) = contacts.receive().map_err(ipc("contacts"))? {
-            newest = Some(s);
-        }
-        Ok(newest)
+        newest_sample(contacts, "contacts")
     }
 
     /// Whether the node still publishes states: after removing what dead processes left (a

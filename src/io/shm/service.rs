@@ -163,6 +163,19 @@ pub(super) fn new_node() -> Result<iceoryx2::node::Node<ipc::Service>, ShmError>
 }
 
 pub(super) type Svc = ipc::Service;
+
+/// The newest sample `subscriber` has received since the last call (the older ones are
+/// released on the way), or None; `what` names the service in an error.
+pub(super) fn newest_sample<T: std::fmt::Debug + ZeroCopySend>(
+    subscriber: &iceoryx2::port::subscriber::Subscriber<Svc, T, ()>,
+    what: &str,
+) -> Result<Option<iceoryx2::sample::Sample<Svc, T, ()>>, ShmError> {
+    let mut newest = None;
+    while let Some(s) = subscriber.receive().map_err(ipc(what))? {
+        newest = Some(s);
+    }
+    Ok(newest)
+}
 pub(super) type Lockstep = ActiveRequest<Svc, LockstepRequest, (), LockstepResponse, ()>;
 
 /// Polls `ready` until it returns true (then true) or `until` passes (then false), yielding the
