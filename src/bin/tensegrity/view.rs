@@ -211,7 +211,7 @@ fn live(args: &ViewArgs, prefix: &str, stop: Arc<AtomicBool>) -> Result<(), Stri
     let timeout = Duration::from_secs_f64(args.timeout);
     let observer = ShmObserver::connect(prefix, timeout).map_err(|e| {
         input_error(format!(
-            "node:{prefix}: no node serves shared memory there within {:.1} s ({e}); start one with `tensegrity_node --scene FILE` (transports shm, the default)",
+            "node:{prefix}: no node serves shared memory there within {:.1} s ({e}); start one with `tensegrity_node FILE` (its transports must include shm, as they do by default)",
             args.timeout
         ))
     })?;
