@@ -16,7 +16,6 @@ Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyP
     python3 -m venv target/mujoco-venv
     target/mujoco-venv/bin/pip install mujoco numpy gymnasium cyclonedds iceoryx2==0.10.0 pytest maturin
     target/mujoco-venv/bin/pip install --no-deps ./python
-    PATH=$PWD/target/mujoco-venv/bin:$PATH target/mujoco-venv/bin/pip install --no-build-isolation ./python/native
     cargo build --release
     target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000]
 
@@ -37,8 +36,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 os.environ.setdefault("TENSEGRITY_NODE", os.path.join(ROOT, "target", "release", "tensegrity_node"))
 
-from tensegrity_testing import command  # noqa: E402
-from tensegrity_testing.envs import TensegrityEnv, make_vector_env  # noqa: E402
+from tensegrity.testing import command  # noqa: E402
+from tensegrity.envs import TensegrityEnv, make_vector_env  # noqa: E402
 
 
 def action_sequence(kind, actions):

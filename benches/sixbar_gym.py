@@ -40,7 +40,7 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 
 from mujoco_sixbar import twin_xml  # noqa: E402
-import tensegrity_testing.envs  # noqa: E402,F401  (registers the environments)
+import tensegrity.envs  # noqa: E402,F401  (registers the environments)
 
 PERIOD = 50
 TAU = 0.25  # s: the twin's rest lengths reach a new target in about a second, as our winches do

@@ -292,7 +292,7 @@ fn every_type_a_bag_records_has_a_definition_equal_to_its_rust_struct() {
 /// the shipped file is that text. `TENSEGRITY_BLESS=1` rewrites it after a change to `msg/`.
 #[test]
 fn the_python_kits_message_classes_are_generated_from_msg() {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("python/tensegrity_testing/msgs.py");
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("python/tensegrity/testing/msgs.py");
     let generated = tensegrity::io::schemas::python_module();
     if std::env::var_os("TENSEGRITY_BLESS").is_some() {
         std::fs::write(&path, &generated).unwrap();

@@ -1,9 +1,15 @@
-"""Launch-free tests for controllers of the tensegrity simulator: `TensegrityNode` starts
-`tensegrity_node` for one test (leased DDS domain, own shared-memory prefix, loopback-only
-network namespace where the kernel allows it), `msgs` has the node's message types generated from
-msg/, `shm` the zero-copy lockstep client; the pytest plugin gives the `tensegrity_node` fixture.
-"""
+"""Deprecated name of the test kit: `tensegrity_testing` is `tensegrity.testing`, its
+`envs` is `tensegrity.envs` and its `library` is `tensegrity` itself. Kept importable for one
+release: each old module is the new one under its old name."""
 
-from .node import EXIT_STATUS, Contact, NodeFailed, State, TensegrityNode, command, find_executable
+import warnings
 
-__all__ = ["EXIT_STATUS", "Contact", "NodeFailed", "State", "TensegrityNode", "command", "find_executable"]
+warnings.warn(
+    "tensegrity_testing is deprecated: use tensegrity.testing (the test kit), tensegrity.envs (the "
+    "Gymnasium environments) and tensegrity (the library)",
+    DeprecationWarning,
+    stacklevel=2,
+)
+
+from tensegrity.testing import *  # noqa: E402,F401,F403
+from tensegrity.testing import __all__  # noqa: E402,F401

@@ -1,5 +1,5 @@
-"""The Gymnasium environments (`tensegrity_testing.envs`), with the simulator in process
-(`tensegrity_native`) and as a node over shared memory: both pass Gymnasium's own checker, the
+"""The Gymnasium environments (`tensegrity.envs`), with the simulator in process
+(`tensegrity._native`) and as a node over shared memory: both pass Gymnasium's own checker, the
 same seed gives the same episodes to the bit (scene randomization included) and the two backends
 give each other's episodes to the bit, a vector environment's results equal the same environments
 stepped one by one, a recorded run of seeded episodes replays bit for bit, and a short random
@@ -23,10 +23,10 @@ np = pytest.importorskip("numpy")
 
 from gymnasium.utils.env_checker import check_env  # noqa: E402
 
-from tensegrity_testing import command  # noqa: E402
-from tensegrity_testing.envs import TensegrityEnv, make_vector_env  # noqa: E402
-from tensegrity_testing.inprocess import InProcessSimulator  # noqa: E402
-from tensegrity_testing.shm import LockstepRefused  # noqa: E402
+from tensegrity.testing import command  # noqa: E402
+from tensegrity.envs import TensegrityEnv, make_vector_env  # noqa: E402
+from tensegrity.testing.inprocess import InProcessSimulator  # noqa: E402
+from tensegrity.testing.shm import LockstepRefused  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BACKENDS = ["inprocess", "node"]
@@ -285,7 +285,7 @@ def test_a_huge_in_process_request_stops_at_ctrl_c():
     code = (
         "import signal\n"
         "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
-        "from tensegrity_testing.inprocess import InProcessSimulator\n"
+        "from tensegrity.testing.inprocess import InProcessSimulator\n"
         "sim = InProcessSimulator()\n"
         "print('ready', flush=True)\n"
         "try:\n"
@@ -294,7 +294,7 @@ def test_a_huge_in_process_request_stops_at_ctrl_c():
         "    s = sim.lockstep(1)\n"
         "    print('interrupted', s.step, min(s.cable_tension) > 0, flush=True)\n"
     )
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "python"))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the installed package
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env)
     try:
         assert p.stdout.readline().strip() == "ready"

@@ -1,26 +1,34 @@
-"""The library from Python (`tensegrity_testing.library`): the same numbers as the command line to
-the bit, arrays of the documented shapes, and careless calls refused with clear exceptions."""
+"""The library from Python (`import tensegrity`): the same numbers as the command line to the bit,
+arrays of the documented shapes, careless calls refused with clear exceptions, and the old names
+(`tensegrity_testing`, `tensegrity_native`) still importable with a deprecation warning."""
 
 import json
 import os
+import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-pytest.importorskip("tensegrity_native")
-from tensegrity_testing.library import NoEquilibrium, SceneError, modes, statics  # noqa: E402
-from tensegrity_testing.node import find_executable  # noqa: E402
+pytest.importorskip("tensegrity._native")
+import tensegrity  # noqa: E402
+from tensegrity import NoEquilibrium, PhysicsFailure, SceneError, modes, statics  # noqa: E402
+from tensegrity.testing.node import find_executable  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = ("prism3", "sixbar", "tbar")
 
 
-def cli(*args):
+def cli_text(*args):
     exe = Path(find_executable()).with_name("tensegrity")
-    out = subprocess.run([str(exe), *args], capture_output=True, text=True, check=True, cwd=ROOT)
-    return json.loads(out.stdout)
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, check=True, cwd=ROOT).stdout
+
+
+def cli(*args):
+    return json.loads(cli_text(*args))
 
 
 @pytest.mark.parametrize("name", SCENES)
@@ -79,20 +87,28 @@ def test_careless_calls_raise_clear_exceptions(tmp_path):
     assert NoEquilibrium.__mro__[1] is RuntimeError
 
 
-def test_the_docs_examples_run(capsys):
-    # every ```python block of docs/python.md, as a reader would paste it
+def test_the_docs_walk_through_runs(capsys, tmp_path, monkeypatch):
+    # every ```python block of docs/python.md, in order in one namespace, as a notebook runs them
+    pytest.importorskip("matplotlib")
     text = (ROOT / "docs" / "python.md").read_text()
     blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
-    assert len(blocks) >= 2
+    assert len(blocks) >= 9
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
     for block in blocks:
-        exec(compile(block, "docs/python.md", "exec"), {})
+        exec(compile(block, "docs/python.md", "exec"), namespace)
     out = capsys.readouterr().out
-    assert "Statics('prism3'" in out and "no/such/scene.toml" in out and "QuasiStaticPath(21 rows" in out
+    for said in ("SceneCheck('prism3'", "Statics('prism3'", "QuasiStaticPath(21 rows", "DynamicRun(2001 rows",
+                 "Statics('prism4'", "(3, 3) (3, 4)", "no/such/scene.toml", "rate must be finite",
+                 "Bag('prism3-run': 501 states", "(501, 4) (501, 3, 3)", "Quasi-static peak tension",
+                 "'summary.csv'"):
+        assert said in out, (said, out)
+    assert (tmp_path / "prism3-deployment.png").stat().st_size > 10_000
 
 
 @pytest.mark.parametrize("name", ("prism3", "tbar", "tower"))
 def test_the_quasi_static_path_is_the_command_lines_csv_byte_for_byte(name):
-    from tensegrity_testing.library import quasi_static
+    from tensegrity import quasi_static
 
     path = str(ROOT / "config" / "scenes" / f"{name}.toml")
     exe = Path(find_executable()).with_name("tensegrity")
@@ -113,9 +129,253 @@ def test_the_quasi_static_path_is_the_command_lines_csv_byte_for_byte(name):
 
 
 def test_the_field_reference_is_the_command_lines():
-    from tensegrity_testing.library import field_reference
+    from tensegrity import field_reference
 
     exe = Path(find_executable()).with_name("tensegrity")
     out = subprocess.run([str(exe), "fields"], capture_output=True, text=True, check=True, cwd=ROOT).stdout
     text = field_reference()
     assert text.strip() == out.strip() and "| `(top level)` | `name` |" in text
+
+
+def without_wall_time(csv_text):
+    """The CSV without its column `wall_us` (each step's wall time, which no two runs share)."""
+    rows = [line.split(",") for line in csv_text.splitlines()]
+    k = rows[0].index("wall_us")
+    return "\n".join(",".join(r[:k] + r[k + 1:]) for r in rows)
+
+
+@pytest.mark.parametrize("name", ("prism3", "sixbar", "tbar"))
+def test_the_dynamic_deployment_is_the_command_lines_csv_byte_for_byte(name, tmp_path):
+    path = str(ROOT / "config" / "scenes" / f"{name}.toml")
+    out = cli_text("deploy", path, "--dynamic", "--duration", "0.2", "--out", "-")
+    run = tensegrity.dynamic(path, duration=0.2)
+    assert without_wall_time(run.csv) == without_wall_time(out), "every digit but the wall time's"
+    assert (run["wall_us"][1:] > 0).all()
+    assert len(run) == 201 and run["time_s"][0] == 0.0 and abs(run["time_s"][-1] - 0.2) < 1e-12
+    assert run.summary["steps"] == 200 and run.summary["newton_iterations"] > 0
+    # the options are the command line's, with the same effect
+    out = cli_text("deploy", path, "--dynamic", "--duration", "0.05", "--dt", "0.002", "--integrator", "ga",
+                   "--rho-inf", "0.5", "--from-equilibrium", "--out", "-")
+    again = tensegrity.dynamic(path, duration=0.05, dt=0.002, integrator="ga", rho_inf=0.5, from_equilibrium=True)
+    assert without_wall_time(again.csv) == without_wall_time(out) and len(again) == 26
+    # global error control finds the same local tolerance and makes the same run
+    if name == "prism3":
+        out = cli_text("deploy", path, "--dynamic", "--duration", "0.1", "--tol", "1e-4", "--global-error",
+                       "--out", "-")
+        run = tensegrity.dynamic(path, duration=0.1, tol=1e-4, global_error=True)
+        assert without_wall_time(run.csv) == without_wall_time(out)
+        assert run.summary["global_error"]["requested"] == 1e-4 and run.summary["global_error"]["runs"] >= 2
+        with pytest.raises(ValueError, match="tol"):
+            tensegrity.dynamic(path, global_error=True)
+    # and a bag recorded from Python is one the command line replays bit for bit
+    if name == "prism3":
+        bag = tmp_path / "bag"
+        tensegrity.dynamic(path, duration=0.05, record=bag)
+        assert "identical" in cli_text("replay", str(bag))
+
+
+@pytest.mark.parametrize("kind, options, flags", [
+    ("prism", {"n": 4, "cluster": True}, ["--n", "4", "--cluster"]),
+    ("tower", {"stages": 2}, ["--stages", "2"]),
+    ("atwood", {"m1": 3.0}, ["--m1", "3"]),
+    ("sixbar", {"mu": 0.5, "robots": 2}, ["--mu", "0.5", "--robots", "2"]),
+])
+def test_the_generators_write_the_command_lines_scene(kind, options, flags):
+    text = tensegrity.generate(kind, **options)
+    assert text == cli_text("generate", kind, *flags)
+    assert tensegrity.check(text=text).name
+
+
+def test_check_counts_as_the_command_line():
+    c = tensegrity.check("bundled:sixbar")
+    out = cli_text("check", str(ROOT / "config" / "scenes" / "sixbar.toml"))
+    assert f"coordinates: {c.coordinates}" in out and f"cables: {c.cables} " in out
+    assert c.bodies == 6 and len(c.body_names) == 6 and len(c.cable_names) == c.cables == 24
+
+
+def test_careless_library_calls_raise_clear_exceptions(tmp_path):
+    for call, error, words in [
+        (lambda: tensegrity.generate("pyramid"), ValueError, "generators: prism"),
+        (lambda: tensegrity.generate("prism", legs=3), ValueError, "its options: n"),
+        (lambda: tensegrity.generate("prism", n=3.0), TypeError, "n must be an int"),
+        (lambda: tensegrity.generate("prism", n=2), ValueError, "n >= 3"),
+        (lambda: tensegrity.generate("sixbar", mu="high"), TypeError, "mu must be a number"),
+        (lambda: tensegrity.dynamic("bundled:prism3", dt=float("nan")), ValueError, "dt must be in"),
+        (lambda: tensegrity.dynamic("bundled:prism3", integrator="verlet"), ValueError, "rk4"),
+        (lambda: tensegrity.dynamic("bundled:prism3", duration=-1), ValueError, "duration must be positive"),
+        (lambda: tensegrity.dynamic("bundled:prism3", duration="1"), TypeError, "duration must be a number"),
+        (lambda: tensegrity.dynamic(str(tmp_path / "none.toml")), SceneError, "none.toml"),
+        (lambda: tensegrity.check(text="[[bodies]]\nname = 3\n"), SceneError, "name"),
+        (lambda: tensegrity.dynamic("bundled:prism3", integrator="rk4", dt=0.1), PhysicsFailure, "unstable"),
+    ]:
+        with pytest.raises(error) as e:
+            call()
+        assert words in str(e.value), (words, str(e.value))
+
+
+def test_the_simulator_steps_with_commands_and_survives_careless_ones():
+    with tensegrity.Simulator("bundled:prism3") as sim:
+        assert sim.actuator_names == ["ring_winch"] and len(sim.cable_names) == 4
+        s = sim.step(100, {"ring_winch": -0.01})
+        assert s.step == 100 and abs(s.time - 0.1) < 1e-12
+        assert s.cable_tension.dtype == np.float64 and s.cable_tension.shape == (4,)
+        assert s.body_position.shape == (3, 3) and s.body_orientation.shape == (3, 4)
+        assert not s.cable_tension.flags.writeable, "a read-only view of the state, not a copy"
+        for commands, error in [
+            ({"ring_winch": float("nan")}, tensegrity.CommandRefused),
+            ({"ring_winch": {"rate": 1e9}}, tensegrity.CommandRefused),
+            ({"no_such_winch": 0.01}, tensegrity.CommandRefused),
+            ({"ring_winch": {"speed": 0.01}}, TypeError),
+            ({"ring_winch": "fast"}, TypeError),
+        ]:
+            with pytest.raises(error):
+                sim.step(1, commands)
+            assert sim.state().step == 100, "a refused command takes no step"
+        for steps in (1.5, -1, True):
+            with pytest.raises(TypeError):
+                sim.step(steps)
+        # still usable, and the same commands give the same state to the bit as a fresh one
+        s = sim.step(10)
+        with tensegrity.Simulator("bundled:prism3") as fresh:
+            fresh.step(100, {"ring_winch": -0.01})
+            assert np.array_equal(fresh.step(10).cable_tension, s.cable_tension)
+        assert sim.reset().step == 0
+    with pytest.raises(RuntimeError, match="closed"):
+        sim.step(1)
+    with pytest.raises(SceneError):
+        tensegrity.Simulator("no/such/scene.toml")
+
+
+def test_the_old_names_still_import_with_a_deprecation_warning():
+    code = (
+        "import warnings\n"
+        "warnings.simplefilter('always')\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    import tensegrity_testing.envs, tensegrity_native\n"
+        "    from tensegrity_testing import TensegrityNode, command\n"
+        "    from tensegrity_testing.library import statics\n"
+        "import tensegrity, tensegrity.envs, tensegrity.testing\n"
+        "assert tensegrity_testing.envs is tensegrity.envs and tensegrity_native is tensegrity._native\n"
+        "assert TensegrityNode is tensegrity.testing.TensegrityNode and statics is tensegrity.statics\n"
+        "print(sorted({str(w.category.__name__) for w in caught}), len(caught))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "['DeprecationWarning'] 2", out
+
+
+def without_columns(table, names):
+    """A `Table`'s rows as lists, without the named (timing) columns."""
+    keep = [k for k, c in enumerate(table.columns) if c not in names]
+    return [[table.columns[k] for k in keep]] + [[row[k] for k in keep] for row in
+                                                 (line.split(",") for line in table.csv.splitlines()[1:])]
+
+
+def markdown_without_last_column(md):
+    return [line.rsplit("|", 2)[0] if line.startswith("|") else line for line in md.splitlines()]
+
+
+def test_study_writes_the_command_lines_tables(tmp_path):
+    path = str(ROOT / "config" / "scenes" / "prism3.toml")
+    printed = cli_text("study", path, "--ramp-times", "1,2", "--settle", "0.2", "--out", str(tmp_path / "cli"))
+    got = tensegrity.study(path, tmp_path / "py", ramp_times=[1, 2], settle=0.2)
+    # the summary and every CSV, but for the wall times
+    printed = printed.strip().rsplit("\nwritten to ", 1)[0]
+    assert markdown_without_last_column(got.markdown.strip()) == markdown_without_last_column(printed)
+    assert set(got.tables) == {"quasi_static.csv", "summary.csv", "dynamic_T1.csv", "dynamic_T2.csv"}
+    for name, table in got.tables.items():
+        cli_table = tensegrity.Table((tmp_path / "cli" / name).read_text())
+        walls = {"wall_us", "wall_time_s"}
+        assert without_columns(table, walls) == without_columns(cli_table, walls), name
+    assert (tmp_path / "py" / "deviation.png").exists()
+    friction = tensegrity.study("bundled:tbar", tmp_path / "friction", friction=[0.0, 0.1])
+    assert "friction" in friction.markdown.lower() and "friction_path.csv" in friction.tables
+    for call, error in [
+        (lambda: tensegrity.study(path), TypeError),
+        (lambda: tensegrity.study(path, tmp_path / "x", ramp_times=[1], friction=[0.1]), ValueError),
+        (lambda: tensegrity.study(path, tmp_path / "x", ramp_times="fast"), TypeError),
+        (lambda: tensegrity.study(path, tmp_path / "x", friction=[-1.0]), ValueError),
+        (lambda: tensegrity.study(path, tmp_path / "x", point="no_such_point"), ValueError),
+    ]:
+        with pytest.raises(error):
+            call()
+
+
+def test_work_precision_makes_the_command_lines_runs(tmp_path):
+    path = str(ROOT / "config" / "scenes" / "prism3.toml")
+    options = ["--reference-dt", "1e-4", "--duration", "0.04", "--sample", "0.02", "--repeats", "1",
+               "--tolerances", "1e-3"]
+    cli_text("bench", "work-precision", path, *options, "--out", str(tmp_path / "cli"))
+    got = tensegrity.work_precision(path, tmp_path / "py", reference_dt=1e-4, duration=0.04, sample=0.02, repeats=1,
+                                    tolerances=[1e-3])
+    table = got.tables["work_precision.csv"]
+    cli_table = tensegrity.Table((tmp_path / "cli" / "work_precision.csv").read_text())
+    assert len(table) >= 30, "every integrator's runs"
+    assert without_columns(table, {"median_wall_time_s"}) == without_columns(cli_table, {"median_wall_time_s"})
+    for kwargs, error in [({"repeats": 0}, ValueError), ({"tolerances": [-1.0]}, ValueError),
+                          ({"reference_integrator": "rk4"}, ValueError), ({"repeats": 1.5}, TypeError)]:
+        with pytest.raises(error):
+            tensegrity.work_precision(path, tmp_path / "bad", **kwargs)
+
+
+def test_a_bag_reads_as_arrays_and_replays(tmp_path):
+    bag_dir = tmp_path / "run"
+    run = tensegrity.dynamic("bundled:sixbar", duration=0.1, record=bag_dir)
+    assert str(run.summary["bag"]) == str(bag_dir)
+    bag = tensegrity.read_bag(bag_dir)
+    assert bag.body_position.shape == (101, 6, 3) and bag.body_orientation.shape == (101, 6, 4)
+    assert bag.cable_tension.shape == (101, 24) and bag.cable_slack.dtype == bool
+    assert bag.cable_names == [c[: -len("_tension_N")] for c in run.columns if c.endswith("_tension_N")]
+    assert len(bag.body_names) == 6 and bag.run["scene_name"] == "sixbar"
+    # the recorded tensions are the time history's, to the digits the CSV prints
+    k = bag.cable_names.index("c05")
+    assert np.allclose(bag.cable_tension[:, k], run["c05_tension_N"], rtol=0, atol=1e-8)
+    assert np.allclose(bag.time_s, run["time_s"], rtol=0, atol=1e-12)
+    info = cli_text("bag", "info", str(bag_dir))
+    assert f"Messages:          {bag.info['messages']}" in info
+    report = bag.replay()
+    assert report["identical"] and report["difference"] is None and report["steps"] == 100
+    # another scene's re-run differs, and the first difference is said
+    other = tensegrity.replay(bag_dir, scene=ROOT / "config" / "scenes" / "sixbar.toml")
+    assert other["identical"]
+    for bad in (tmp_path / "missing", tmp_path):
+        with pytest.raises(ValueError):
+            tensegrity.read_bag(bad)
+    # a bag cut short (its writer killed) reads up to the cut, and reindexing repairs it
+    assert tensegrity.reindex_bag(bag_dir) is None, "complete: left as it is"
+    mcap = next(bag_dir.glob("*.mcap"))
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: len(data) * 2 // 3])
+    cut = tensegrity.read_bag(bag_dir)
+    assert cut.info["cut_short"] and 0 < len(cut.time_s) < 101
+    kept, why = tensegrity.reindex_bag(bag_dir)
+    assert kept > 0 and tensegrity.read_bag(bag_dir).info["cut_short"] is None
+
+
+@pytest.mark.parametrize("call", [
+    "tensegrity.dynamic('bundled:prism3', duration=1e5)",       # steps in pieces: stops
+    "tensegrity.work_precision('bundled:prism3', tempfile.mkdtemp())",  # minutes of one solve
+])
+def test_a_long_call_stops_at_ctrl_c(call):
+    # KeyboardInterrupt within the 50 ms look for signals, and the library is usable after it
+    code = (
+        "import signal, tempfile\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
+        "import tensegrity\n"
+        "print('ready', flush=True)\n"
+        "try:\n"
+        f"    {call}\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted', tensegrity.statics().stable, flush=True)\n"
+    )
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "ready"
+        time.sleep(1.0)
+        sent = time.monotonic()
+        child.send_signal(signal.SIGINT)
+        line = child.stdout.readline().strip()
+        assert line == "interrupted True", line
+        assert time.monotonic() - sent < 5, "KeyboardInterrupt at once (and the statics after it)"
+    finally:
+        child.kill()
+        child.wait()

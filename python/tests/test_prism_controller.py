@@ -11,7 +11,7 @@ import subprocess
 
 import pytest
 
-from tensegrity_testing import command, msgs
+from tensegrity.testing import command, msgs
 
 TARGET = 300.0  # N, the ring starts at 100 N
 GAIN = 2e-3  # winch rate per newton of tension error, m/s/N
@@ -86,7 +86,7 @@ def test_a_careless_command_is_refused_and_the_node_goes_on(tensegrity_node):
 
 
 def test_a_bad_scene_is_reported_with_its_exit_status(tensegrity_nodes, tmp_path):
-    from tensegrity_testing import NodeFailed
+    from tensegrity.testing import NodeFailed
 
     bad = tmp_path / "bad.toml"
     bad.write_text("name = 3\n")
@@ -102,7 +102,7 @@ def test_a_lockstep_request_with_undefined_flags_is_refused_and_steps_nothing(te
     # a hand-made client's careless request: SEEDED without RESET, and an unknown bit
     import iceoryx2 as iox2
 
-    from tensegrity_testing import shm
+    from tensegrity.testing import shm
 
     sim = tensegrity_node
     client = sim.shm

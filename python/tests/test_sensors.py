@@ -50,18 +50,18 @@ def test_a_lost_position_is_flagged_and_holds_its_last_value(tensegrity_node):
 
 
 def test_the_in_process_simulator_flags_lost_readings_too():
-    from tensegrity_testing.inprocess import InProcessSimulator
+    from tensegrity.testing.inprocess import InProcessSimulator
 
-    pytest.importorskip("tensegrity_native")
+    pytest.importorskip("tensegrity._native")
     sim = InProcessSimulator(SENSORS, {"start_from_equilibrium": True})
     flags = [sim.lockstep(1).measured_lost["position"] for _ in range(300)]
     assert any(any(axis for body in f for axis in body) for f in flags)
 
 
 def test_a_step_counted_delay_warns_in_python():
-    from tensegrity_testing.inprocess import InProcessSimulator
+    from tensegrity.testing.inprocess import InProcessSimulator
 
-    pytest.importorskip("tensegrity_native")
+    pytest.importorskip("tensegrity._native")
     text = SENSORS.read_text().replace("delay_s = 0.003", "delay = 3")
     path = Path(__import__("tempfile").mkdtemp()) / "stepped.toml"
     path.write_text(text)

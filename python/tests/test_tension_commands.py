@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tensegrity_testing import command, msgs
+from tensegrity.testing import command, msgs
 
 TENSIONER = Path(__file__).resolve().parents[2] / "config" / "examples" / "tensioner.toml"
 SETTLED_X = 2.0 - 0.9 * (1.0 + 30.0 / 1000.0)  # the spring carries 30 N

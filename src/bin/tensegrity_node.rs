@@ -88,7 +88,7 @@ fn help() -> String {
           invalid; 4 a transport (DDS, shared memory, the bag recorder) cannot start; 5 a physics failure:\n\
           the simulation cannot start, or it was stopped while a physics failure held it (no reset).\n\n\
           Shared memory (iceoryx2, services <ns>/<node>/...: state, structure, actuator_commands,\n\
-          lockstep; events to_node, from_node): see docs/shared-memory.md and python/tensegrity_testing/shm.py.\n";
+          lockstep; events to_node, from_node): see docs/shared-memory.md and python/tensegrity/testing/shm.py.\n";
     h += &format!(
         "\nTransports built into this binary: {}\n",
         TransportKind::BUILT.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ")

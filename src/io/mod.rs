@@ -6,7 +6,7 @@
 //!   limits), `sink` (what a transport's outgoing side sees: `NodeSink`, `NodeView`, stats);
 //! - `node` (the transport-free core, its parameters and the loop that runs it with transports);
 //! - the transports, behind cargo features: `ros2` (DDS) and `shm` (shared memory), and `python`
-//!   (the in-process Python extension `tensegrity_native`, which needs `shm`'s payloads);
+//!   (the in-process Python extension `tensegrity._native`, which needs `shm`'s payloads);
 //! - `record` (bags: the recorder, offline runs, replay, the MCAP reader and writer);
 //! - `view` (the browser viewer: its HTTP server, and frames of a scene, a bag or a running node).
 //!

@@ -166,7 +166,7 @@ fn python_class(pkg_type: &str) -> &str {
 /// definitions as the bags' schemas (our `msg/` files and the standard types), dependencies first;
 /// then `TOPICS`, the node's topics (name, class, QoS depth, transient local) from
 /// `topics::topic_type` and `topics::INPUT_TOPICS`. The Python test kit ships this text as
-/// `python/tensegrity_testing/msgs.py`; `tests/msg_sync.rs` keeps the file equal to it.
+/// `python/tensegrity/testing/msgs.py`; `tests/msg_sync.rs` keeps the file equal to it.
 pub fn python_module() -> String {
     use crate::io::topics::Topic;
     use crate::io::topics::{topic_type, INPUT_TOPICS};

@@ -22,7 +22,9 @@ mod substep;
 
 pub use energy::EnergyAccount;
 pub use guards::{CONTACT_EVENT_DEPTH, DIVERGENCE_FACTOR, IMPLICIT_GAIN_FACTOR};
-pub use settings::{SimSettings, StepError, StepStats, DEFAULT_PHYSICS_DT};
+pub use settings::{
+    checked_dt, checked_newton, DynamicOptions, SimSettings, StepError, StepStats, DEFAULT_PHYSICS_DT,
+};
 pub use simulator::Simulator;
 pub use step_size::{
     smallest_controlled_step, EXPLICIT_ERROR_STEP, EXPLICIT_STEP_CAP, GROWTH_THRESHOLD,

@@ -3,7 +3,8 @@
 
 use std::time::Duration;
 
-use crate::solve::dynamics::{Integrator, NewtonSettings};
+use crate::error::readable_number;
+use crate::solve::dynamics::{Integrator, NewtonSettings, NEWTON_TOLERANCE_RANGE};
 use crate::solve::linear::LinearBackend;
 
 /// How the simulator steps.
@@ -39,6 +40,103 @@ impl Default for SimSettings {
             tolerance: None,
         }
     }
+}
+
+/// A dynamic run's options as a user gives them (the command line's `--integrator`, `--dt`,
+/// `--rho-inf`, `--tol`, `--newton-tol`; the Python library's keywords of the same names):
+/// checked into `SimSettings` by `DynamicOptions::settings`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DynamicOptions {
+    /// Integrator (its spectral radius, if generalized-alpha, comes from `rho_inf`).
+    pub integrator: Integrator,
+    /// Physics step, s (`None`: the scene's `physics_dt`, else `DEFAULT_PHYSICS_DT`).
+    pub dt: Option<f64>,
+    /// Spectral radius at infinity of generalized-alpha, in [0, 1] (default 0.8).
+    pub rho_inf: f64,
+    /// Local error tolerance per step, m (`None`: fixed steps).
+    pub tolerance: Option<f64>,
+    /// Newton tolerance relative to the forces, in `NEWTON_TOLERANCE_RANGE` (`None`: 1e-9).
+    pub newton_tolerance: Option<f64>,
+}
+
+impl Default for DynamicOptions {
+    fn default() -> Self {
+        Self {
+            integrator: Integrator::GeneralizedAlpha { rho_inf: 0.8 },
+            dt: None,
+            rho_inf: 0.8,
+            tolerance: None,
+            newton_tolerance: None,
+        }
+    }
+}
+
+impl DynamicOptions {
+    /// The settings these options give for a scene whose `physics_dt` is `scene_dt`, or the
+    /// reason one is out of range, naming the option as `name` spells it (`name("rho_inf")` is
+    /// `--rho-inf` on the command line, `rho_inf` in Python).
+    pub fn settings(
+        &self,
+        scene_dt: Option<f64>,
+        name: impl Fn(&str) -> String,
+    ) -> Result<SimSettings, String> {
+        let dt = self.dt.or(scene_dt).unwrap_or(DEFAULT_PHYSICS_DT);
+        if !(self.rho_inf.is_finite() && (0.0..=1.0).contains(&self.rho_inf)) {
+            return Err(format!(
+                "{} must be in [0, 1], got {}",
+                name("rho_inf"),
+                readable_number(self.rho_inf)
+            ));
+        }
+        let dt = checked_dt(&name("dt"), dt)?;
+        if let Some(tol) = self.tolerance {
+            if !(tol.is_finite() && tol > 0.0) {
+                return Err(format!("{} must be positive, got {tol}", name("tol")));
+            }
+        }
+        let integrator = match self.integrator {
+            Integrator::GeneralizedAlpha { .. } => Integrator::GeneralizedAlpha { rho_inf: self.rho_inf },
+            other => other,
+        };
+        let newton = checked_newton(&name("newton_tol"), self.newton_tolerance)?;
+        Ok(SimSettings { dt, integrator, tolerance: self.tolerance, newton, ..Default::default() })
+    }
+}
+
+/// `dt` when it lies in the physics step range every part accepts (scene `physics_dt`, the node's
+/// parameter, the command line, Python: `scene::limits::PHYSICS_DT`), else the reason naming
+/// `option`.
+pub fn checked_dt(option: &str, dt: f64) -> Result<f64, String> {
+    let (lo, hi) = crate::scene::limits::PHYSICS_DT;
+    if dt.is_finite() && (lo..=hi).contains(&dt) {
+        Ok(dt)
+    } else {
+        Err(format!(
+            "{option} must be in [{}, {}] s (the physics step range of scenes and the node), got {}",
+            readable_number(lo),
+            readable_number(hi),
+            readable_number(dt)
+        ))
+    }
+}
+
+/// The Newton settings for a relative Newton tolerance `tolerance` (default 1e-9) when it lies
+/// in `NEWTON_TOLERANCE_RANGE`, else the reason naming `option`.
+pub fn checked_newton(option: &str, tolerance: Option<f64>) -> Result<NewtonSettings, String> {
+    let mut newton = NewtonSettings::default();
+    if let Some(t) = tolerance {
+        let (lo, hi) = NEWTON_TOLERANCE_RANGE;
+        if !(t.is_finite() && (lo..=hi).contains(&t)) {
+            return Err(format!(
+                "{option} must be in [{}, {}] (relative to the forces), got {}",
+                readable_number(lo),
+                readable_number(hi),
+                readable_number(t)
+            ));
+        }
+        newton.tolerance = t;
+    }
+    Ok(newton)
 }
 
 /// What one call to `Simulator::step` cost.

@@ -119,6 +119,37 @@ pub fn sampled_positions(
     Ok((out, totals))
 }
 
+/// The looser Newton tolerance `bench work-precision` gives rows of its own (generalized-alpha at
+/// every fixed step): the speed a user may trade for it on a robot on the ground.
+pub const LOOSE_NEWTON_TOLERANCE: f64 = 1e-6;
+
+/// The runs `bench work-precision` makes on `model` (the command line and the Python library
+/// both take them from here): generalized-alpha (rho_inf 0.8 and 0, and 0.8 at the looser Newton
+/// tolerance) at fixed steps from 10 ms to 0.25 ms; symplectic Euler, RK4 and Dormand-Prince at
+/// the fixed steps where each can be stable; Dormand-Prince (scenes without contacts: its error
+/// estimate does not see impacts) and generalized-alpha at each of `tolerances` (m); and with
+/// `global`, generalized-alpha under global error control at each.
+pub fn work_precision_runs(model: &Model, tolerances: &[f64], global: bool) -> Vec<RunConfig> {
+    let steps = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4];
+    let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };
+    let fixed =
+        |i: Integrator, dts: &[f64]| dts.iter().map(move |&dt| RunConfig::fixed(i, dt)).collect::<Vec<_>>();
+    let mut configs = fixed(ga, &steps);
+    configs.extend(fixed(Integrator::GeneralizedAlpha { rho_inf: 0.0 }, &steps));
+    configs.extend(fixed(ga, &steps).into_iter().map(|c| c.with_newton_tolerance(LOOSE_NEWTON_TOLERANCE)));
+    configs.extend(fixed(Integrator::SymplecticEuler, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]));
+    configs.extend(fixed(Integrator::Rk4, &[1e-2, 5e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
+    configs.extend(fixed(Integrator::DormandPrince, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
+    if model.contact_pairs() == 0 {
+        configs.extend(tolerances.iter().map(|&t| RunConfig::controlled(Integrator::DormandPrince, t)));
+    }
+    configs.extend(tolerances.iter().map(|&t| RunConfig::controlled(ga, t)));
+    if global {
+        configs.extend(tolerances.iter().map(|&t| RunConfig::globally_controlled(ga, t)));
+    }
+    configs
+}
+
 /// Work-precision settings besides the runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WorkPrecisionSettings {

@@ -284,10 +284,6 @@ struct RunChoice {
     jobs: usize,
 }
 
-/// The looser Newton tolerance `bench work-precision` gives rows of its own (generalized-alpha at
-/// every fixed step): the speed a user may trade for it on a robot on the ground.
-const LOOSE_NEWTON_TOLERANCE: f64 = 1e-6;
-
 /// `bench work-precision`.
 fn work_precision(
     scene: &Path,
@@ -302,29 +298,7 @@ fn work_precision(
     }
     let model = crate::output::load_moving(scene)?;
     let duration = duration.unwrap_or(model.schedule.end_time() + 0.5);
-    let steps = [1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4];
-    let ga = Integrator::GeneralizedAlpha { rho_inf: 0.8 };
-    let fixed = |i: Integrator, dts: &[f64]| {
-        dts.iter().map(move |&dt| study::RunConfig::fixed(i, dt)).collect::<Vec<_>>()
-    };
-    let mut configs = fixed(ga, &steps);
-    configs.extend(fixed(Integrator::GeneralizedAlpha { rho_inf: 0.0 }, &steps));
-    // the looser Newton tolerance a user may trade for speed (fewer iterations on the ground)
-    configs.extend(fixed(ga, &steps).into_iter().map(|c| c.with_newton_tolerance(LOOSE_NEWTON_TOLERANCE)));
-    configs.extend(fixed(Integrator::SymplecticEuler, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1e-4, 5e-5, 2.5e-5]));
-    configs.extend(fixed(Integrator::Rk4, &[1e-2, 5e-3, 4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
-    configs.extend(fixed(Integrator::DormandPrince, &[5e-3, 2e-3, 1e-3, 5e-4, 2.5e-4]));
-    if model.contact_pairs() == 0 {
-        // (explicit integrators are refused a tolerance in a scene with contacts)
-        configs
-            .extend(tolerances.iter().map(|&t| study::RunConfig::controlled(Integrator::DormandPrince, t)));
-    }
-    // requested against delivered (by default from 1e-3 down to 1e-9 m), for both error-controlled
-    // integrators, and generalized-alpha's global control
-    configs.extend(tolerances.iter().map(|&t| study::RunConfig::controlled(ga, t)));
-    if global {
-        configs.extend(tolerances.iter().map(|&t| study::RunConfig::globally_controlled(ga, t)));
-    }
+    let configs = study::work_precision_runs(&model, &tolerances, global);
     let settings =
         study::WorkPrecisionSettings { reference_dt, reference_integrator, duration, sample, repeats, jobs };
     let rows = study::work_precision(&model, &configs, settings, out)?;

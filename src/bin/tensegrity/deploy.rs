@@ -213,7 +213,7 @@ struct DynamicRun {
 }
 
 /// The local tolerance at which a run of `steps` steps meets `settings.tolerance` as a global
-/// tolerance (`study::globally_controlled` over runs of the node's core), and what was found.
+/// tolerance (`record::offline::global_tolerance`), with a progress bar.
 fn global_tolerance(
     model: &Model,
     label: &str,
@@ -221,24 +221,11 @@ fn global_tolerance(
     from_equilibrium: bool,
     steps: u64,
 ) -> Result<study::GlobalRun, String> {
-    let requested = settings.tolerance.expect("--global-error needs --tol");
     let bar = Progress::new(format!("deploy --global-error {label}"), &["steps"], None);
-    let found = study::globally_controlled(requested, model.is_free_floating(), |tolerance| {
-        let settings = SimSettings { tolerance: Some(tolerance), ..settings };
-        let mut run = record::offline::OfflineRun::start(model, label, settings, from_equilibrium, None)?;
-        let (mut samples, mut totals) = (Vec::new(), study::RunTotals::default());
-        for _ in 0..steps {
-            totals.add(
-                &run.step()
-                    .map_err(|fault| format!("{label}: at local tolerance {tolerance:e} m: {fault}"))?,
-            );
-            samples.push(run.simulator().workspace().points.iter().map(|p| p.position).collect());
-            bar.inc(1);
-        }
-        Ok((samples, totals))
-    });
+    let found =
+        record::offline::global_tolerance(model, label, settings, from_equilibrium, steps, || bar.inc(1));
     bar.finish();
-    found.map_err(|e| format!("{label}: {e}"))
+    found
 }
 
 /// `deploy --dynamic`: the node's core driven offline (`record::offline::OfflineRun`), one CSV
@@ -266,52 +253,26 @@ fn deploy_dynamic(
     if let Some(g) = &global {
         settings.tolerance = Some(g.tolerance);
     }
-    let mut run = record::offline::OfflineRun::start(model, &label, settings, from_equilibrium, record)?;
-    for w in run.simulator().delay_warnings() {
+    let mut run =
+        record::offline::DynamicDeployment::start(model, &label, settings, from_equilibrium, record)?;
+    for w in run.warnings() {
         eprintln!("warning: {w}");
     }
     let mut file = csv_output(out)?;
-    // the scene's sensors, where it declares them, add what they report after the columns of
-    // the exact state (and of the exact IMU values, which the state does not hold)
-    let mut header = study::dynamic_csv_header(model);
-    for c in tensegrity::sensors::imu_truth_csv_columns(model)
-        .into_iter()
-        .chain(tensegrity::sensors::csv_columns(model))
-        .chain(tensegrity::sensors::lost_csv_columns(model))
-    {
-        header.push(',');
-        header.push_str(&c);
-    }
-    let row = |run: &record::offline::OfflineRun, stats: &tensegrity::sim::StepStats| {
-        let mut row = study::dynamic_csv_row(run.simulator(), stats);
-        for v in run.sensors().imu_truth().iter().chain(run.sensors().measured()) {
-            let _ = std::fmt::Write::write_fmt(&mut row, format_args!(",{v:.12}"));
-        }
-        for lost in tensegrity::sensors::lost_csv_flags(run.simulator().model(), run.sensors().lost()) {
-            row.push_str(if lost { ",1" } else { ",0" });
-        }
-        row
-    };
-    writeln!(file, "{header}").map_err(|e| e.to_string())?;
+    writeln!(file, "{}", run.header()).map_err(|e| e.to_string())?;
     // the row of t = 0: the start, before any step
-    writeln!(file, "{}", row(&run, &Default::default())).map_err(|e| e.to_string())?;
+    writeln!(file, "{}", run.row(&Default::default())).map_err(|e| e.to_string())?;
     let bar = Progress::new(format!("deploy --dynamic {label}"), &["steps"], Some(steps));
-    let mut totals = study::RunTotals::default();
-    // strut pairs ([collisions]) that touched at some step, by index
-    let mut struts_touched = vec![false; model.strut_pairs.len()];
     for _ in 0..steps {
-        let stats = run.step().map_err(|fault| format!("{label}: {fault}"))?;
-        totals.add(&stats);
-        let contacts = &run.simulator().workspace().contacts[model.ground_pairs()..];
-        for (touched, c) in struts_touched.iter_mut().zip(contacts) {
-            *touched |= c.in_contact();
-        }
+        let row = run.step().map_err(|fault| format!("{label}: {fault}"))?;
         bar.inc(1);
-        writeln!(file, "{}", row(&run, &stats)).map_err(|e| write_error(out, e))?;
+        writeln!(file, "{row}").map_err(|e| write_error(out, e))?;
     }
     bar.finish();
     file.flush().map_err(|e| write_error(out, e))?;
-    let bag = match run.finish().map_err(|e| e.to_string())? {
+    let summary = run.finish().map_err(|e| e.to_string())?;
+    let totals = summary.totals;
+    let bag = match summary.bag {
         Some((dir, summary)) => format!(
             "; bag {} ({} messages, {} bytes)",
             dir.display(),
@@ -323,13 +284,7 @@ fn deploy_dynamic(
     let collisions = if model.strut_pairs.is_empty() {
         String::new()
     } else {
-        let names: Vec<String> = model
-            .contact_labels()
-            .skip(model.ground_pairs())
-            .zip(&struts_touched)
-            .filter(|(_, t)| **t)
-            .map(|((a, b), _)| format!("{a}-{b}"))
-            .collect();
+        let names = &summary.struts_collided;
         format!(
             "; struts that collided: {} (sub-steps retried for passing through: {})",
             if names.is_empty() { "none".to_string() } else { names.join(", ") },

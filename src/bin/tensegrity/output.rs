@@ -5,11 +5,10 @@
 use std::io::Write;
 use std::path::Path;
 
-use tensegrity::error::readable_number;
 use tensegrity::report;
 use tensegrity::scene::{self};
-use tensegrity::sim::SimSettings;
-use tensegrity::solve::dynamics::{Integrator, NewtonSettings, NEWTON_TOLERANCE_RANGE};
+use tensegrity::sim::{DynamicOptions, SimSettings};
+use tensegrity::solve::dynamics::{Integrator, NewtonSettings};
 use tensegrity::Model;
 
 use clap::ValueEnum;
@@ -299,20 +298,7 @@ pub(crate) struct DynamicArgs {
 /// The Newton settings for `--newton-tol` (`flag`) when it lies in `NEWTON_TOLERANCE_RANGE`, else
 /// the reason.
 pub(crate) fn newton_settings(flag: &str, tolerance: Option<f64>) -> Result<NewtonSettings, String> {
-    let mut newton = NewtonSettings::default();
-    if let Some(t) = tolerance {
-        let (lo, hi) = NEWTON_TOLERANCE_RANGE;
-        if !(t.is_finite() && (lo..=hi).contains(&t)) {
-            return Err(format!(
-                "{flag} must be in [{}, {}] (relative to the forces), got {}",
-                readable_number(lo),
-                readable_number(hi),
-                readable_number(t)
-            ));
-        }
-        newton.tolerance = t;
-    }
-    Ok(newton)
+    tensegrity::sim::checked_newton(flag, tolerance)
 }
 
 #[derive(ValueEnum, Clone, Copy)]
@@ -338,36 +324,24 @@ impl IntegratorName {
     }
 }
 
-/// `dt` when it lies in the physics step range every part accepts (scene `physics_dt`, the node's
-/// parameter, the CLI: `scene::limits::PHYSICS_DT`), else the reason naming `flag`.
+/// `dt` when it lies in the physics step range every part accepts, else the reason naming `flag`.
 pub(crate) fn check_dt(flag: &str, dt: f64) -> Result<f64, String> {
-    let (lo, hi) = tensegrity::scene::limits::PHYSICS_DT;
-    if dt.is_finite() && (lo..=hi).contains(&dt) {
-        Ok(dt)
-    } else {
-        Err(format!(
-            "{flag} must be in [{}, {}] s (the physics step range of scenes and the node), got {}",
-            readable_number(lo),
-            readable_number(hi),
-            readable_number(dt)
-        ))
-    }
+    tensegrity::sim::checked_dt(flag, dt)
 }
 
 impl DynamicArgs {
+    /// The options as the library takes them.
+    pub(crate) fn options(&self) -> DynamicOptions {
+        DynamicOptions {
+            integrator: self.integrator.integrator(self.rho_inf),
+            dt: self.dt,
+            rho_inf: self.rho_inf,
+            tolerance: self.tol,
+            newton_tolerance: self.newton_tol,
+        }
+    }
+
     pub(crate) fn settings(&self, model: &Model) -> Result<SimSettings, String> {
-        let dt = self.dt.or(model.physics_dt).unwrap_or(1e-3);
-        if !(self.rho_inf.is_finite() && (0.0..=1.0).contains(&self.rho_inf)) {
-            return Err(format!("--rho-inf must be in [0, 1], got {}", readable_number(self.rho_inf)));
-        }
-        check_dt("--dt", dt)?;
-        if let Some(tol) = self.tol {
-            if !(tol.is_finite() && tol > 0.0) {
-                return Err(format!("--tol must be positive, got {tol}"));
-            }
-        }
-        let integrator = self.integrator.integrator(self.rho_inf);
-        let newton = newton_settings("--newton-tol", self.newton_tol)?;
-        Ok(SimSettings { dt, integrator, tolerance: self.tol, newton, ..Default::default() })
+        self.options().settings(model.physics_dt, |name| format!("--{}", name.replace('_', "-")))
     }
 }

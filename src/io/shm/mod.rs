@@ -2,7 +2,7 @@
 //! gives `ShmTransport` (the node's zero-copy face in the node's loop, `io::node::runner`) and
 //! `ShmClient` (a controller's side, in Rust) and `ShmObserver` (a watcher that the node never
 //! waits on or wakes: the live viewer); the payloads are fixed-size `#[repr(C)]` types
-//! that the Python client (`python/tensegrity_testing/shm.py`) mirrors with `ctypes`.
+//! that the Python client (`python/tensegrity/testing/shm.py`) mirrors with `ctypes`.
 //!
 //! Services, named under the node's namespace and name like its ROS topics (`<ns>/<node>/...`
 //! without the leading slash; `tensegrity_sim/...` by default):

@@ -1,5 +1,5 @@
 //! The shared-memory payloads: fixed-size `#[repr(C)]` types (state, structure, commands,
-//! lockstep request and answer) that the Python client (`python/tensegrity_testing/shm.py`)
+//! lockstep request and answer) that the Python client (`python/tensegrity/testing/shm.py`)
 //! mirrors with `ctypes`, how names are written into them, and how a command sample is checked
 //! (exactly like a DDS command, `io::commands`).
 

@@ -34,7 +34,7 @@ pub fn realtime_ns() -> u64 {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ShmError {
     /// The scene does not fit the payloads.
-    #[error("the scene has {count} {what}, more than this build's shared-memory capacity {limit} ({constant} in src/io/shm/payload.rs, mirrored in python/tensegrity_testing/shm.py); run it over DDS (-p transports:=dds) or raise the constant")]
+    #[error("the scene has {count} {what}, more than this build's shared-memory capacity {limit} ({constant} in src/io/shm/payload.rs, mirrored in python/tensegrity/testing/shm.py); run it over DDS (-p transports:=dds) or raise the constant")]
     Capacity {
         /// What is counted.
         what: &'static str,

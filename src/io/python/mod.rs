@@ -1,10 +1,8 @@
-//! The Python extension `tensegrity_native` (feature `python`, pyo3 + numpy, built by maturin from
-//! `python/native/`): takes a scene and node parameters from Python, gives `Simulator`, the node
-//! core (`NodeCore`) stepped in the caller's process, so a learning loop pays no round trip
-//! between processes; and `statics_json`, `modes_json` and `quasi_static_csv`, a scene's
-//! equilibrium, modes and quasi-static path as the command line writes them (`crate::summary`,
-//! `crate::report`), with the exceptions `SceneError` and `NoEquilibrium`, and the scene-file
-//! `field_reference`.
+//! The Python extension `tensegrity._native` (feature `python`, pyo3 + numpy, built by maturin
+//! from `python/` into the package `tensegrity`): takes a scene and node parameters from Python,
+//! gives `Simulator`, the node core (`NodeCore`) stepped in the caller's process, so a learning
+//! loop pays no round trip between processes; the library's whole commands (statics, modes,
+//! deployments, studies, bags, generators) are in `library`.
 //!
 //! It is the shared-memory lockstep without the transport: the same core, the same command
 //! checks (`shm::check_command`, `commands::check_entry`), the same seeded resets, sensors and
@@ -42,12 +40,8 @@ use crate::io::topics::Topic;
 use crate::model::{ActuatorId, Model};
 use crate::task::{LearningTask, ObservationField, TaskSizes};
 
-pyo3::create_exception!(
-    tensegrity_native,
-    PhysicsFailure,
-    PyRuntimeError,
-    "A step failed even at the smallest sub-step, or a request was refused (faulted until reset)."
-);
+mod library;
+use library::PhysicsFailure;
 
 /// Steps of a `Simulator::lockstep` request taken between two checks for Ctrl-C (about 10 ms of
 /// a small scene's physics).
@@ -124,7 +118,7 @@ type Transition<'py> = (Bound<'py, PyArray1<f64>>, f64, bool, f64, u64);
 /// bundled prism3); `params` the node's parameters by name (`{"physics_dt": 0.001, "record":
 /// "run_bag"}`, values as the node's `-p name:=value` takes them; the transport ones are moot).
 /// The simulation is paused: it moves only when asked (`lockstep`, `act`).
-#[pyclass(module = "tensegrity_native")]
+#[pyclass(module = "tensegrity._native")]
 pub struct Simulator {
     core: NodeCore,
     out: Outputs,
@@ -189,15 +183,12 @@ fn offer(
 impl Simulator {
     #[new]
     #[pyo3(signature = (scene=None, params=None))]
-    fn new(scene: Option<&str>, params: Option<HashMap<String, Bound<'_, PyAny>>>) -> PyResult<Self> {
-        let model = match scene {
-            Some(s) => match s.strip_prefix("bundled:") {
-                Some(name) => crate::scene::bundled(name),
-                None => crate::scene::load(std::path::Path::new(s)),
-            },
-            None => crate::scene::bundled("prism3"),
-        }
-        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    fn new(
+        py: Python<'_>,
+        scene: Option<&str>,
+        params: Option<HashMap<String, Bound<'_, PyAny>>>,
+    ) -> PyResult<Self> {
+        let model = library::model_of(py, scene, None)?;
         let mut p = NodeParams::default();
         for (name, value) in params.unwrap_or_default() {
             // Python's words for booleans are the node's too
@@ -626,7 +617,7 @@ fn observation_fields<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>>
 /// A learning task (`crate::task::LearningTask`) outside a `Simulator`: the action mapping, the
 /// observation layout and the default reward, for an environment whose simulator runs in a node
 /// (`TensegrityEnv(backend="node")`), so that both backends compute them with the same code.
-#[pyclass(name = "Task", module = "tensegrity_native")]
+#[pyclass(name = "Task", module = "tensegrity._native")]
 pub struct PyTask {
     task: LearningTask,
     sizes: TaskSizes,
@@ -690,153 +681,15 @@ impl PyTask {
     }
 }
 
-pyo3::create_exception!(
-    tensegrity_native,
-    SceneError,
-    PyValueError,
-    "A scene that cannot be read or is invalid: `file`, `line` (or None), `field` and `reason`."
-);
-pyo3::create_exception!(
-    tensegrity_native,
-    NoEquilibrium,
-    PyRuntimeError,
-    "The static solver stopped without an equilibrium: `iterations`, `residual_n`, `stop_reason`."
-);
-
-/// The model of `scene` (a file, `bundled:NAME`, or None for the bundled prism3) or of the TOML
-/// `text` (named `file` in its errors), as a Python `SceneError` when it cannot be had.
-fn model_of(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<Model> {
-    let loaded = match (scene, text) {
-        (Some(_), Some(_)) => return Err(PyValueError::new_err("give a scene or its text, not both")),
-        (None, Some(t)) => crate::scene::from_toml(t, "<text>"),
-        (Some(s), None) => match s.strip_prefix("bundled:") {
-            Some(name) => crate::scene::bundled(name),
-            None => crate::scene::load(std::path::Path::new(s)),
-        },
-        (None, None) => crate::scene::bundled("prism3"),
-    };
-    loaded.map_err(|e| {
-        let err = SceneError::new_err(e.to_string());
-        let value = err.value(py);
-        let _ = value.setattr("file", &e.file);
-        let _ = value.setattr("line", e.line);
-        let _ = value.setattr("field", &e.field);
-        let _ = value.setattr("reason", &e.reason);
-        err
-    })
-}
-
-/// A model the static solver can take: every body held.
-fn held_model(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<Model> {
-    let model = model_of(py, scene, text)?;
-    match crate::report::unheld_bodies_note(&model) {
-        Some(note) => Err(PyValueError::new_err(format!("{}: {note}", scene.unwrap_or("<text>")))),
-        None => Ok(model),
-    }
-}
-
-fn no_equilibrium(py: Python<'_>, f: crate::summary::NoEquilibrium) -> PyErr {
-    let err = NoEquilibrium::new_err(format!(
-        "no equilibrium found: residual {:.3e} N after {} Newton iterations ({})",
-        f.residual, f.iterations, f.stop_words
-    ));
-    let value = err.value(py);
-    let _ = value.setattr("iterations", f.iterations);
-    let _ = value.setattr("residual_n", f.residual);
-    let _ = value.setattr("stop_reason", f.stop_words);
-    err
-}
-
-/// `statics_json(scene=None, *, text=None)`: the equilibrium of the scene at its initial rest
-/// lengths, as the JSON text `tensegrity statics --json` prints (the same numbers to the bit).
-/// The solve runs without the GIL.
-#[pyfunction]
-#[pyo3(signature = (scene=None, *, text=None))]
-fn statics_json(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<String> {
-    let model = held_model(py, scene, text)?;
-    let solved = py.detach(|| crate::summary::statics(&model)).map_err(|f| no_equilibrium(py, f))?;
-    serde_json::to_string(&solved.summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
-}
-
-/// `modes_json(scene=None, count=10, *, text=None)`: the natural modes at the equilibrium, as the
-/// JSON text `tensegrity modes --json --count COUNT` prints (every zero-frequency mode, then the
-/// lowest `count` others).
-#[pyfunction]
-#[pyo3(signature = (scene=None, count=10, *, text=None))]
-fn modes_json(py: Python<'_>, scene: Option<&str>, count: usize, text: Option<&str>) -> PyResult<String> {
-    let model = held_model(py, scene, text)?;
-    if model.dof_count == 0 {
-        return Err(PyValueError::new_err(format!(
-            "{}: {}",
-            scene.unwrap_or("<text>"),
-            crate::sim::StepError::NothingToMove
-        )));
-    }
-    let (_, _, modes) = py.detach(|| crate::summary::modes(&model)).map_err(|f| match f {
-        crate::summary::ModesFailure::NoEquilibrium(f) => no_equilibrium(py, f),
-        crate::summary::ModesFailure::SingularMass => {
-            PyRuntimeError::new_err("the mass matrix is singular on the joints' null space")
-        }
-    })?;
-    serde_json::to_string(&crate::summary::mode_summaries(&model, &modes, count))
-        .map_err(|e| PyRuntimeError::new_err(e.to_string()))
-}
-
-/// `quasi_static_csv(scene=None, steps=None, *, text=None)`: the equilibrium path along the
-/// scene's deployment schedule (`steps` load steps, default the scene's), as the CSV text
-/// `tensegrity deploy --quasi-static --out -` writes (the same header, rows and digits). The
-/// solve runs without the GIL; a path that ends without an equilibrium raises `NoEquilibrium`.
-#[pyfunction]
-#[pyo3(signature = (scene=None, steps=None, *, text=None))]
-fn quasi_static_csv(
-    py: Python<'_>,
-    scene: Option<&str>,
-    steps: Option<usize>,
-    text: Option<&str>,
-) -> PyResult<String> {
-    let mut model = held_model(py, scene, text)?;
-    if let Some(n) = steps {
-        let max = crate::scene::limits::MAX_LOAD_STEPS;
-        if n == 0 || n > max {
-            return Err(PyValueError::new_err(format!("steps must be in [1, {max}], got {n}")));
-        }
-        model.schedule.steps = n;
-    }
-    let mut csv = crate::report::path_csv_header(&model);
-    csv.push('\n');
-    let path = py.detach(|| {
-        let mut state = crate::State::initial(&model);
-        let mut ws = crate::evaluate::Workspace::new(&model);
-        crate::solve::deploy::deploy_quasi_static(&model, &mut state, &mut ws, |step, st, w| {
-            csv.push_str(&crate::report::path_csv_row(&model, st, w, step));
-            csv.push('\n');
-        })
-    });
-    path.map_err(|e| NoEquilibrium::new_err(e.to_string()))?;
-    Ok(csv)
-}
-
-/// `field_reference()`: the scene-file field reference (every table and field: format, unit,
-/// default, range) as the Markdown table `tensegrity fields` prints.
-#[pyfunction]
-fn field_reference() -> String {
-    crate::scene::reference::markdown()
-}
-
-/// The module `tensegrity_native`.
+/// The module `tensegrity._native` (re-exported by the Python package `tensegrity`).
 #[pymodule]
-fn tensegrity_native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+#[pyo3(name = "_native")]
+fn native_module(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Simulator>()?;
     m.add_class::<PyTask>()?;
     m.add_function(pyo3::wrap_pyfunction!(observation_fields, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(act_all, m)?)?;
-    m.add("PhysicsFailure", m.py().get_type::<PhysicsFailure>())?;
-    m.add("SceneError", m.py().get_type::<SceneError>())?;
-    m.add("NoEquilibrium", m.py().get_type::<NoEquilibrium>())?;
-    m.add_function(pyo3::wrap_pyfunction!(statics_json, m)?)?;
-    m.add_function(pyo3::wrap_pyfunction!(modes_json, m)?)?;
-    m.add_function(pyo3::wrap_pyfunction!(quasi_static_csv, m)?)?;
-    m.add_function(pyo3::wrap_pyfunction!(field_reference, m)?)?;
+    library::register(m)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }
