@@ -38,7 +38,9 @@ from .library import (
     read_bag,
     reindex_bag,
     replay,
+    scaling,
     statics,
+    step_times,
     study,
     work_precision,
 )
@@ -55,6 +57,8 @@ __all__ = [
     "field_reference",
     "study",
     "work_precision",
+    "step_times",
+    "scaling",
     "read_bag",
     "replay",
     "reindex_bag",

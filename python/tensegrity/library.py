@@ -27,7 +27,7 @@ from . import _native
 from ._native import NoEquilibrium, PhysicsFailure, SceneError
 
 __all__ = ["check", "statics", "modes", "quasi_static", "dynamic", "generate", "field_reference", "study",
-           "work_precision", "read_bag", "replay", "reindex_bag", "Bag", "StudyResult", "SceneCheck", "Statics", "Modes", "Table",
+           "work_precision", "step_times", "scaling", "read_bag", "replay", "reindex_bag", "Bag", "StudyResult", "SceneCheck", "Statics", "Modes", "Table",
            "QuasiStaticPath", "DynamicRun", "SceneError", "NoEquilibrium", "PhysicsFailure"]
 
 
@@ -390,6 +390,27 @@ class Bag:
 
     def __repr__(self):
         return f"Bag({self.path!r}: {len(self.time_s)} states, {self.info['messages']} messages)"
+
+
+def step_times(scene=None, *, text=None, integrator="generalized-alpha", dt=None, rho_inf=0.8, newton_tol=None,
+               steps=2000):
+    """`tensegrity bench steps`: the wall time of `steps` steps of the scene after 10 untimed ones
+    (in this process), as a dict: `median_s`, `mean_s`, `max_s` (s per step), `newton_per_step`,
+    `factorizations_per_step`, `unknowns`, `nonzeros`, `backend`."""
+    return _native.step_times(_scene_arg(scene), text=_text_arg(text), integrator=integrator,
+                              dt=_number_or_none("dt", dt), rho_inf=_number_or_none("rho_inf", rho_inf),
+                              newton_tol=_number_or_none("newton_tol", newton_tol), steps=_count("steps", steps))
+
+
+def scaling(stages=(1, 2, 3, 4, 6, 8, 12, 16), steps=200, out=None):
+    """`tensegrity bench scaling`: the step cost of the generated towers (classical, per-stage,
+    helical) at each number of `stages`, `steps` steps each; writes `scaling.{csv,md,png,svg}`
+    into `out` (required) and returns a `StudyResult`."""
+    if out is None:
+        raise TypeError("scaling needs out=, the directory its table and plot go to")
+    stages = [_count("stages", s) for s in stages]
+    md = _native.scaling_markdown(stages, _count("steps", steps), os.fspath(out))
+    return StudyResult(md, os.fspath(out))
 
 
 def reindex_bag(path):

@@ -379,3 +379,20 @@ def test_a_long_call_stops_at_ctrl_c(call):
     finally:
         child.kill()
         child.wait()
+
+def test_the_benchmarks_from_python(tmp_path):
+    path = str(ROOT / "config" / "scenes" / "prism3.toml")
+    t = tensegrity.step_times(path, steps=50)
+    printed = cli_text("bench", "steps", path, "--steps", "50")
+    assert f"{t['unknowns']} unknowns" in printed and 0 < t["median_s"] <= t["max_s"]
+    assert t["newton_per_step"] >= 1
+    got = tensegrity.scaling([1, 2], steps=5, out=tmp_path / "py")
+    cli_text("bench", "scaling", "--stages", "1,2", "--steps", "5", "--out", str(tmp_path / "cli"))
+    table = got.tables["scaling.csv"]
+    cli_table = tensegrity.Table((tmp_path / "cli" / "scaling.csv").read_text())
+    timing = {c for c in table.columns if c.endswith("_us") or "wall" in c or "time" in c}
+    assert len(table) == len(cli_table) > 0
+    assert without_columns(table, timing) == without_columns(cli_table, timing)
+    for call in (lambda: tensegrity.step_times(path, steps=0), lambda: tensegrity.scaling([0], out=tmp_path / "x")):
+        with pytest.raises((ValueError, TypeError)):
+            call()

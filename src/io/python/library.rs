@@ -3,7 +3,7 @@
 //! or flat arrays the Python package `tensegrity` turns into its results: `check_json`,
 //! `statics_json`, `modes_json`, `quasi_static_csv`, `dynamic_csv`, `study_markdown`,
 //! `work_precision_markdown`, `generate_toml`, `field_reference`, `read_bag`, `replay_report`,
-//! `reindex_bag`; with the exceptions `SceneError`, `NoEquilibrium` and `PhysicsFailure`. Each
+//! `reindex_bag`, `step_times`, `scaling_markdown`; with the exceptions `SceneError`, `NoEquilibrium` and `PhysicsFailure`. Each
 //! calls the code the command line calls, so the numbers are the same to the bit. Long calls run
 //! without the GIL and return at Ctrl-C (`KeyboardInterrupt`).
 
@@ -417,6 +417,8 @@ pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(pyo3::wrap_pyfunction!(read_bag, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(replay_report, m)?)?;
     m.add_function(pyo3::wrap_pyfunction!(reindex_bag, m)?)?;
+    m.add_function(pyo3::wrap_pyfunction!(step_times, m)?)?;
+    m.add_function(pyo3::wrap_pyfunction!(scaling_markdown, m)?)?;
     Ok(())
 }
 
@@ -717,4 +719,60 @@ fn reindex_bag(py: Python<'_>, path: std::path::PathBuf) -> PyResult<Option<(u64
     });
     let done = done.map_err(PyValueError::new_err)?;
     Ok(done.map(|(summary, why)| (summary.counts.iter().sum::<u64>(), why)))
+}
+
+/// `step_times(scene=None, *, text=None, integrator="generalized-alpha", dt=None, rho_inf=0.8,
+/// newton_tol=None, steps=2000)`: `tensegrity bench steps`: the wall time of `steps` steps of the
+/// scene after 10 untimed ones, as a dict: `median_s`, `mean_s`, `max_s` (s per step),
+/// `newton_per_step`, `factorizations_per_step`, `unknowns`, `nonzeros`, `backend`. Runs without
+/// the GIL.
+#[pyfunction]
+#[pyo3(signature = (scene=None, *, text=None, integrator="generalized-alpha", dt=None, rho_inf=0.8, newton_tol=None,
+                    steps=2000))]
+#[allow(clippy::too_many_arguments)] // the command line's options, by keyword
+fn step_times<'py>(
+    py: Python<'py>,
+    scene: Option<&str>,
+    text: Option<&str>,
+    integrator: &str,
+    dt: Option<f64>,
+    rho_inf: f64,
+    newton_tol: Option<f64>,
+    steps: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let model = moving_model(py, scene, text)?;
+    if steps == 0 {
+        return Err(PyValueError::new_err("steps must be at least 1"));
+    }
+    let settings = dynamic_settings(&model, integrator, dt, rho_inf, None, newton_tol)?;
+    let t = interruptible(py, move || crate::study::step_times(&model, settings, steps))?
+        .map_err(PhysicsFailure::new_err)?;
+    let d = PyDict::new(py);
+    d.set_item("median_s", t.median)?;
+    d.set_item("mean_s", t.mean)?;
+    d.set_item("max_s", t.max)?;
+    d.set_item("newton_per_step", t.newton_per_step)?;
+    d.set_item("factorizations_per_step", t.factorizations_per_step)?;
+    d.set_item("unknowns", t.unknowns)?;
+    d.set_item("nonzeros", t.nonzeros)?;
+    d.set_item("backend", format!("{:?}", t.backend))?;
+    Ok(d)
+}
+
+/// `scaling_markdown(stages, steps, out)`: `tensegrity bench scaling`: the step cost of the
+/// generated towers (three families) at each number of `stages` (1 to 256), `steps` steps each,
+/// writing `scaling.{csv,md,png,svg}` into `out` and returning the table it prints.
+#[pyfunction]
+fn scaling_markdown(
+    py: Python<'_>,
+    stages: Vec<usize>,
+    steps: usize,
+    out: std::path::PathBuf,
+) -> PyResult<String> {
+    if stages.is_empty() || stages.iter().any(|s| !(1..=256).contains(s)) || steps == 0 {
+        return Err(PyValueError::new_err("stages must be in [1, 256] and steps at least 1"));
+    }
+    let table = out.join("scaling.md");
+    interruptible(py, move || crate::study::scaling(&stages, steps, &out))?.map_err(PyValueError::new_err)?;
+    std::fs::read_to_string(table).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
