@@ -130,14 +130,23 @@ class Modes:
     """Natural modes at the equilibrium: `modes` (the `modes --json` list of dicts: every
     zero-frequency mode, then the lowest `count` others), and as arrays in that order `index`
     (1-based among all modes), `frequencies_hz` (Hz; 0 for zero and unstable modes),
-    `omega_squared` (1/s^2) and `zero` (bool)."""
+    `omega_squared` (1/s^2) and `zero` (bool); the shapes: `shapes` `(modes, coordinates)` (the
+    mass-normalized eigenvectors over the generalized coordinates) and `point_displacements`
+    `(modes, points, 3)` (each named point's displacement per unit modal amplitude, m), with
+    `point_names`."""
 
-    def __init__(self, listed):
+    def __init__(self, listed, shapes=None, displacements=None, point_names=()):
         self.modes = listed
         self.index = np.array([m["index"] for m in listed], dtype=np.int64)
         self.frequencies_hz = np.array([m["frequency_hz"] for m in listed], dtype=np.float64)
         self.omega_squared = np.array([m["omega_squared"] for m in listed], dtype=np.float64)
         self.zero = np.array([m["zero_frequency"] for m in listed], dtype=bool)
+        n = len(listed)
+        self.point_names = list(point_names)
+        shapes = np.zeros(0) if shapes is None else shapes
+        displacements = np.zeros(0) if displacements is None else displacements
+        self.shapes = shapes.reshape(n, -1) if n else shapes.reshape(0, 0)
+        self.point_displacements = displacements.reshape(n, len(self.point_names), 3)
 
     def __len__(self):
         return len(self.modes)
@@ -151,7 +160,9 @@ def modes(scene=None, count=10, *, text=None):
     every zero-frequency mode and the lowest `count` vibrating ones."""
     if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
         raise TypeError(f"count must be a non-negative int, got {count!r}")
-    return Modes(json.loads(_native.modes_json(_scene_arg(scene), int(count), text=_text_arg(text))))
+    listed, shapes, displacements, point_names = _native.modes_json(_scene_arg(scene), int(count),
+                                                                    text=_text_arg(text))
+    return Modes(json.loads(listed), shapes, displacements, point_names)
 
 
 class Table:

@@ -44,6 +44,12 @@ def test_statics_and_modes_are_the_command_lines_to_the_bit(name):
     assert eq.point_positions.shape == (len(eq.point_names), 3)
     assert eq.body_orientations.shape == (len(eq.body_names), 4)
     assert listed.frequencies_hz.shape == (len(listed),) and (listed.frequencies_hz >= 0).all()
+    # the shapes: mass-normalized over the coordinates, and the points' motion along each
+    assert listed.shapes.shape[0] == len(listed) and listed.shapes.shape[1] > 0
+    assert listed.point_displacements.shape == (len(listed), len(eq.point_names), 3)
+    assert listed.point_names == eq.point_names
+    vibrating = ~listed.zero
+    assert (np.abs(listed.point_displacements[vibrating]).max(axis=(1, 2)) > 0).all()
     # a bundled name and the file's text give the same equilibrium
     assert np.array_equal(statics(f"bundled:{name}").tensions, eq.tensions)
     assert np.array_equal(statics(text=Path(path).read_text()).tensions, eq.tensions)
@@ -56,6 +62,10 @@ def test_prism3_in_a_line():
     assert statics(ROOT / "config" / "scenes" / "prism3.toml").report["scene"] == eq.report["scene"]
     first = modes("bundled:prism3", count=1)
     assert abs(first.frequencies_hz[~first.zero][0] - 1.1603) < 1e-3, "docs/cli.md's lowest mode"
+    # the bars stand on pins: their lower ends do not move in any mode, their upper ends do
+    lower, upper = first.point_names.index("bar0_0.a"), first.point_names.index("bar0_0.b")
+    assert np.abs(first.point_displacements[:, lower]).max() < 1e-6
+    assert np.linalg.norm(first.point_displacements[~first.zero][0, upper]) > 0.1
 
 
 def test_careless_calls_raise_clear_exceptions(tmp_path):
@@ -99,7 +109,7 @@ def test_the_docs_walk_through_runs(capsys, tmp_path, monkeypatch):
         exec(compile(block, "docs/python.md", "exec"), namespace)
     out = capsys.readouterr().out
     for said in ("SceneCheck('prism3'", "Statics('prism3'", "QuasiStaticPath(21 rows", "DynamicRun(2001 rows",
-                 "Statics('prism4'", "(3, 3) (3, 4)", "no/such/scene.toml", "rate must be finite",
+                 "Statics('prism4'", "(3, 3) (3, 4)", "(3, 9, 3)", "no/such/scene.toml", "rate must be finite",
                  "Bag('prism3-run': 501 states", "(501, 4) (501, 3, 3)", "Quasi-static peak tension",
                  "'summary.csv'"):
         assert said in out, (said, out)

@@ -127,13 +127,30 @@ fn statics_json(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyRe
     serde_json::to_string(&solved.summary).map_err(|e| PyRuntimeError::new_err(e.to_string()))
 }
 
-/// `modes_json(scene=None, count=10, *, text=None)`: the natural modes at the equilibrium, as the
-/// JSON text `tensegrity modes --json --count COUNT` prints (every zero-frequency mode, then the
-/// lowest `count` others).
+/// What `modes_json` returns: the JSON, the shapes, the point displacements, the point names.
+type ListedModes<'py> =
+    (String, Bound<'py, numpy::PyArray1<f64>>, Bound<'py, numpy::PyArray1<f64>>, Vec<String>);
+
+/// Step along a mode shape over which its point displacements are taken, per unit amplitude
+/// (a difference quotient of the poses' retraction; the shapes are linear at this size).
+const MODE_SHAPE_STEP: f64 = 1e-7;
+
+/// `modes_json(scene=None, count=10, *, text=None)`: the natural modes at the equilibrium, as
+/// `(json, shapes, displacements, point_names)`: the JSON text `tensegrity modes --json --count COUNT` prints
+/// (every zero-frequency mode, then the lowest `count` others), and for those modes in that
+/// order their shapes over the generalized coordinates (flat, `modes x coordinates`: mass-
+/// normalized eigenvectors) and each named point's displacement per unit modal amplitude (flat,
+/// `modes x points x 3`, m), with the points' names.
 #[pyfunction]
 #[pyo3(signature = (scene=None, count=10, *, text=None))]
-fn modes_json(py: Python<'_>, scene: Option<&str>, count: usize, text: Option<&str>) -> PyResult<String> {
+fn modes_json<'py>(
+    py: Python<'py>,
+    scene: Option<&str>,
+    count: usize,
+    text: Option<&str>,
+) -> PyResult<ListedModes<'py>> {
     let model = held_model(py, scene, text)?;
+    let point_names: Vec<String> = model.points.iter().map(|p| p.name.clone()).collect();
     if model.dof_count == 0 {
         return Err(PyValueError::new_err(format!(
             "{}: {}",
@@ -142,8 +159,24 @@ fn modes_json(py: Python<'_>, scene: Option<&str>, count: usize, text: Option<&s
         )));
     }
     let listed = interruptible(py, move || {
-        crate::summary::modes(&model)
-            .map(|(_, _, modes)| crate::summary::mode_summaries(&model, &modes, count))
+        crate::summary::modes(&model).map(|(state, _, modes)| {
+            let summaries = crate::summary::mode_summaries(&model, &modes, count);
+            let (mut shapes, mut displacements) = (Vec::new(), Vec::new());
+            let mut ws = crate::evaluate::Workspace::new(&model);
+            crate::evaluate::evaluate_forces(&model, &state, &mut ws);
+            let rest: Vec<_> = ws.points.iter().map(|p| p.position).collect();
+            for i in crate::summary::listed_modes(&modes, count) {
+                let shape = &modes[i].shape;
+                shapes.extend(shape.iter());
+                let mut moved = state.clone();
+                crate::state::retract(&model, &mut moved.poses, shape, MODE_SHAPE_STEP);
+                crate::evaluate::evaluate_forces(&model, &moved, &mut ws);
+                for (p, r) in ws.points.iter().zip(&rest) {
+                    displacements.extend(((p.position - r) / MODE_SHAPE_STEP).iter());
+                }
+            }
+            (summaries, shapes, displacements)
+        })
     })?
     .map_err(|f| match f {
         crate::summary::ModesFailure::NoEquilibrium(f) => no_equilibrium(py, f),
@@ -151,7 +184,14 @@ fn modes_json(py: Python<'_>, scene: Option<&str>, count: usize, text: Option<&s
             PyRuntimeError::new_err("the mass matrix is singular on the joints' null space")
         }
     })?;
-    serde_json::to_string(&listed).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    let (summaries, shapes, displacements) = listed;
+    let json = serde_json::to_string(&summaries).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    Ok((
+        json,
+        numpy::PyArray1::from_vec(py, shapes),
+        numpy::PyArray1::from_vec(py, displacements),
+        point_names,
+    ))
 }
 
 /// `quasi_static_csv(scene=None, steps=None, *, text=None)`: the equilibrium path along the
