@@ -6,7 +6,7 @@ stepped one by one, a recorded run of seeded episodes replays bit for bit, and a
 search improves the return on the tension-target task (the environment is learnable, not only
 valid).
 
-Run: `pip install ./python[gym] ./python/native` then `pytest python/tests`.
+Run: `pip install './python[gym]'` then `pytest python/tests`.
 """
 
 import os

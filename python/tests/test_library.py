@@ -406,3 +406,13 @@ def test_the_benchmarks_from_python(tmp_path):
     for call in (lambda: tensegrity.step_times(path, steps=0), lambda: tensegrity.scaling([0], out=tmp_path / "x")):
         with pytest.raises((ValueError, TypeError)):
             call()
+
+
+def test_tables_become_dataframes():
+    pd = pytest.importorskip("pandas")
+    run = tensegrity.dynamic("bundled:prism3", duration=0.05)
+    frame = run.to_pandas()
+    assert isinstance(frame, pd.DataFrame) and list(frame.columns) == run.columns and len(frame) == len(run)
+    assert np.array_equal(frame["ring_tension_N"].to_numpy(), run["ring_tension_N"])
+    path = tensegrity.quasi_static("bundled:prism3", steps=5).to_pandas()
+    assert set(path["point"]) <= {"load", "arc", "snap"} and path["time_s"].dtype == np.float64
