@@ -18,13 +18,11 @@ The arrays of a `SimState` are read-only views into the state's bytes as the cor
 (no copy per array); take `.copy()` to keep a changed one.
 """
 
-import ctypes
 import math
 
 import numpy as np
 
 from . import _native
-from ._native import PhysicsFailure
 
 __all__ = ["Simulator", "SimState", "CommandRefused"]
 
@@ -146,19 +144,11 @@ class Simulator:
             raise TypeError(f"steps must be a non-negative int, got {steps!r}")
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
             raise TypeError(f"seed must be a non-negative int, got {seed!r}")
-        entries = _command_entries(commands, self.actuator_names)
-        packed = None
-        if entries:
-            shm = _shm()
-            sample = shm.CommandSample()
-            shm.TensegrityClient._fill(sample, entries)
-            packed = ctypes.string_at(ctypes.addressof(sample), ctypes.sizeof(sample))
+        packed = _shm().packed_commands(_command_entries(commands, self.actuator_names))
         try:
             sim.lockstep(int(steps), packed, bool(reset), None if seed is None else int(seed))
-        except PhysicsFailure as e:
-            if "rejected" in str(e) or "refused" in str(e):
-                raise CommandRefused(str(e)) from None
-            raise
+        except _native.CommandRefused as e:
+            raise CommandRefused(str(e)) from None
         return self.state()
 
     def reset(self, seed=None):

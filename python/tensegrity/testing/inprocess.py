@@ -16,7 +16,6 @@ bags), so the same requests give the same `State` to the bit. What it does not h
 needs a process of its own: DDS and shared-memory peers, real-time pacing, crash isolation.
 """
 
-import ctypes
 import warnings
 
 from . import shm
@@ -65,13 +64,8 @@ class InProcessSimulator:
         and returns the `State` after them; with `reset`, resets first (the episode drawn from
         `seed` when given). A rejected command or a failed step raises `shm.LockstepRefused`,
         as the node does."""
-        packed = None
-        if commands:
-            sample = shm.CommandSample()
-            shm.TensegrityClient._fill(sample, list(commands))
-            packed = ctypes.string_at(ctypes.addressof(sample), ctypes.sizeof(sample))
         try:
-            self.sim.lockstep(steps, packed, reset, seed)
+            self.sim.lockstep(steps, shm.packed_commands(commands), reset, seed)
         except self.PhysicsFailure as e:
             raise shm.LockstepRefused(str(e)) from None
         return self.state()

@@ -282,6 +282,16 @@ def entry(actuator, rest_length=None, rate=None, tension=None):
     return e
 
 
+def packed_commands(entries):
+    """The bytes of a `CommandSample` holding `entries` (`entry(...)`s), as the in-process
+    simulator's lockstep takes them; None when there are none."""
+    if not entries:
+        return None
+    sample = CommandSample()
+    TensegrityClient._fill(sample, list(entries))
+    return ctypes.string_at(ctypes.addressof(sample), ctypes.sizeof(sample))
+
+
 class LockstepRefused(RuntimeError):
     """The node refused a lockstep request (code and reason)."""
 

@@ -5,7 +5,6 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use tensegrity::error::readable_number;
 use tensegrity::evaluate::Workspace;
 use tensegrity::io::node::params::NodeParams;
 use tensegrity::io::record;
@@ -238,12 +237,8 @@ fn deploy_dynamic(
     out: &Path,
     record: Option<&Path>,
 ) -> Result<(), String> {
-    let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
-    if !(duration.is_finite() && duration > 0.0) {
-        return Err(format!("--duration must be positive, got {}", readable_number(duration)));
-    }
+    let steps = record::offline::dynamic_steps(model, duration, settings.dt, "--duration")?;
     let label = scene.display().to_string();
-    let steps = (duration / settings.dt).round().max(1.0) as u64;
     // global error control first finds the local tolerance; the run written is the one made at
     // it (the same numbers: runs are deterministic)
     let global = match global_error {

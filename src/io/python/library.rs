@@ -35,6 +35,12 @@ pyo3::create_exception!(
     PyRuntimeError,
     "A step failed even at the smallest sub-step, or a request was refused (faulted until reset)."
 );
+pyo3::create_exception!(
+    tensegrity._native,
+    CommandRefused,
+    PhysicsFailure,
+    "A command the node core refused (an unknown actuator, a value out of its limits): no step was taken."
+);
 
 /// The model of `scene` (a file, `bundled:NAME`, or None for the bundled prism3) or of the TOML
 /// `text` (named `file` in its errors), as a Python `SceneError` when it cannot be had.
@@ -151,13 +157,7 @@ fn modes_json<'py>(
 ) -> PyResult<ListedModes<'py>> {
     let model = held_model(py, scene, text)?;
     let point_names: Vec<String> = model.points.iter().map(|p| p.name.clone()).collect();
-    if model.dof_count == 0 {
-        return Err(PyValueError::new_err(format!(
-            "{}: {}",
-            scene.unwrap_or("<text>"),
-            crate::sim::StepError::NothingToMove
-        )));
-    }
+    refuse_nothing_to_move(&model, scene)?;
     let listed = interruptible(py, move || {
         crate::summary::modes(&model).map(|(state, _, modes)| {
             let summaries = crate::summary::mode_summaries(&model, &modes, count);
@@ -236,19 +236,6 @@ fn field_reference() -> String {
     crate::scene::reference::markdown()
 }
 
-/// The steps a dynamic run of `model` takes for `duration` s (`None`: the schedule's end + 1 s) at
-/// the output interval `dt`, or why the duration cannot be used.
-fn dynamic_steps(model: &Model, duration: Option<f64>, dt: f64) -> PyResult<u64> {
-    let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
-    if !(duration.is_finite() && duration > 0.0) {
-        return Err(PyValueError::new_err(format!(
-            "duration must be positive, got {}",
-            crate::error::readable_number(duration)
-        )));
-    }
-    Ok((duration / dt).round().max(1.0) as u64)
-}
-
 /// Steps a dynamic run takes between two looks for Ctrl-C (`KeyboardInterrupt`).
 const STEPS_BETWEEN_SIGNAL_CHECKS: u64 = 200;
 
@@ -282,7 +269,8 @@ fn dynamic_csv<'py>(
     let model = moving_model(py, scene, text)?;
     let label = scene.unwrap_or("<text>");
     let mut settings = dynamic_settings(&model, integrator, dt, rho_inf, tol, newton_tol)?;
-    let steps = dynamic_steps(&model, duration, settings.dt)?;
+    let steps = crate::io::record::offline::dynamic_steps(&model, duration, settings.dt, "duration")
+        .map_err(PyValueError::new_err)?;
     // global error control first finds the local tolerance; the run returned is the one made at it
     let global = match global_error {
         false => None,
@@ -443,6 +431,7 @@ fn generate_toml(kind: &str, options: HashMap<String, Bound<'_, PyAny>>) -> PyRe
 /// Adds the library's functions and exceptions to the module.
 pub(super) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PhysicsFailure", m.py().get_type::<PhysicsFailure>())?;
+    m.add("CommandRefused", m.py().get_type::<CommandRefused>())?;
     m.add("SceneError", m.py().get_type::<SceneError>())?;
     m.add("NoEquilibrium", m.py().get_type::<NoEquilibrium>())?;
     m.add_function(pyo3::wrap_pyfunction!(statics_json, m)?)?;
@@ -483,11 +472,20 @@ fn check_json(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResu
 /// The model of a scene that has something to move (not every body fixed), else a `ValueError`.
 fn moving_model(py: Python<'_>, scene: Option<&str>, text: Option<&str>) -> PyResult<Model> {
     let model = model_of(py, scene, text)?;
-    if model.dof_count == 0 {
-        let label = scene.unwrap_or("<text>");
-        return Err(PyValueError::new_err(format!("{label}: {}", crate::sim::StepError::NothingToMove)));
-    }
+    refuse_nothing_to_move(&model, scene)?;
     Ok(model)
+}
+
+/// A `ValueError` for a model with no free coordinate (every body fixed), naming the scene.
+fn refuse_nothing_to_move(model: &Model, scene: Option<&str>) -> PyResult<()> {
+    match model.dof_count {
+        0 => Err(PyValueError::new_err(format!(
+            "{}: {}",
+            scene.unwrap_or("<text>"),
+            crate::sim::StepError::NothingToMove
+        ))),
+        _ => Ok(()),
+    }
 }
 
 /// The settings the command line's integrator options give, named as Python spells them.

@@ -41,7 +41,7 @@ use crate::model::{ActuatorId, Model};
 use crate::task::{LearningTask, ObservationField, TaskSizes};
 
 mod library;
-use library::PhysicsFailure;
+use library::{CommandRefused, PhysicsFailure};
 
 /// Steps of a `Simulator::lockstep` request taken between two checks for Ctrl-C (about 10 ms of
 /// a small scene's physics).
@@ -171,12 +171,13 @@ impl Simulator {
 }
 
 /// Offers one command message to `core` (`parse` as in `NodeCore::offer_parsed`); a refused one
-/// is a `PhysicsFailure` naming why, as a refused lockstep command is over shared memory.
+/// is a `CommandRefused` (a `PhysicsFailure`) naming why, as a refused lockstep command is over
+/// shared memory.
 fn offer(
     core: &mut NodeCore,
     parse: impl FnOnce(&Model, &mut Vec<(ActuatorId, ActuatorCommand)>) -> Result<(), commands::MessageError>,
 ) -> PyResult<()> {
-    core.offer_parsed(parse).map_err(|e| PhysicsFailure::new_err(format!("command rejected: {e}")))
+    core.offer_parsed(parse).map_err(|e| CommandRefused::new_err(format!("command rejected: {e}")))
 }
 
 #[pymethods]

@@ -197,6 +197,17 @@ impl DynamicDeployment {
     }
 }
 
+/// The steps a dynamic deployment of `model` takes for `duration` s (`None`: one second past the
+/// schedule's end) at the output interval `dt` s (at least one), or why the duration cannot be
+/// used, naming it as `option` spells it (`--duration`, `duration`).
+pub fn dynamic_steps(model: &Model, duration: Option<f64>, dt: f64, option: &str) -> Result<u64, String> {
+    let duration = duration.unwrap_or(model.schedule.end_time() + 1.0);
+    if !(duration.is_finite() && duration > 0.0) {
+        return Err(format!("{option} must be positive, got {}", crate::error::readable_number(duration)));
+    }
+    Ok((duration / dt).round().max(1.0) as u64)
+}
+
 /// The local tolerance at which a dynamic run of `model` over `steps` steps meets
 /// `settings.tolerance` (which must be set) as a global tolerance: runs again at a tenth of the
 /// tolerance until two runs agree to within ten times it (`study::globally_controlled` over runs
