@@ -46,7 +46,7 @@ fn the_python_kits_examples_pass_and_a_failing_test_still_stops_its_node() {
     let out = pytest(&python, &["-v", "python/tests"], &[]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}\n{}", String::from_utf8_lossy(&out.stderr));
-    assert!(text.contains("68 passed"), "{text}");
+    assert!(text.contains("69 passed"), "{text}");
 
     let pid_file = std::env::temp_dir().join(format!("tensegrity-kit-pid-{}", std::process::id()));
     let _ = std::fs::remove_file(&pid_file);

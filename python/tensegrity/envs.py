@@ -25,8 +25,10 @@ from this process (`TensegrityVectorEnv`: the simulators in process, each on a c
 nodes), or each environment in a process of its own (`vectorization="async"`): every core works.
 
 Registered ids: `tensegrity/Prism3Tension-v0` (the bundled prism3, its ring driven to 300 N by its
-ring winch's rate) and `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the six-bar robot on the
-ground rolled toward a goal by its 24 winches).
+ring winch's rate), `tensegrity/SixbarRoll-v0` (`SixbarRollEnv`: the six-bar robot on the
+ground rolled toward a goal by its 24 winches) and `tensegrity/SixbarRollGoal-v0`
+(`SixbarRollGoalEnv`: the same robot rolled face by face to a goal in any direction, one cable
+hauled per action: a task for learning).
 
 The task itself (the action mapping, the observation layout, the default reward) is the
 library's (`tensegrity::task` in Rust), read from the extension for both backends, so they
@@ -387,6 +389,234 @@ class SixbarRollEnv(TensegrityEnv):
         return state.faulted or self._distance <= self.reach
 
 
+#: The six-bar rover's randomization and pose sensors for `SixbarRollGoalEnv(randomize=True)`
+#: (scene-format tables): per reset, every cable's EA (x0.7 to 1.3) and damping (x0.5 to 2) and
+#: every strut's mass (x0.8 to 1.2) drawn on its own, every rest length offset (sigma 5 mm);
+#: positions measured to 1 cm and orientations to 0.02 rad (sigma).
+ROVER_RANDOMIZATION = """
+[randomize]
+seed = 1
+per = "reset"
+
+[[randomize.parameters]]
+parameter = "ea"
+distribution = "uniform"
+low = 0.7
+high = 1.3
+
+[[randomize.parameters]]
+parameter = "damping"
+distribution = "uniform"
+low = 0.5
+high = 2.0
+
+[[randomize.parameters]]
+parameter = "mass"
+distribution = "uniform"
+low = 0.8
+high = 1.2
+
+[[randomize.parameters]]
+parameter = "rest_length"
+distribution = "normal"
+mean = 0.0
+sigma = 0.005
+
+[sensors.position]
+sigma = 0.01
+
+[sensors.orientation]
+sigma = 0.02
+"""
+
+
+def _rotate_z(q):
+    """The z axes of the unit quaternions `q` `(n, 4)` `[x, y, z, w]`: `(n, 3)`."""
+    x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=1)
+
+
+class SixbarRollGoalEnv(gym.Env):
+    """The six-bar rover rolled face by face to a goal `distance` m away in a direction drawn
+    each episode (1.5 m: at least three rolls of about 0.44 m to come within `reach`, 0.3 m): a
+    task designed for learning (what `benches/learn_roll.py` trains on).
+
+    - action: which cable to haul (`Discrete(24)`, in the scene's cable order): its winch takes
+      it in to `haul_fraction` of its rest length for `haul` s, then every winch lets out to its
+      rest length for `release` s (one action: 1.5 s of simulated time by default). Hauling a
+      cable between two of the three feet tips the robot over that edge onto the next face
+      (about 0.44 m); the others barely move it.
+    - observation (37 numbers): the 12 strut ends (`x0.a`, `x1.a`, ... `z1.a`, then the `b`
+      ends), m, relative to the struts' centre, in a frame turned about the vertical so that the
+      goal lies along +x; then the distance to the goal, m. From the state, or with `randomize`
+      from the noisy pose sensors.
+    - reward: progress toward the goal per action, dm. The episode ends within `reach` m of the
+      goal (terminated, `info["reached"]`), when the physics fails (terminated, `info["failure"]`)
+      or after `max_actions` actions (truncated).
+    - `randomize`: the robot's parameters drawn anew at every reset and its pose measured with
+      noise (`ROVER_RANDOMIZATION`), for training a policy that transfers. Such a robot starts
+      from the scene's pose and settles for `settle` s before the episode begins (a drawn robot
+      need not have an equilibrium with its feet held where the scene sets them: 2 of 60 draws
+      here would slip), the nominal one from its equilibrium.
+    - `info["time"]`: simulated time since the episode began, s.
+    - `reset(seed=...)`: the goal's direction and the episode's robot come from the seed.
+
+    `roller_action()` is the hand-written roller of `tests/kit.rs` on the current state (the
+    cable between two feet whose roll points most toward the goal), a baseline for learned
+    policies. `newton_tolerance` is the simulator's (1e-6 by default: the robot's speed setting,
+    docs/benchmarks.md's Newton tolerance); `render_mode="rgb_array"` draws frames.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+
+    def __init__(self, distance=1.5, reach=0.3, max_actions=16, haul=1.0, release=0.5, haul_fraction=0.57,
+                 randomize=False, settle=1.0, newton_tolerance=1e-6, render_mode=None, render_size=(480, 360)):
+        import re
+        import tempfile
+
+        from .library import generate
+
+        for name, value, low, high in (("distance", distance, 0.0, 100.0), ("reach", reach, 0.0, 100.0),
+                                       ("haul", haul, 0.1, 60.0), ("release", release, 0.1, 60.0),
+                                       ("haul_fraction", haul_fraction, 0.2, 1.0), ("settle", settle, 0.0, 60.0)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not low < value <= high:
+                raise ValueError(f"{name} must be a number in ({low}, {high}], got {value!r}")
+        if isinstance(max_actions, bool) or not isinstance(max_actions, int) or max_actions < 1:
+            raise ValueError(f"max_actions must be a positive int, got {max_actions!r}")
+        text = generate("sixbar", all_winches=True)
+        self._routes = re.findall(r'route = \["([^"]+)", "([^"]+)"\]', text)
+        self._scene_dir = None
+        scene = "bundled:sixbar_rover"
+        if randomize:
+            self._scene_dir = tempfile.TemporaryDirectory(prefix="sixbar_roll_goal_")
+            scene = os.path.join(self._scene_dir.name, "sixbar_rover_randomized.toml")
+            with open(scene, "w") as f:
+                f.write(text + ROVER_RANDOMIZATION)
+        period = 100  # physics steps of 1 ms per inner action
+        self.inner = TensegrityEnv(scene=scene, action="rest_length", normalize=False, action_period=period,
+                                   max_episode_steps=2**62, observation=("body_position", "body_orientation"),
+                                   measured=bool(randomize), reward=lambda state, action: 0.0,
+                                   params={"start_from_equilibrium": not randomize,
+                                           "newton_tolerance": newton_tolerance},
+                                   render_mode=render_mode, render_size=render_size)
+        names = self.inner.node.names
+        self._ends = [f"{b}.{e}" for e in "ab" for b in names["body_names"]]
+        if len(self._routes) != len(self.inner.actuators) or any(
+                a != f"w_{c}" for a, c in zip(self.inner.actuators, names["cable_names"])):
+            raise RuntimeError("the generated rover does not match the bundled one")
+        dt = names["physics_dt"]
+        self._haul_periods = max(1, round(haul / (period * dt)))
+        self._release_periods = max(1, round(release / (period * dt)))
+        self._settle_periods = round(settle / (period * dt)) if randomize else 0
+        self.action_seconds = (self._haul_periods + self._release_periods) * period * dt
+        self.distance, self.reach, self.max_actions = float(distance), float(reach), max_actions
+        self.haul_fraction = float(haul_fraction)
+        self.randomize, self.render_mode = bool(randomize), render_mode
+        self.action_space = spaces.Discrete(len(self._routes))
+        self.observation_space = spaces.Box(-np.inf, np.inf, shape=(3 * len(self._ends) + 1,), dtype=np.float64)
+        self.goal = np.zeros(2)
+        self._obs, self._distance, self._actions, self._rest, self._start_time = None, 0.0, 0, None, 0.0
+
+    def ends(self, obs=None):
+        """The strut ends `(12, 3)` m (`a` ends, then `b`), from an inner observation (the current
+        one by default): each strut's centre -+ half its length along its z axis."""
+        obs = self._obs if obs is None else obs
+        n = len(obs) // 7
+        position, orientation = obs[: 3 * n].reshape(n, 3), obs[3 * n:].reshape(n, 4)
+        orientation = orientation / np.linalg.norm(orientation, axis=1, keepdims=True)
+        half = 0.5 * STRUT_LENGTH * _rotate_z(orientation)
+        return np.concatenate([position - half, position + half])
+
+    def _features(self):
+        ends = self.ends()
+        centre = ends.mean(axis=0)
+        to_goal = self.goal - centre[:2]
+        self._distance = float(np.linalg.norm(to_goal))
+        c, s = to_goal / max(self._distance, 1e-12)
+        rel = ends - centre
+        turned = np.stack([c * rel[:, 0] + s * rel[:, 1], c * rel[:, 1] - s * rel[:, 0], rel[:, 2]], axis=1)
+        return np.concatenate([turned.ravel(), [self._distance]])
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        angle = self.np_random.uniform(0.0, 2.0 * np.pi)
+        self._obs, info = self.inner.reset(seed=int(self.np_random.integers(0, 2**62)))
+        # the episode's rest lengths (a randomized robot's are offset): what the winches let out to
+        rest = self.inner._state.cable_rest_length
+        self._rest = np.array([rest[c] for c in self.inner._cables], dtype=np.float64)
+        for _ in range(self._settle_periods):
+            self._obs, _, terminated, _, info = self.inner.step(self._rest)
+            if terminated:
+                raise RuntimeError(f"the drawn robot did not settle: {info.get('failure')}")
+        self._start_time = info["time"]
+        start = self.ends().mean(axis=0)[:2]
+        self.goal = start + self.distance * np.array([np.cos(angle), np.sin(angle)])
+        self._actions = 0
+        return self._features(), {"time": 0.0, "distance": self._distance, "goal": self.goal.copy()}
+
+    def step(self, action):
+        if self._rest is None:
+            raise RuntimeError("reset the environment before stepping it")
+        if not self.action_space.contains(action):
+            raise ValueError(f"an action is a cable's index, 0 to {self.action_space.n - 1}, got {action!r}")
+        hauled = self._rest.copy()
+        hauled[int(action)] *= self.haul_fraction
+        before, failure = self._distance, None
+        for i in range(self._haul_periods + self._release_periods):
+            obs, _, terminated, _, info = self.inner.step(hauled if i < self._haul_periods else self._rest)
+            self._obs = obs
+            if terminated:
+                failure = info.get("failure", "the simulator faulted")
+                break
+        self._actions += 1
+        features = self._features()
+        reward = 10.0 * (before - self._distance)
+        reached = self._distance <= self.reach
+        info = {"time": info["time"] - self._start_time, "reached": reached, "distance": self._distance}
+        if failure is not None:
+            info["failure"] = failure
+        return features, reward, reached or failure is not None, self._actions >= self.max_actions, info
+
+    def roller_action(self):
+        """The hand-written roller of `tests/kit.rs`: of the cables between two of the three
+        lowest strut ends (the feet), the one whose roll points most toward the goal. The robot
+        rolls along that edge toward the side the two struts lean to (the horizontal runs from
+        each foot to its strut's centre, summed along the edge)."""
+        ends = self.ends()
+        n = len(ends) // 2
+        feet = set(np.argsort(ends[:, 2])[:3].tolist())
+        toward = self.goal - ends.mean(axis=0)[:2]
+        index = {name: i for i, name in enumerate(self._ends)}
+        best, best_along = 0, -np.inf
+        for k, (a, b) in enumerate(self._routes):
+            ia, ib = index[a], index[b]
+            if ia not in feet or ib not in feet:
+                continue
+            centre_a, centre_b = (ends[ia % n] + ends[ia % n + n]) / 2, (ends[ib % n] + ends[ib % n + n]) / 2
+            edge = (ends[ib] - ends[ia])[:2]
+            lean = np.dot((centre_a - ends[ia])[:2] + (centre_b - ends[ib])[:2], edge)
+            along = (1.0 if lean >= 0 else -1.0) * np.dot(edge, toward) / np.linalg.norm(edge)
+            if along > best_along:
+                best, best_along = k, along
+        return best
+
+    def render(self):
+        """An `rgb_array` frame of the robot (`TensegrityEnv.render`), or None."""
+        return self.inner.render()
+
+    def close(self):
+        if getattr(self, "inner", None) is not None:
+            self.inner.close()
+            self.inner = None
+        if getattr(self, "_scene_dir", None) is not None:
+            self._scene_dir.cleanup()
+            self._scene_dir = None
+
+
+#: The rover's strut length, m (`tensegrity generate sixbar`).
+STRUT_LENGTH = 1.0
+
+
 class TensegrityVectorEnv(gym.vector.VectorEnv):
     """`n` `TensegrityEnv(**kwargs)` stepped from this process, in parallel on every core, with
     no pipes and no pickling (unlike `gymnasium.vector.AsyncVectorEnv`):
@@ -496,3 +726,4 @@ gym.register(
     kwargs={"action": "rate", "actuators": ["ring_winch"], "target_tension": {"ring": 300.0}},
 )
 gym.register(id="tensegrity/SixbarRoll-v0", entry_point="tensegrity.envs:SixbarRollEnv")
+gym.register(id="tensegrity/SixbarRollGoal-v0", entry_point="tensegrity.envs:SixbarRollGoalEnv")

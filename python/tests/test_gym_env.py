@@ -154,6 +154,63 @@ def test_recorded_seeded_episodes_replay_bit_for_bit(tmp_path, backend):
     assert out.returncode == 0 and "identical" in out.stdout, out.stdout + out.stderr
 
 
+def test_the_roll_goal_task_is_valid_and_its_baseline_roller_reaches_goals_three_rolls_away():
+    # SixbarRollGoal-v0 (the learning task of benches/learn_roll.py): one hauled cable per action;
+    # the kit's roller reaches a goal 1.5 m away (within 0.3 m: at least three rolls of about 0.44 m) on the
+    # nominal robot and on a randomized one seen through noisy sensors; random cables do not
+    from tensegrity.envs import SixbarRollGoalEnv
+
+    env = gym.make("tensegrity/SixbarRollGoal-v0")
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+    finally:
+        env.close()
+    for randomize in (False, True):
+        env = SixbarRollGoalEnv(randomize=randomize)
+        try:
+            obs, info = env.reset(seed=3)
+            assert obs.shape == (37,) and abs(obs[-1] - 1.5) < 1e-9, obs
+            # the goal lies along +x of the observation's frame: the ends' centre is the origin
+            assert np.allclose(obs[:-1].reshape(12, 3).mean(axis=0), 0.0, atol=1e-12)
+            rolls, done = 0, False
+            while not done:
+                obs, reward, terminated, truncated, info = env.step(env.roller_action())
+                rolls += 1
+                assert reward > 0.0, f"roll {rolls} lost {-reward} dm"
+                done = terminated or truncated
+            assert info["reached"] and 3 <= rolls <= 8 and "failure" not in info, (rolls, info)
+            assert info["time"] == pytest.approx(1.5 * rolls, abs=1e-9)
+            # careless actions are refused, and the episode goes on
+            for bad in (24, -1, 2.5, "3", np.nan):
+                with pytest.raises(ValueError, match="cable's index"):
+                    env.step(bad)
+            obs, reward, *_ = env.step(np.int64(0))
+            assert np.all(np.isfinite(obs)) and np.isfinite(reward)
+        finally:
+            env.close()
+    # the same seed, the same goal and robot: a random policy's episode repeats to the bit; it
+    # does not get there
+    episodes = []
+    for _ in range(2):
+        env = SixbarRollGoalEnv(randomize=True, max_actions=6)
+        try:
+            obs, _ = env.reset(seed=11)
+            out, rng, done = [obs], np.random.default_rng(0), False
+            while not done:
+                obs, reward, terminated, truncated, info = env.step(int(rng.integers(24)))
+                out += [obs, [reward]]
+                done = terminated or truncated
+            assert not info["reached"]
+            episodes.append(np.concatenate(out))
+        finally:
+            env.close()
+    assert np.array_equal(*episodes)
+    for bad in ({"distance": 0.0}, {"reach": float("nan")}, {"haul": 0.0}, {"max_actions": 0},
+                {"haul_fraction": 1.5}, {"max_actions": 2.0}):
+        with pytest.raises(ValueError):
+            SixbarRollGoalEnv(**bad)
+
+
 def test_a_short_random_search_learns_the_tension_task():
     # a linear policy on the ring's relative tension error, u = th0 e + th1, improved by random
     # search: 10 rounds of a 40-action episode (4000 physics steps in all)
