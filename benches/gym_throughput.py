@@ -17,7 +17,8 @@ Not a test and not a test dependency. Set up once (MuJoCo and Gymnasium from PyP
     target/mujoco-venv/bin/pip install mujoco numpy gymnasium cyclonedds iceoryx2==0.10.0 pytest maturin
     target/mujoco-venv/bin/pip install --no-deps ./python
     cargo build --release
-    target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000]
+    target/mujoco-venv/bin/python benches/gym_throughput.py [--rounds 5] [--actions 2000] \
+        [--newton-tol 1e-6] [--no-vector]
 
 Models (dt = 1 ms): benches/peers/prism_free_actuator.xml (MuJoCo, Euler and implicitfast, its vclu0
 actuator driven) and benches/peers/prism_free.toml (ours, generalized-alpha, its vclu0 winch
@@ -103,10 +104,15 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--rounds", type=int, default=5)
     p.add_argument("--actions", type=int, default=2000)
+    p.add_argument("--newton-tol", type=float, action="append", default=[],
+                   help="also time ours in process at this Newton tolerance (params newton_tolerance)")
+    p.add_argument("--no-vector", action="store_true", help="skip the vector environments' table")
     args = p.parse_args()
     scene = os.path.join(HERE, "peers", "prism_free.toml")
     env = TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9, backend="node")
     native = TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9, backend="inprocess")
+    loose = {tol: TensegrityEnv(scene, actuators=["vclu0_winch"], max_episode_steps=10**9, backend="inprocess",
+                                params={"newton_tolerance": tol}) for tol in args.newton_tol}
     cases = {}
     try:
         for _ in range(args.rounds):
@@ -124,17 +130,24 @@ def main():
                          lambda: ours_steps_per_s(env, period, args.actions, kind)),
                     ):
                         cases.setdefault((f"{name}, {kind} actions", period), []).append(f())
+                    for tol, e in loose.items():
+                        name = f"ours: TensegrityEnv.step, in process, Newton {tol:g}, {kind} actions"
+                        cases.setdefault((name, period), []).append(ours_steps_per_s(e, period, args.actions, kind))
                 cases.setdefault(("ours: shared-memory lockstep call alone, quiet", period), []).append(
                     lockstep_steps_per_s(env, period, args.actions))
     finally:
         env.close()
         native.close()
+        for e in loose.values():
+            e.close()
     print(f"free 3-strut prism, dt 1 ms, median of {args.rounds} rounds of {args.actions} actions\n")
     print("| loop | steps/s, one action per step | steps/s, one action per 10 steps |")
     print("| --- | ---: | ---: |")
     for name in dict.fromkeys(n for n, _ in cases):
         row = [statistics.median(cases[(name, p)]) for p in (1, 10)]
         print(f"| {name} | {row[0]:,.0f} | {row[1]:,.0f} |")
+    if args.no_vector:
+        return
     # vector environments: every environment's steps per second together, an action every 10 steps
     cores = os.cpu_count() or 1
     counts = sorted({1, cores, 2 * cores})
