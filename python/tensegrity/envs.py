@@ -430,6 +430,10 @@ sigma = 0.02
 """
 
 
+#: The rover's strut length, m (`tensegrity generate sixbar`).
+STRUT_LENGTH = 1.0
+
+
 def _rotate_z(q):
     """The z axes of the unit quaternions `q` `(n, 4)` `[x, y, z, w]`: `(n, 3)`."""
     x, y, z, w = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
@@ -495,7 +499,7 @@ class SixbarRollGoalEnv(gym.Env):
         period = 100  # physics steps of 1 ms per inner action
         self.inner = TensegrityEnv(scene=scene, action="rest_length", normalize=False, action_period=period,
                                    max_episode_steps=2**62, observation=("body_position", "body_orientation"),
-                                   measured=bool(randomize), reward=lambda state, action: 0.0,
+                                   measured=bool(randomize),
                                    params={"start_from_equilibrium": not randomize,
                                            "newton_tolerance": newton_tolerance},
                                    render_mode=render_mode, render_size=render_size)
@@ -611,10 +615,6 @@ class SixbarRollGoalEnv(gym.Env):
         if getattr(self, "_scene_dir", None) is not None:
             self._scene_dir.cleanup()
             self._scene_dir = None
-
-
-#: The rover's strut length, m (`tensegrity generate sixbar`).
-STRUT_LENGTH = 1.0
 
 
 class TensegrityVectorEnv(gym.vector.VectorEnv):
