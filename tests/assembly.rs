@@ -180,6 +180,37 @@ fn towers_of_every_family_assemble_the_reference_matrix_and_border_their_cluster
 }
 
 #[test]
+fn the_symmetric_factors_solve_the_symmetric_part_to_round_off() {
+    // the sparse LDL^T's own substitution (`SymmetricFactor::solve`) against a dense LU of
+    // `(A + A^T) / 2`, on towers whose factors have supernodes of many widths, with borders
+    for (family, stages) in
+        [(TowerFamily::PerStage, 6), (TowerFamily::Helical, 5), (TowerFamily::Classical, 3)]
+    {
+        let model = family.model(stages).unwrap();
+        let state = disturbed(&model, 7);
+        let (beta_p, gamma_p) = coefficients(1e-3);
+        let mut ws = Workspace::for_forces(&model);
+        evaluate_forces(&model, &state, &mut ws);
+        let mass: Vec<Matrix6<f64>> = model.bodies.iter().map(|b| b.mass_matrix()).collect();
+        let mut kkt = KktSystem::new(&model, LinearBackend::Sparse);
+        assemble_newton_matrix(&model, &state, &mut ws, &mass, &mut kkt, beta_p, gamma_p);
+        let full = kkt.to_dense();
+        let symmetric = (&full + full.transpose()) * 0.5;
+        assert!(kkt.factor_symmetric(), "{family:?}");
+        for seed in 0..3 {
+            let b = DVector::from_fn(kkt.size(), |i, _| ((i * 7 + seed * 13) as f64 * 0.37).sin());
+            let mut x = b.clone();
+            assert!(kkt.solve_factored(&mut x), "{family:?}");
+            let expected = symmetric.clone().lu().solve(&b).expect("regular");
+            let error = (&x - &expected).amax() / expected.amax();
+            assert!(error < 1e-9, "{family:?} {stages}: relative difference {error:e}");
+            let residual = (&symmetric * &x - &b).amax() / (symmetric.amax() * x.amax());
+            assert!(residual < 1e-13, "{family:?} {stages}: residual {residual:e}");
+        }
+    }
+}
+
+#[test]
 fn the_sparse_pattern_stays_linear_in_the_number_of_stages() {
     // nonzeros per stage must not grow with the tower: clustered cables add a border, not a
     // dense block

@@ -230,7 +230,44 @@ struct SymmetricFactor {
     coordinate_diagonal: Vec<usize>,
     /// Positions of the coordinates' diagonal entries in the upper-triangle values (shifts).
     upper_diagonal: Vec<usize>,
+    /// The factor's supernodes, for `solve` (`SupernodeLayout`).
+    supernodes: Vec<SupernodeLayout>,
+    /// Every supernode's off-diagonal row indices, concatenated (`SupernodeLayout::pattern`).
+    pattern_rows: Vec<usize>,
+    /// The permuted right-hand side during `solve` (length: the system's size).
+    work: Vec<f64>,
+    /// One supernode's off-diagonal rows during `solve` (length: the longest pattern).
+    below: Vec<f64>,
     mem: MemBuffer,
+}
+
+/// `a . b` over the common length, in four interleaved partial sums (which the compiler keeps in
+/// vector registers; a single running sum it may not reorder).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f64; 4];
+    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (a4.remainder(), b4.remainder());
+    for (x, y) in a4.zip(b4) {
+        for k in 0..4 {
+            acc[k] += x[k] * y[k];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    (acc[0] + acc[2]) + (acc[1] + acc[3]) + tail
+}
+
+/// Where one supernode of the `LDL^T` factor lives: columns `start..start + width` of the
+/// permuted system, its values a column-major `(width + rows) x width` block at `values` in the
+/// factor's values (unit lower triangle below a diagonal holding `D`, then the off-diagonal
+/// rows), the off-diagonal rows' indices at `pattern` in `SymmetricFactor::pattern_rows`.
+#[derive(Debug, Clone)]
+struct SupernodeLayout {
+    start: usize,
+    width: usize,
+    values: usize,
+    pattern: std::ops::Range<usize>,
 }
 
 impl SymmetricFactor {
@@ -347,7 +384,13 @@ impl SymmetricFactor {
         let signs = (0..size).map(|i| if i < n { 1 } else { -1 }).collect();
         let coordinate_diagonal = (0..n).map(|i| index.diagonal[i]).collect();
         let mem = Self::scratch(&symbolic);
+        let (supernodes, pattern_rows) = Self::layout(&symbolic)?;
+        let longest = supernodes.iter().map(|s| s.pattern.len()).max().unwrap_or(0);
         Some(Self {
+            supernodes,
+            pattern_rows,
+            work: vec![0.0; size],
+            below: vec![0.0; longest],
             l_values: vec![0.0; symbolic.len_val()],
             values: vec![0.0; row_idx.len()],
             symbolic,
@@ -377,6 +420,29 @@ impl SymmetricFactor {
             ..Default::default()
         };
         factorize_symbolic_cholesky(upper, Side::Upper, SymmetricOrdering::Custom(perm), params).ok()
+    }
+
+    /// The supernodes of a supernodal analysis (`SupernodeLayout`) and their off-diagonal rows;
+    /// `None` for a simplicial one.
+    fn layout(symbolic: &SymbolicCholesky<usize>) -> Option<(Vec<SupernodeLayout>, Vec<usize>)> {
+        use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
+        let SymbolicCholeskyRaw::Supernodal(sn) = symbolic.raw() else {
+            return None;
+        };
+        let mut supernodes = Vec::with_capacity(sn.n_supernodes());
+        let mut rows = Vec::new();
+        for s in 0..sn.n_supernodes() {
+            let node = sn.supernode(s);
+            let first = rows.len();
+            rows.extend_from_slice(node.pattern());
+            supernodes.push(SupernodeLayout {
+                start: sn.supernode_begin()[s],
+                width: sn.supernode_end()[s] - sn.supernode_begin()[s],
+                values: sn.col_ptr_for_val()[s],
+                pattern: first..rows.len(),
+            });
+        }
+        Some((supernodes, rows))
     }
 
     fn scratch(symbolic: &SymbolicCholesky<usize>) -> MemBuffer {
@@ -470,9 +536,72 @@ impl SymmetricFactor {
         }
     }
 
-    fn solve(&mut self, x: MatMut<'_, f64>) {
-        let ldlt = LdltRef::new(&self.symbolic, &self.l_values);
-        ldlt.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(&mut self.mem));
+    /// Solves `P^T L D L^T P x = b` in place of `x` (`b` on entry), with the held factors.
+    ///
+    /// Written out over the supernodes instead of faer's `LdltRef::solve_in_place_with_conj`:
+    /// these factors' supernodes are a few columns wide (a body's coordinates and its joint
+    /// rows), and the generic solve's dense kernel calls per supernode cost more than the
+    /// arithmetic (the 64-stage tower spent a third of its step there). Same operations, in
+    /// column order: forward substitution with the unit lower `L`, division by `D`, backward
+    /// substitution with `L^T`.
+    fn solve(&mut self, x: &mut [f64]) {
+        let y = &mut self.work;
+        for (yi, &from) in y.iter_mut().zip(&self.order) {
+            *yi = x[from];
+        }
+        let values = &self.l_values;
+        let rows = &self.pattern_rows;
+        let below = &mut self.below;
+        for node in &self.supernodes {
+            let (w, height) = (node.width, node.width + node.pattern.len());
+            let block = &values[node.values..node.values + w * height];
+            let pattern = &rows[node.pattern.clone()];
+            let top = &mut y[node.start..node.start + w];
+            // the diagonal block, then its rows below gathered as one sum per row
+            for j in 0..w {
+                let yj = top[j];
+                for i in j + 1..w {
+                    top[i] -= block[j * height + i] * yj;
+                }
+            }
+            let sums = &mut below[..pattern.len()];
+            sums.fill(0.0);
+            for (j, &yj) in top.iter().enumerate() {
+                for (s, l) in sums.iter_mut().zip(&block[j * height + w..(j + 1) * height]) {
+                    *s += l * yj;
+                }
+            }
+            for (&r, s) in pattern.iter().zip(sums.iter()) {
+                y[r] -= s;
+            }
+        }
+        for node in &self.supernodes {
+            let height = node.width + node.pattern.len();
+            for j in 0..node.width {
+                y[node.start + j] /= values[node.values + j * height + j];
+            }
+        }
+        for node in self.supernodes.iter().rev() {
+            let (w, height) = (node.width, node.width + node.pattern.len());
+            let block = &values[node.values..node.values + w * height];
+            let pattern = &rows[node.pattern.clone()];
+            let known = &mut below[..pattern.len()];
+            for (k, &r) in known.iter_mut().zip(pattern) {
+                *k = y[r];
+            }
+            let top = &mut y[node.start..node.start + w];
+            for j in (0..w).rev() {
+                let col = &block[j * height..(j + 1) * height];
+                let mut sum = dot(&col[w..], known);
+                for i in j + 1..w {
+                    sum += col[i] * top[i];
+                }
+                top[j] -= sum;
+            }
+        }
+        for (xi, &at) in x.iter_mut().zip(&self.inv) {
+            *xi = y[at];
+        }
     }
 
     /// Stored entries of the factor `L`.
@@ -498,6 +627,10 @@ impl Clone for SymmetricFactor {
             signs: self.signs.clone(),
             coordinate_diagonal: self.coordinate_diagonal.clone(),
             upper_diagonal: self.upper_diagonal.clone(),
+            supernodes: self.supernodes.clone(),
+            pattern_rows: self.pattern_rows.clone(),
+            work: self.work.clone(),
+            below: self.below.clone(),
             mem,
         }
     }
@@ -1165,7 +1298,7 @@ impl KktSystem {
                 dense_lu::solve::solve_in_place(f, f, p, x, Par::Seq, MemStack::new(mem));
             }
             Storage::Sparse { symmetric: Some(sym), .. } if self.kind == FactorKind::SymmetricLdlt => {
-                sym.solve(x);
+                sym.solve(rhs.as_mut_slice());
             }
             Storage::Sparse { symbolic, numeric, mem, .. } => {
                 let lu = faer::sparse::linalg::lu::LuRef::new_unchecked(symbolic, numeric);
