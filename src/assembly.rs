@@ -86,8 +86,9 @@ impl TangentSink for DenseTangents<'_> {
 /// Adds the first `dof_count` entries of `v * scale` into the body's rows of `out`.
 pub fn add_vector(model: &Model, body: BodyId, v: &Vector6<f64>, scale: f64, out: &mut DVector<f64>) {
     let b = &model.bodies[body.0];
-    for r in 0..b.dof_count {
-        out[b.dof_offset + r] += scale * v[r];
+    let rows = &mut out.as_mut_slice()[b.dof_offset..b.dof_offset + b.dof_count];
+    for (o, x) in rows.iter_mut().zip(v.iter()) {
+        *o += scale * x;
     }
 }
 

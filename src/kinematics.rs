@@ -63,13 +63,16 @@ pub fn point_kinematics_into(
     let pose = &poses[point.body.0];
     let rot = pose.rotation.to_rotation_matrix();
     out.body = point.body;
-    out.jacobian.fill(0.0);
     let mut velocity = Vector3::zeros();
     let jacobian = &mut out.jacobian;
+    let rates = &v.as_slice()[body.dof_offset..body.dof_offset + body.dof_count];
     for_each_jacobian_column(model, &rot, pid, |c, col| {
         jacobian.set_column(c, &col);
-        velocity += col * v[body.dof_offset + c];
+        velocity += col * rates[c];
     });
+    for c in body.dof_count..6 {
+        jacobian.set_column(c, &Vector3::zeros());
+    }
     out.velocity = velocity;
     out.position = pose.position + rot * point.local;
 }

@@ -137,8 +137,8 @@ impl BodyModel {
     /// `scale` (fixed size, no allocation).
     pub fn local_increment(&self, dq: &[f64], scale: f64) -> nalgebra::Vector6<f64> {
         let mut out = nalgebra::Vector6::zeros();
-        for c in 0..self.dof_count {
-            out += self.basis.column(c) * (dq[self.dof_offset + c] * scale);
+        for (c, x) in dq[self.dof_offset..self.dof_offset + self.dof_count].iter().enumerate() {
+            out += self.basis.column(c) * (x * scale);
         }
         out
     }
