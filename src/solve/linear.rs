@@ -35,7 +35,8 @@
 //! and 200 unknowns on the 2-core development machine.
 //!
 //! The sparse backend factors the **symmetric part** `(A + A^T) / 2` of the Newton matrix by a
-//! supernodal `LDL^T` (faer), and keeps an exact sparse LU (faer's simplicial LU, partial
+//! supernodal `LDL^T` (faer's factorization; the substitution with its factors is written out
+//! here, `SymmetricFactor::solve`), and keeps an exact sparse LU (faer's simplicial LU, partial
 //! pivoting, COLAMD with the borders ordered last) for when that is not good enough. Why: the
 //! LU's pivoting spoils its fill-reducing order on these KKT matrices (the 64-stage helical
 //! tower spent two thirds of its step in the LU and its triangular solves), while the matrix is
