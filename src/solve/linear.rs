@@ -271,6 +271,21 @@ struct SupernodeLayout {
     pattern: std::ops::Range<usize>,
 }
 
+impl SupernodeLayout {
+    /// Rows of the block: its own columns, then the off-diagonal rows.
+    fn height(&self) -> usize {
+        self.width + self.pattern.len()
+    }
+}
+
+/// The pivots `D` of a supernodal factor with values `values`, in the order of the permuted
+/// system's columns (the supernodes cover them in order).
+fn pivots<'a>(supernodes: &'a [SupernodeLayout], values: &'a [f64]) -> impl Iterator<Item = f64> + 'a {
+    supernodes
+        .iter()
+        .flat_map(move |node| (0..node.width).map(move |j| values[node.values + j * node.height() + j]))
+}
+
 impl SymmetricFactor {
     /// The symbolic analysis for the pattern of `index` (structurally symmetric): an AMD order in
     /// which every joint row comes after all coordinates of one of its bodies, so that its pivot
@@ -446,11 +461,9 @@ impl SymmetricFactor {
         Some((supernodes, rows))
     }
 
+    /// faer's scratch for the numeric factorization (`solve` needs none of it).
     fn scratch(symbolic: &SymbolicCholesky<usize>) -> MemBuffer {
-        MemBuffer::new(StackReq::or(
-            symbolic.factorize_numeric_ldlt_scratch::<f64>(Par::Seq, Default::default()),
-            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
-        ))
+        MemBuffer::new(symbolic.factorize_numeric_ldlt_scratch::<f64>(Par::Seq, Default::default()))
     }
 
     /// Factors the symmetric part of the full matrix `full` (values in `SparseIndex` layout).
@@ -486,7 +499,6 @@ impl SymmetricFactor {
     /// pivot a Schur complement), and counts the signs of the pivots `D`: by Sylvester's law of
     /// inertia, those of the shifted matrix. `None` when a pivot is zero or a value not finite.
     fn inertia(&mut self, full: &[f64], shift: f64) -> Option<Inertia> {
-        use faer::sparse::linalg::cholesky::{supernodal::SupernodalLdltRef, SymbolicCholeskyRaw};
         self.symmetrize(full);
         for &k in &self.upper_diagonal {
             self.values[k] -= shift;
@@ -508,22 +520,14 @@ impl SymmetricFactor {
         if !self.l_values.iter().all(|v| v.is_finite()) {
             return None;
         }
-        let SymbolicCholeskyRaw::Supernodal(symbolic) = self.symbolic.raw() else {
-            return None;
-        };
-        let factor = SupernodalLdltRef::new(symbolic, &self.l_values);
         let mut inertia = Inertia::default();
-        for s in 0..symbolic.n_supernodes() {
-            let block = factor.supernode(s).val();
-            for j in 0..block.ncols() {
-                let d = block[(j, j)];
-                if d < 0.0 {
-                    inertia.negative += 1;
-                } else if d > 0.0 {
-                    inertia.positive += 1;
-                } else {
-                    return None;
-                }
+        for d in pivots(&self.supernodes, &self.l_values) {
+            if d < 0.0 {
+                inertia.negative += 1;
+            } else if d > 0.0 {
+                inertia.positive += 1;
+            } else {
+                return None;
             }
         }
         Some(inertia)
@@ -554,7 +558,7 @@ impl SymmetricFactor {
         let rows = &self.pattern_rows;
         let below = &mut self.below;
         for node in &self.supernodes {
-            let (w, height) = (node.width, node.width + node.pattern.len());
+            let (w, height) = (node.width, node.height());
             let block = &values[node.values..node.values + w * height];
             let pattern = &rows[node.pattern.clone()];
             let top = &mut y[node.start..node.start + w];
@@ -576,14 +580,11 @@ impl SymmetricFactor {
                 y[r] -= s;
             }
         }
-        for node in &self.supernodes {
-            let height = node.width + node.pattern.len();
-            for j in 0..node.width {
-                y[node.start + j] /= values[node.values + j * height + j];
-            }
+        for (yi, d) in y.iter_mut().zip(pivots(&self.supernodes, values)) {
+            *yi /= d;
         }
         for node in self.supernodes.iter().rev() {
-            let (w, height) = (node.width, node.width + node.pattern.len());
+            let (w, height) = (node.width, node.height());
             let block = &values[node.values..node.values + w * height];
             let pattern = &rows[node.pattern.clone()];
             let known = &mut below[..pattern.len()];
